@@ -1,0 +1,1 @@
+"""Attitude controllers (PID, MPC) behind one interface (issue 5)."""

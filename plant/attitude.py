@@ -1,0 +1,199 @@
+"""Attitude conversions: unit quaternion <-> rotation matrix <-> the seed's Z-Y-Z angles.
+
+Conventions (DESIGN.md):
+
+* A quaternion is ``(w, x, y, z)``, scalar first, and maps rotor-frame vectors into the
+  stator frame: ``v_stator = R(q) @ v_rotor``.
+* The seed's Z-Y-Z angles (seed 000 §2.1) rotate the rotor successively about the *stator's*
+  Z axis by the spin angle alpha, about the stator's Y axis by the tilt angle beta, and about
+  the stator's Z axis again by the yaw angle gamma, so ``R = Rz(gamma) @ Ry(beta) @ Rz(alpha)``.
+  Tilt is the angle between the rotor's z axis (output shaft) and the stator Z axis; yaw is the
+  azimuth of the tilt; spin is the rotation about the rotor's own axis.
+* At beta = 0 only alpha + gamma is defined (gimbal singularity). The convention there is
+  gamma = 0 and alpha carries the whole rotation about Z.
+
+All angles are radians. This is the only module that knows about Euler angles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: A quaternion whose norm differs from 1 by more than this is rejected, not normalised.
+UNIT_TOLERANCE = 1e-3
+#: Below this sin(beta) the Z-Y-Z decomposition uses the singular-case convention (gamma = 0).
+_SINGULAR_SIN_BETA = 1e-12
+
+
+def check_finite(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """Return ``value`` as a float array, or raise ``ValueError`` naming ``name`` if it has
+    NaN or infinite entries."""
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr!r}")
+    return arr
+
+
+def normalize(q: ArrayLike, name: str = "q") -> NDArray[np.float64]:
+    """Validate and normalise a quaternion (w, x, y, z).
+
+    A quaternion within ``UNIT_TOLERANCE`` of unit norm is rescaled to unit norm; any other
+    norm (including zero) raises ``ValueError`` naming the argument, since it most likely is not
+    an attitude at all.
+    """
+    q = check_finite(name, q)
+    if q.shape[-1:] != (4,):
+        raise ValueError(f"{name} must have shape (..., 4) as (w, x, y, z), got {q.shape}")
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(np.abs(n - 1.0) > UNIT_TOLERANCE):
+        raise ValueError(
+            f"{name} must be a unit quaternion (|q| within {UNIT_TOLERANCE} of 1), "
+            f"got |q| = {np.squeeze(n)}"
+        )
+    return q / n
+
+
+def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
+    """Hamilton product ``p ⊗ q`` of quaternions (w, x, y, z); broadcasts over leading axes."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, pv = p[..., :1], p[..., 1:]
+    qw, qv = q[..., :1], q[..., 1:]
+    w = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
+    v = pw * qv + qw * pv + np.cross(pv, qv)
+    return np.concatenate([w, v], axis=-1)
+
+
+def conjugate(q: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion conjugate, the inverse rotation for a unit quaternion."""
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrix R(q) (3x3, or (..., 3, 3)) with ``v_stator = R @ v_rotor``."""
+    w, x, y, z = np.moveaxis(normalize(q), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternion (w >= 0) from a 3x3 rotation matrix (Shepperd's method)."""
+    R = check_finite("R", R)
+    if R.shape != (3, 3):
+        raise ValueError(f"R must have shape (3, 3), got {R.shape}")
+    tr = np.trace(R)
+    # Pick the largest of 4w^2, 4x^2, 4y^2, 4z^2 for a well-conditioned square root.
+    cand = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
+    k = int(np.argmax(cand))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif k == 1:
+        s = 2.0 * np.sqrt(max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 0.0))
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif k == 2:
+        s = 2.0 * np.sqrt(max(1.0 + R[1, 1] - R[0, 0] - R[2, 2], 0.0))
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(max(1.0 + R[2, 2] - R[0, 0] - R[1, 1], 0.0))
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def axis_angle(axis: ArrayLike, angle_rad: float) -> NDArray[np.float64]:
+    """Quaternion of a rotation by ``angle_rad`` about ``axis`` (any non-zero 3-vector)."""
+    a = check_finite("axis", axis)
+    n = np.linalg.norm(a)
+    if n == 0.0:
+        raise ValueError("axis must be non-zero")
+    half = 0.5 * float(angle_rad)
+    return np.concatenate([[np.cos(half)], np.sin(half) * a / n])
+
+
+def from_rotvec(rv: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion from a rotation vector (axis times angle, rad)."""
+    rv = check_finite("rv", rv)
+    theta = np.linalg.norm(rv)
+    if theta < 1e-12:
+        q = np.concatenate([[1.0], 0.5 * rv])
+        return q / np.linalg.norm(q)
+    return axis_angle(rv, theta)
+
+
+def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation vector (rad) of a unit quaternion, angle in [0, pi]."""
+    q = normalize(q)
+    if q[0] < 0:
+        q = -q
+    s = np.linalg.norm(q[1:])
+    if s < 1e-12:
+        return 2.0 * q[1:]
+    return 2.0 * np.arctan2(s, q[0]) * q[1:] / s
+
+
+def from_zyz(alpha: float, beta: float, gamma: float) -> NDArray[np.float64]:
+    """Quaternion from the seed's spin alpha, tilt beta, yaw gamma (rad).
+
+    ``R = Rz(gamma) Ry(beta) Rz(alpha)`` (seed 000 §2.1: rotations about the stator axes in the
+    order spin, tilt, yaw).
+    """
+    for name, v in (("alpha", alpha), ("beta", beta), ("gamma", gamma)):
+        check_finite(name, v)
+    qz_a = axis_angle([0, 0, 1], alpha)
+    qy_b = axis_angle([0, 1, 0], beta)
+    qz_g = axis_angle([0, 0, 1], gamma)
+    return multiply(qz_g, multiply(qy_b, qz_a))
+
+
+def to_zyz(q: ArrayLike) -> tuple[float, float, float]:
+    """The seed's (spin alpha, tilt beta, yaw gamma) in rad from a unit quaternion.
+
+    Returns alpha and gamma in [0, 2*pi) and beta in [0, pi]. At beta = 0 (or pi) only the sum
+    alpha + gamma is observable; then gamma = 0 and alpha holds the rotation about Z.
+    """
+    R = to_matrix(q)
+    s_beta = np.hypot(R[0, 2], R[1, 2])
+    beta = float(np.arctan2(s_beta, R[2, 2]))
+    if s_beta > _SINGULAR_SIN_BETA:
+        alpha = np.arctan2(R[2, 1], -R[2, 0])
+        gamma = np.arctan2(R[1, 2], R[0, 2])
+    elif R[2, 2] > 0:  # beta = 0: R = Rz(alpha + gamma)
+        alpha, gamma = np.arctan2(R[1, 0], R[0, 0]), 0.0
+    else:  # beta = pi: R = Ry(pi) Rz(alpha) with gamma = 0
+        alpha, gamma = np.arctan2(R[1, 0], R[1, 1]), 0.0
+    two_pi = 2.0 * np.pi
+    return float(np.mod(alpha, two_pi)), beta, float(np.mod(gamma, two_pi))
+
+
+def tilt(q: ArrayLike) -> float:
+    """Tilt beta (rad): angle between the rotor's z axis and the stator Z axis."""
+    w, x, y, z = normalize(q)
+    # R33 = 1 - 2(x^2 + y^2) = cos(beta); |(R13, R23)| = sin(beta)
+    c = 1.0 - 2.0 * (x * x + y * y)
+    s = 2.0 * np.hypot(x * z + w * y, y * z - w * x)
+    return float(np.arctan2(s, c))
+
+
+def geodesic_angle(q1: ArrayLike, q2: ArrayLike) -> float:
+    """Angle (rad, in [0, pi]) of the rotation taking attitude ``q1`` to ``q2``.
+
+    This is the attitude error without the Euler singularity.
+    """
+    d = multiply(conjugate(normalize(q1, "q1")), normalize(q2, "q2"))
+    return float(2.0 * np.arctan2(np.linalg.norm(d[1:]), abs(d[0])))
+
+
+def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
+    """Wrap angles (rad) into (-pi, pi]."""
+    a = np.asarray(a, dtype=float)
+    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)

@@ -1,0 +1,120 @@
+"""The rotor's rigid-body dynamics in MuJoCo, driven by coil currents through K(q).
+
+Equations (body frame, about the fixed centre O), shared with the CasADi twin
+(``plant.twin``):
+
+    q_dot = 1/2 q ⊗ (0, omega)
+    J_O omega_dot = R^T K(q) I + d x (R^T m g) - b omega - tau_c omega/sqrt(|omega|^2 + omega_s^2)
+                    - omega x J_O omega  (+ the tilt-stop constraint force, MuJoCo only)
+
+with J_O the inertia about O (parallel-axis from the centre-of-mass inertia and offset d). The
+coil currents follow their commands through an optional first-order lag (L/R), and the
+electromagnetic and Coulomb torques are held over each physics step (zero-order hold), evaluated at
+the step's start; damping, gravity and the gyroscopic term are integrated by MuJoCo's RK4.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from plant import attitude
+from plant.mjcf import build_mjcf
+from plant.params import PlantParams
+from plant.torque import N_COILS, Allocation, TorqueMap, allocate
+
+
+def coulomb_torque(omega: NDArray[np.float64], tau_c: float, omega_s: float) -> NDArray:
+    """Smooth isotropic Coulomb friction torque (N·m) at body rate ``omega`` (rad/s)."""
+    return -tau_c * omega / np.sqrt(omega @ omega + omega_s * omega_s)
+
+
+class MujocoPlant:
+    """The PMSpM rotor simulated by MuJoCo.
+
+    State: attitude ``q`` (w, x, y, z; rotor to stator), body-frame angular velocity ``omega``
+    (rad/s) and the actual coil currents (A). ``step(currents, dt)`` holds the commanded currents
+    over ``dt`` seconds (a whole number of physics steps of ``params.physics_dt_s``).
+    """
+
+    def __init__(
+        self,
+        params: PlantParams | None = None,
+        q0: ArrayLike = (1.0, 0.0, 0.0, 0.0),
+        omega0: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
+        self.params = params or PlantParams()
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params))
+        self.data = mujoco.MjData(self.model)
+        self.torque_map = TorqueMap(self.params.motor)
+        self.currents = np.zeros(N_COILS)
+        self.reset(q0, omega0)
+
+    # --- state -------------------------------------------------------------------------------
+    def reset(self, q0: ArrayLike = (1.0, 0.0, 0.0, 0.0), omega0: ArrayLike = (0.0, 0.0, 0.0)):
+        """Set the attitude, body rate (rad/s) and zero the coil currents and time."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = attitude.normalize(q0, "q0")
+        self.data.qvel[:] = attitude.check_finite("omega0", omega0).reshape(3)
+        self.currents = np.zeros(N_COILS)
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def q(self) -> NDArray[np.float64]:
+        """Attitude quaternion (w, x, y, z), rotor to stator."""
+        return self.data.qpos.copy()
+
+    @property
+    def omega(self) -> NDArray[np.float64]:
+        """Angular velocity in the rotor (body) frame, rad/s."""
+        return self.data.qvel.copy()
+
+    @property
+    def time(self) -> float:
+        """Simulated time, s."""
+        return float(self.data.time)
+
+    # --- electromagnetics --------------------------------------------------------------------
+    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation:
+        """Currents for a stator-frame torque (N·m) at attitude ``q`` (default: the current
+        one), within the motor's current limit. See ``plant.torque.allocate``."""
+        K = self.torque_map(self.q if q is None else q)
+        return allocate(torque, K, self.params.motor.i_max_A)
+
+    def applied_torque(self) -> NDArray[np.float64]:
+        """Body-frame torque (N·m) held over the next physics step: electromagnetic K(q) I plus
+        the smooth Coulomb friction."""
+        q, omega, r = self.q, self.omega, self.params.rotor
+        T_stator = self.torque_map(q) @ self.currents
+        tau = attitude.to_matrix(q).T @ T_stator
+        return tau + coulomb_torque(omega, r.coulomb_Nm, r.coulomb_smoothing_rad_s)
+
+    # --- time --------------------------------------------------------------------------------
+    def step(self, currents: ArrayLike, dt: float) -> None:
+        """Advance ``dt`` seconds with the coil-current command ``currents`` (16,), A, held.
+
+        Commands beyond ``±i_max`` are a caller error (use ``allocate``) and raise
+        ``ValueError``, as do non-finite values and a ``dt`` that is not a positive multiple of
+        the physics step.
+        """
+        cmd = attitude.check_finite("currents", currents).reshape(-1)
+        if cmd.shape != (N_COILS,):
+            raise ValueError(f"currents must have {N_COILS} entries, got shape {cmd.shape}")
+        i_max = self.params.motor.i_max_A
+        if np.max(np.abs(cmd)) > i_max * (1 + 1e-9):
+            raise ValueError(f"currents exceed the limit ±{i_max} A: max |I| = {np.abs(cmd).max()}")
+        h = self.params.physics_dt_s
+        n = round(dt / h)
+        if n < 1 or abs(n * h - dt) > 1e-9 * max(1.0, dt):
+            raise ValueError(f"dt = {dt} s must be a positive multiple of physics_dt_s = {h} s")
+        tau_L = self.params.motor.coil_time_constant_s
+        decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
+        for _ in range(n):
+            self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
+            self.data.qfrc_applied[:] = self.applied_torque()
+            mujoco.mj_step(self.model, self.data)
+
+    def tilt_stop_active(self) -> bool:
+        """True when the tilt-stop constraint is engaged."""
+        return bool(self.data.ten_length[0] >= self.model.tendon_range[0, 1] - 1e-6)

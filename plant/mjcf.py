@@ -1,0 +1,112 @@
+"""The MuJoCo model of the motor and its camera scene, generated from ``PlantParams`` (MJCF as data).
+
+* Rotor: one body on a ball joint at the motor centre O, with the inertia, mass and centre-of-mass
+  offset of ``RotorParams`` (gravity acts when the offset is non-zero), viscous damping as joint
+  ``damping``. Coil torques and the smooth Coulomb friction enter through ``qfrc_applied``
+  (see ``plant.dynamics``), because K(q) is not a MuJoCo actuator model.
+* Tilt stop: a spatial tendon from a stator site on the +Z axis (height H) to a site on the output
+  shaft (distance a from O). Its length l^2 = H^2 + a^2 - 2 H a cos(beta) depends on the tilt beta
+  alone, so a tendon length limit at l(15°) stops tilt and leaves spin and yaw free. (A ball-joint
+  ``range`` would limit the total rotation angle, spin included.)
+* Scene: the bottom camera of ``plant.camera`` (MuJoCo cameras look along their -z with +y up in
+  the image, so ``xyaxes = (1 0 0, 0 -1 0)`` gives image u along +X and v along +Y), a ring of
+  lights around it, the dark VFC plate at the bottom pole with the red and yellow marker discs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plant.camera import Camera
+from plant.geometry import marker_points
+from plant.params import PlantParams
+
+#: Stop tendon anchor height H above O and shaft-site distance a from O (m): our choice.
+STOP_ANCHOR_M = 0.20
+STOP_SHAFT_M = 0.10
+#: Marker colours (RGB in [0, 1]); inside the seed's HSV gates (000 §3.2.1) after shading.
+RED_RGB = (0.86, 0.08, 0.06)
+YELLOW_RGB = (0.95, 0.80, 0.08)
+PLATE_RGB = (0.08, 0.08, 0.09)
+ROTOR_RGB = (0.55, 0.56, 0.58)
+
+
+def stop_tendon_length(tilt_rad: float) -> float:
+    """Length (m) of the tilt-stop tendon at tilt ``tilt_rad``."""
+    H, a = STOP_ANCHOR_M, STOP_SHAFT_M
+    return float(np.sqrt(H * H + a * a - 2.0 * H * a * np.cos(tilt_rad)))
+
+
+def _v(x) -> str:
+    return " ".join(f"{float(v):.9g}" for v in np.ravel(x))
+
+
+def build_mjcf(p: PlantParams) -> str:
+    """MJCF text of the motor and scene for parameters ``p``."""
+    r, cam = p.rotor, Camera.from_plant(p)
+    R = r.radius_m
+    w_full, h_full = cam.size(1)
+    f_px = cam.matrix(1)[1, 1]
+    fovy_deg = np.degrees(2.0 * np.arctan((h_full / 2.0) / f_px))
+    red, yellow = marker_points(r, p.vfc)
+    marker_r = p.vfc.marker_diameter_mm / 2000.0
+    half_plate = p.vfc.plate_size_mm / 2000.0
+    # Marker discs: bottom faces exactly in the plane z = -R (ground truth); the plate's bottom
+    # face sits 0.2 mm above so the discs never z-fight with it.
+    disc_half = 2e-4
+    plate_half = 5e-4
+    plate_z = -R + 2 * disc_half + plate_half
+    cam_z = cam.center_m[2]
+    ring = 0.06
+    lights = "\n".join(
+        f'    <light name="ring{k}" pos="{_v([ring * np.cos(a), ring * np.sin(a), cam_z + 0.02])}" '
+        f'dir="0 0 1" diffuse="0.35 0.35 0.35" specular="0.05 0.05 0.05" castshadow="false" '
+        f'type="spot" cutoff="40"/>'
+        for k, a in enumerate(np.deg2rad(np.arange(0, 360, 60)))
+    )
+    l_max = stop_tendon_length(np.deg2rad(r.tilt_stop_deg))
+    dt = p.physics_dt_s
+    return f"""<mujoco model="pmspm">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{dt:.9g}" integrator="RK4" gravity="0 0 {-r.gravity_m_s2:.9g}"/>
+  <visual>
+    <global offwidth="{w_full}" offheight="{h_full}" fovy="{fovy_deg:.9g}"/>
+    <headlight ambient="0.25 0.25 0.25" diffuse="0.2 0.2 0.2" specular="0 0 0"/>
+    <quality offsamples="4"/>
+  </visual>
+  <worldbody>
+{lights}
+    <camera name="bottom" pos="{_v(cam.center_m)}" xyaxes="1 0 0 0 -1 0" fovy="{fovy_deg:.9g}"/>
+    <site name="stop_anchor" pos="0 0 {STOP_ANCHOR_M:.9g}" size="0.002"/>
+    <body name="rotor">
+      <joint name="ball" type="ball" damping="{r.viscous_Nms_per_rad:.9g}"/>
+      <inertial pos="{_v(r.com_offset_m)}" mass="{r.mass_kg:.9g}"
+                diaginertia="{_v(r.inertia_com_kgm2)}"/>
+      <geom name="shell" type="sphere" size="{R - 1e-3:.9g}" rgba="{_v(ROTOR_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>
+      <geom name="shaft" type="capsule" fromto="0 0 {R:.9g} 0 0 {R + 0.04:.9g}" size="0.006"
+            rgba="0.7 0.7 0.72 1" contype="0" conaffinity="0" mass="0"/>
+      <geom name="vfc_plate" type="box" pos="0 0 {plate_z:.9g}"
+            size="{half_plate:.9g} {half_plate:.9g} {plate_half:.9g}" rgba="{_v(PLATE_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>
+      <geom name="marker_red" type="cylinder" pos="{_v(red + [0, 0, disc_half])}"
+            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(RED_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>
+      <geom name="marker_yellow" type="cylinder" pos="{_v(yellow + [0, 0, disc_half])}"
+            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(YELLOW_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>
+      <site name="shaft_tip" pos="0 0 {STOP_SHAFT_M:.9g}" size="0.002"/>
+    </body>
+  </worldbody>
+  <tendon>
+    <spatial name="tilt_stop" limited="true" range="0 {l_max:.9g}" solreflimit="0.004 1">
+      <site site="stop_anchor"/>
+      <site site="shaft_tip"/>
+    </spatial>
+  </tendon>
+  <sensor>
+    <ballquat name="rotor_quat" joint="ball"/>
+    <ballangvel name="rotor_angvel" joint="ball"/>
+  </sensor>
+</mujoco>
+"""
