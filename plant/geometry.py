@@ -32,7 +32,9 @@ def icosahedron_face_normals() -> NDArray[np.float64]:
     faces = [
         f
         for f in itertools.combinations(range(12), 3)
-        if all(abs(np.linalg.norm(V[i] - V[j]) - 2.0) < 1e-9 for i, j in itertools.combinations(f, 2))
+        if all(
+            abs(np.linalg.norm(V[i] - V[j]) - 2.0) < 1e-9 for i, j in itertools.combinations(f, 2)
+        )
     ]
     N = np.array([V[list(f)].mean(axis=0) for f in faces])
     N /= np.linalg.norm(N, axis=1, keepdims=True)

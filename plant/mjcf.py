@@ -1,4 +1,4 @@
-"""The MuJoCo model of the motor and its camera scene, generated from ``PlantParams`` (MJCF as data).
+"""The MuJoCo model of the motor and its camera scene from ``PlantParams`` (MJCF as data).
 
 * Rotor: one body on a ball joint at the motor centre O, with the inertia, mass and centre-of-mass
   offset of ``RotorParams`` (gravity acts when the offset is non-zero), viscous damping as joint

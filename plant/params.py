@@ -36,13 +36,18 @@ class MotorParams(_Strict):
         25.0, gt=0.0, lt=60.0, description="Our choice: the DESIGN check found 20–30° well posed."
     )
     lower_layer_offset_deg: float = Field(
-        22.5, ge=0.0, lt=45.0, description="Our choice: azimuth offset of the lower coil layer; "
-        "halves the worst condition number of K(q) (DESIGN.md)."
+        22.5,
+        ge=0.0,
+        lt=45.0,
+        description="Our choice: azimuth offset of the lower coil layer; "
+        "halves the worst condition number of K(q) (DESIGN.md).",
     )
     cutoff_deg: float = Field(40.0, gt=5.0, lt=90.0, description="Our choice: f(phi)=0 beyond it.")
     k_T_Nm_per_A: float = Field(
-        0.15, gt=0.0, description="Our choice: scale of one coil-magnet pair's f(phi). With "
-        "i_max = 2 A the motor delivers about 0.36 N·m in its weakest direction (docs/plant.md)."
+        0.15,
+        gt=0.0,
+        description="Our choice: scale of one coil-magnet pair's f(phi). With "
+        "i_max = 2 A the motor delivers 0.32–0.52 N·m depending on direction (docs/plant.md).",
     )
     i_max_A: float = Field(2.0, gt=0.0, description="Our choice: per-coil current limit.")
     coil_time_constant_s: float = Field(
@@ -63,17 +68,20 @@ class RotorParams(_Strict):
         "shell (2/3 m r^2 = 4.2e-3) and a solid ball (2/5 m r^2 = 2.5e-3), axis slightly larger.",
     )
     com_offset_m: Vec3 = Field(
-        (0.0, 0.0, 0.0), description="Our choice: centre of mass in the rotor frame (gravity "
-        "torque when non-zero; a negative z makes a pendulum)."
+        (0.0, 0.0, 0.0),
+        description="Our choice: centre of mass in the rotor frame (gravity "
+        "torque when non-zero; a negative z makes a pendulum).",
     )
     viscous_Nms_per_rad: float = Field(
         2.0e-3, ge=0.0, description="Our choice: bearing + eddy-current damping."
     )
     coulomb_Nm: float = Field(3.0e-3, ge=0.0, description="Our choice: ball-bearing dry friction.")
     coulomb_smoothing_rad_s: float = Field(
-        0.01, gt=0.0, description="Our choice: Coulomb friction torque is "
+        0.01,
+        gt=0.0,
+        description="Our choice: Coulomb friction torque is "
         "-tau_c*omega/sqrt(|omega|^2 + omega_s^2), smooth so that the MuJoCo model and the "
-        "CasADi twin share one law."
+        "CasADi twin share one law.",
     )
     tilt_stop_deg: float = Field(15.0, gt=0.0, lt=60.0, description="Seed 000 §2.4: 0–15° tilt.")
     gravity_m_s2: float = Field(9.81, ge=0.0, description="Standard gravity along -Z.")
@@ -86,16 +94,23 @@ class CameraParams(_Strict):
     sensor_height_px: int = Field(2048, gt=0, description="Seed 000 Table 2 (MV-CA050-12UC).")
     pixel_size_m: float = Field(3.45e-6, gt=0.0, description="Seed 000 Table 2 / datasheet.")
     focal_length_m: float = Field(
-        0.025, gt=0.0, description="Our choice: a 25 mm C-mount lens; at h_c = 0.30 m the "
-        "short sensor side sees ±42 mm, enough for the markers at 15° tilt (±35 mm)."
+        0.025,
+        gt=0.0,
+        description="Our choice: a 25 mm C-mount lens; at h_c = 0.30 m the "
+        "short sensor side sees ±42 mm, enough for the markers at 15° tilt (±35 mm).",
     )
     h_c_m: float = Field(
-        0.30, gt=0.0, description="Our choice: optical centre to the rest plane of the bottom "
-        "pole (seed 000 §2.5's h_c), 'significantly larger than R' as §2.4 requires."
+        0.30,
+        gt=0.0,
+        description="Our choice: optical centre to the rest plane of the bottom "
+        "pole (seed 000 §2.5's h_c), 'significantly larger than R' as §2.4 requires.",
     )
     binning: int = Field(
-        4, ge=1, le=16, description="Our choice: render at sensor/4 (612x512) for speed. "
-        "Ground truth is always in full-sensor pixels."
+        4,
+        ge=1,
+        le=16,
+        description="Our choice: render at sensor/4 (612x512) for speed. "
+        "Ground truth is always in full-sensor pixels.",
     )
     dist_coeffs: tuple[float, float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 0.0, 0.0), description="OpenCV (k1, k2, p1, p2, k3); ideal lens default."

@@ -82,7 +82,9 @@ class CasadiTwin:
             col = ca.SX.zeros(3)
             for m_j, s_j in zip(M, S, strict=True):
                 r_j = R @ ca.DM(m_j)
-                gain = float(motor.k_T_Nm_per_A * s_j) * window(ca.dot(ca.DM(c_i), r_j), cos_c, ca.fmax)
+                gain = float(motor.k_T_Nm_per_A * s_j) * window(
+                    ca.dot(ca.DM(c_i), r_j), cos_c, ca.fmax
+                )
                 col += gain * ca.cross(ca.DM(c_i), r_j)
             cols.append(col)
         K = ca.horzcat(*cols)
@@ -109,9 +111,7 @@ class CasadiTwin:
 
         def held(x_):
             q_, w_ = x_[0:4], x_[4:7]
-            return ca.vertcat(
-                quat_rate(q_, w_), ca.DM(J_inv) @ (tau_hold + passive(q_, w_))
-            )
+            return ca.vertcat(quat_rate(q_, w_), ca.DM(J_inv) @ (tau_hold + passive(q_, w_)))
 
         g = ca.Function("g", [x, tau_hold], [held(x)])
         h = self.dt

@@ -94,8 +94,9 @@ def test_constant_torque_gives_the_angular_acceleration_of_euler_equations():
 def test_gravity_pendulum_period():
     # Centre of mass 5 mm below O: small tilt oscillation with T = 2 pi sqrt(J_O / (m g d)).
     d = 5e-3
-    p = PlantParams(rotor=RotorParams(com_offset_m=(0, 0, -d), viscous_Nms_per_rad=0.0,
-                                      coulomb_Nm=0.0))
+    p = PlantParams(
+        rotor=RotorParams(com_offset_m=(0, 0, -d), viscous_Nms_per_rad=0.0, coulomb_Nm=0.0)
+    )
     r = p.rotor
     J_O = r.inertia_com_kgm2[0] + r.mass_kg * d * d
     period = 2 * np.pi * np.sqrt(J_O / (r.mass_kg * r.gravity_m_s2 * d))
