@@ -29,6 +29,14 @@ RED_RGB = (0.86, 0.08, 0.06)
 YELLOW_RGB = (0.95, 0.80, 0.08)
 PLATE_RGB = (0.08, 0.08, 0.09)
 ROTOR_RGB = (0.55, 0.56, 0.58)
+#: Lighting (our choice): the headlight (at the camera) and a ring of six spotlights around the
+#: lens light a surface that faces the camera with a total of about 1.0, so it renders at its
+#: rgb colour above (rotor mid grey, plate dark, markers saturated red and yellow) and darkens
+#: mildly toward the rotor's silhouette, as in ``plant.render_analytic``. No specular light:
+#: the plate and discs are matte prints.
+HEADLIGHT_AMBIENT = 0.42
+HEADLIGHT_DIFFUSE = 0.30
+RING_DIFFUSE = 0.06
 
 
 def stop_tendon_length(tilt_rad: float) -> float:
@@ -51,16 +59,17 @@ def build_mjcf(p: PlantParams) -> str:
     red, yellow = marker_points(r, p.vfc)
     marker_r = p.vfc.marker_diameter_mm / 2000.0
     half_plate = p.vfc.plate_size_mm / 2000.0
-    # Marker discs: bottom faces exactly in the plane z = -R (ground truth); the plate's bottom
-    # face sits 0.2 mm above so the discs never z-fight with it.
-    disc_half = 2e-4
+    # Marker discs: bottom faces exactly in the plane z = -R (ground truth), 20 µm thick so that
+    # their side walls do not show at 15° tilt (0.4 mm walls moved the centroid by 0.45 px); the
+    # plate's bottom face sits just above them (depth precision at 0.3 m is a few µm).
+    disc_half = 1e-5
     plate_half = 5e-4
     plate_z = -R + 2 * disc_half + plate_half
     cam_z = cam.center_m[2]
     ring = 0.06
     lights = "\n".join(
         f'    <light name="ring{k}" pos="{_v([ring * np.cos(a), ring * np.sin(a), cam_z + 0.02])}" '
-        f'dir="0 0 1" diffuse="0.35 0.35 0.35" specular="0.05 0.05 0.05" castshadow="false" '
+        f'dir="0 0 1" diffuse="{_v([RING_DIFFUSE] * 3)}" specular="0 0 0" castshadow="false" '
         f'type="spot" cutoff="40"/>'
         for k, a in enumerate(np.deg2rad(np.arange(0, 360, 60)))
     )
@@ -71,7 +80,8 @@ def build_mjcf(p: PlantParams) -> str:
   <option timestep="{dt:.9g}" integrator="RK4" gravity="0 0 {-r.gravity_m_s2:.9g}"/>
   <visual>
     <global offwidth="{w_full}" offheight="{h_full}" fovy="{fovy_deg:.9g}"/>
-    <headlight ambient="0.25 0.25 0.25" diffuse="0.2 0.2 0.2" specular="0 0 0"/>
+    <headlight ambient="{_v([HEADLIGHT_AMBIENT] * 3)}" diffuse="{_v([HEADLIGHT_DIFFUSE] * 3)}"
+               specular="0 0 0"/>
     <quality offsamples="4"/>
   </visual>
   <worldbody>

@@ -51,6 +51,8 @@ class CasadiTwin:
         q (4) -> K(q) (3 x 16), N·m/A.
     f : Function
         (x (7), u (16)) -> x_dot (7): continuous-time dynamics.
+    f_torque : Function
+        (x (7), T (3)) -> x_dot (7): the same with the stator-frame torque T (N·m) as input.
     step : Function
         (x (7), u (16)) -> x after one physics step (quaternion renormalised).
     """
@@ -108,6 +110,13 @@ class CasadiTwin:
             quat_rate(q, omega), ca.DM(J_inv) @ (tau_em + coulomb(omega) + passive(q, omega))
         )
         self.f = ca.Function("f", [x, u], [xdot], ["x", "u"], ["xdot"])
+        # The same dynamics driven by a stator-frame torque instead of currents (for observers
+        # that know the delivered torque rather than the coil currents).
+        T = ca.SX.sym("T", 3)
+        xdot_T = ca.vertcat(
+            quat_rate(q, omega), ca.DM(J_inv) @ (R.T @ T + coulomb(omega) + passive(q, omega))
+        )
+        self.f_torque = ca.Function("f_torque", [x, T], [xdot_T], ["x", "T"], ["xdot"])
 
         def held(x_):
             q_, w_ = x_[0:4], x_[4:7]

@@ -1,0 +1,443 @@
+"""A fast analytic renderer of the bottom camera's view (for sweeps and training data).
+
+It draws what the camera of ``plant.camera.Camera`` sees, with the same projection
+(``Camera.project``, i.e. ``cv2.projectPoints`` with the lens distortion): the dark housing, the
+grey rotor sphere (radius R - 1 mm, as in ``plant.mjcf``) with a mild Lambertian shading from
+the ring light around the lens, the dark square VFC plate in the plane z = -R and the red and
+yellow marker discs on it. The plate and discs are polygons of projected boundary points filled
+with ``cv2.fillPoly`` (anti-aliased, sub-pixel coordinates); the sphere and the lighting do not
+depend on the attitude and are drawn once per renderer.
+
+Anti-aliasing: each polygon's pixel coverage is computed at ``SUPERSAMPLE`` times the resolution
+(``cv2.fillPoly`` with ``LINE_AA`` and sub-pixel ``shift``) and area-averaged down, then the
+colour is blended with that coverage. ``cv2.fillPoly(..., LINE_AA)`` at the frame's own
+resolution would be cheaper but shifts edges by up to 1 px (more on the top edge of a shape than
+on the bottom), which moves disc centroids by up to 0.2 px; supersampled, the centroid of a
+drawn disc is within 0.03 px of the true one.
+
+Camera effects, all optional and seeded: motion blur (the average of sub-exposure renders at
+``plant.scene.sub_exposure_attitudes``), illumination scale, gain, Gaussian read noise, and
+distractors: stationary specular highlights and a red or yellow sticker elsewhere on the rotor.
+"""
+
+from __future__ import annotations
+
+from statistics import NormalDist
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from plant import attitude
+from plant.camera import Camera
+from plant.mjcf import PLATE_RGB, RED_RGB, ROTOR_RGB, YELLOW_RGB
+from plant.params import PlantParams
+from plant.scene import (
+    Frame,
+    check_binning,
+    check_exposure,
+    choose_n_sub,
+    disc_outlines_rotor,
+    ground_truth,
+    plate_outline_rotor,
+    sub_exposure_attitudes,
+    vfc_pixel_travel,
+)
+
+#: Housing seen around the rotor (RGB in [0, 1]); our choice: nearly black, like MuJoCo's
+#: empty background.
+HOUSING_RGB = (0.03, 0.03, 0.035)
+#: Shading of a surface whose normal makes angle theta with the direction to the camera:
+#: ``SHADE_AMBIENT + (1 - SHADE_AMBIENT) * cos(theta)`` (our choice: the ring light sits next
+#: to the lens, so the rotor darkens mildly toward its silhouette).
+SHADE_AMBIENT = 0.55
+#: OpenCV's anti-aliased fill paints about 0.6 px beyond a polygon's edges (measured: the filled
+#: area of a disc is too large by 0.6 px times its perimeter). Outlines are pulled in by this
+#: much at the supersampled resolution, so drawn areas match the true ones within 0.2 %.
+AA_GROWTH_PX = 0.6
+#: Supersampling factor of the coverage masks of the marker discs and the colour distractor
+#: (our choice: disc centroids within 0.03 px) and of the plate and rotor silhouette (edges
+#: within about 0.1 px, at a quarter of the cost).
+SUPERSAMPLE = 4
+SUPERSAMPLE_PLATE = 2
+#: Fixed-point fraction bits of the polygon vertices passed to ``cv2.fillPoly`` (1/256 px).
+_SHIFT = 8
+#: Boundary points of the rotor silhouette.
+_SILHOUETTE_POINTS = 256
+
+
+def _noise_table() -> NDArray[np.float32]:
+    """256 equiprobable standard-normal levels (the quantile midpoints), scaled to unit variance.
+
+    Indexing it with uniform random bytes samples a 256-level discrete normal distribution
+    (tails cut at 2.9 sigma) about ten times faster than ``Generator.standard_normal``.
+    """
+    nd = NormalDist()
+    t = np.array([nd.inv_cdf((k + 0.5) / 256.0) for k in range(256)], dtype=np.float64)
+    return (t / t.std()).astype(np.float32)
+
+
+_NOISE_TABLE = _noise_table()
+
+
+class AnalyticRenderOptions(BaseModel):
+    """Camera effects and distractors of the analytic renderer. All defaults are our choice."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    noise_sigma_dn: float = Field(
+        2.0,
+        ge=0.0,
+        description="Our choice: std of the Gaussian read noise in digital numbers "
+        "(0-255 scale) before the gain; about 1 % of full scale, a machine-vision camera at "
+        "low gain. Sampled from 256 equiprobable levels (tails cut at 2.9 sigma).",
+    )
+    gain: float = Field(
+        1.0, gt=0.0, description="Our choice: sensor gain; multiplies signal and read noise."
+    )
+    illumination: float = Field(
+        1.0, gt=0.0, description="Our choice: scale of the scene brightness (the ring light)."
+    )
+    motion_blur: bool = Field(
+        True, description="Our choice: average sub-exposure renders when omega is given."
+    )
+    blur_step_px: float = Field(
+        0.5,
+        gt=0.0,
+        description="Our choice: largest image-pixel step of a marker centre or "
+        "plate corner between consecutive sub-exposure renders when n_sub is automatic.",
+    )
+    max_sub_frames: int = Field(
+        32, ge=1, le=255, description="Our choice: cap on the automatic number of sub-frames."
+    )
+    n_highlights: int = Field(
+        0,
+        ge=0,
+        le=32,
+        description="Our choice: number of specular highlights (white blobs, "
+        "fixed in the image like reflections of the stationary ring light).",
+    )
+    highlight_sigma_sensor_px: float = Field(
+        24.0, gt=0.0, description="Our choice: Gaussian radius of a highlight, sensor pixels."
+    )
+    highlight_peak: float = Field(
+        0.8,
+        ge=0.0,
+        le=2.0,
+        description="Our choice: peak highlight brightness, fraction of "
+        "full scale (before illumination and gain).",
+    )
+    colour_distractor: Literal["none", "red", "yellow"] = Field(
+        "none",
+        description="Our choice: a sticker of a marker's colour elsewhere on the rotor "
+        "(35-60° from the bottom pole, azimuth drawn from the seed).",
+    )
+    distractor_diameter_mm: float = Field(
+        8.0, gt=0.0, description="Our choice: the distractor sticker's diameter, mm."
+    )
+
+
+def _rgb255(rgb: tuple[float, float, float]) -> NDArray[np.float64]:
+    return np.asarray(rgb, dtype=float) * 255.0
+
+
+def _inset(polys: NDArray[np.float64], d: float) -> NDArray[np.float64]:
+    """Move the vertices of closed polygons (k, n, 2) inward by ``d`` px along their normals."""
+    tangent = np.roll(polys, -1, axis=1) - np.roll(polys, 1, axis=1)
+    x, y = polys[..., 0], polys[..., 1]
+    area2 = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    normal = np.stack([-tangent[..., 1], tangent[..., 0]], axis=-1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    return polys + d * np.sign(area2)[:, None, None] * normal
+
+
+def polygon_coverage(
+    poly_px: ArrayLike, width: int, height: int, supersample: int = SUPERSAMPLE
+) -> tuple[tuple[slice, slice], NDArray[np.float32]] | None:
+    """Pixel coverage of a closed polygon in a ``width`` x ``height`` image.
+
+    ``poly_px`` (n, 2) are vertices in image pixels (OpenCV convention: integer coordinates
+    are pixel centres). Returns the (rows, columns) slices of the polygon's bounding box and
+    the coverage (fraction in [0, 1], float32) of each pixel in it, or None if the polygon is
+    outside the image. The polygon is filled anti-aliased at ``supersample`` times the
+    resolution and area-averaged down.
+    """
+    poly = np.asarray(poly_px, dtype=float)
+    lo = np.floor(poly.min(axis=0)).astype(int) - 1
+    hi = np.ceil(poly.max(axis=0)).astype(int) + 2
+    x0, y0 = max(lo[0], 0), max(lo[1], 0)
+    x1, y1 = min(hi[0], width), min(hi[1], height)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    ss = int(supersample)
+    fine = (poly - [x0, y0] + 0.5) * ss - 0.5
+    fine = _inset(fine[None], AA_GROWTH_PX)[0]
+    mask = np.zeros(((y1 - y0) * ss, (x1 - x0) * ss), np.uint8)
+    cv2.fillPoly(mask, [_fixed(fine)], 255, cv2.LINE_AA, _SHIFT)
+    if ss > 1:
+        mask = cv2.resize(mask, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    return (slice(y0, y1), slice(x0, x1)), mask.astype(np.float32) * np.float32(1.0 / 255.0)
+
+
+def _fixed(uv: NDArray[np.float64]) -> NDArray[np.int32]:
+    """Vertices as fixed-point integers with ``_SHIFT`` fraction bits for ``cv2.fillPoly``."""
+    return np.round(uv * (1 << _SHIFT)).astype(np.int32)
+
+
+class AnalyticRenderer:
+    """Render the bottom camera's view analytically.
+
+    Parameters
+    ----------
+    params : PlantParams, optional
+        Geometry of rotor, VFC and camera (default ``PlantParams()``).
+    binning : int, optional
+        Sensor pixels per image pixel (default ``params.camera.binning``); must divide both
+        sensor sides.
+    options : AnalyticRenderOptions, optional
+        Camera effects and distractors (default: noise only, see the model).
+    seed : int or numpy.random.Generator
+        Seed (or generator) of the noise and of the distractor placement. The same seed and
+        the same calls give identical frames.
+    """
+
+    def __init__(
+        self,
+        params: PlantParams | None = None,
+        binning: int | None = None,
+        options: AnalyticRenderOptions | None = None,
+        seed: int | np.random.Generator = 0,
+    ) -> None:
+        self.params = params or PlantParams()
+        self.binning = check_binning(self.params, binning)
+        self.options = options or AnalyticRenderOptions()
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self.camera = Camera.from_plant(self.params)
+        self.width, self.height = self.camera.size(self.binning)
+        self._plate = plate_outline_rotor(self.params)
+        self._discs = disc_outlines_rotor(self.params)
+        self._rotor_mask, self._background = self._draw_background()
+        self._distractor = self._place_distractor()
+        self._highlights = self._draw_highlights()
+        self._noise_table = (self.options.noise_sigma_dn * _NOISE_TABLE).astype(np.float32)
+
+    # --- static parts -----------------------------------------------------------------------
+    def _pixel_rays(self) -> NDArray[np.float64]:
+        """Unit viewing rays (H, W, 3) of the pixel centres in the camera frame."""
+        u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
+        uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
+        xy = cv2.undistortPoints(
+            uv, self.camera.matrix(self.binning), np.asarray(self.camera.params.dist_coeffs)
+        ).reshape(self.height, self.width, 2)
+        rays = np.concatenate([xy, np.ones((self.height, self.width, 1))], axis=-1)
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def _draw_background(self) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+        """Coverage mask (H, W) of the rotor and the static image: housing plus shaded sphere."""
+        r = self.params.rotor.radius_m - 1e-3  # the sphere of plant.mjcf
+        dist = float(-self.camera.center_m[2])  # optical centre to the rotor centre O
+        rays = self._pixel_rays()
+        b = rays[..., 2] * dist  # ray . c with c = (0, 0, dist)
+        disc = np.maximum(b * b - (dist * dist - r * r), 0.0)
+        t_hit = b - np.sqrt(disc)
+        normal = (rays * t_hit[..., None] - np.array([0.0, 0.0, dist])) / r
+        cos = np.clip(-np.sum(normal * rays, axis=-1), 0.0, 1.0)
+        shade = SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
+        sphere = shade[..., None] * _rgb255(ROTOR_RGB)
+        # Silhouette: the circle where the viewing cone touches the sphere (stator frame).
+        rho = r * np.sqrt(dist * dist - r * r) / dist
+        t = np.linspace(0.0, 2.0 * np.pi, _SILHOUETTE_POINTS, endpoint=False)
+        rim = np.column_stack([rho * np.cos(t), rho * np.sin(t), np.full_like(t, -r * r / dist)])
+        uv = self.camera.project(rim, self.binning)
+        mask = np.zeros((self.height, self.width, 1), np.float32)
+        cov = polygon_coverage(uv, self.width, self.height, SUPERSAMPLE_PLATE)
+        if cov is not None:
+            mask[cov[0]] = cov[1][..., None]
+        img = mask * sphere + (1.0 - mask) * _rgb255(HOUSING_RGB)
+        return mask[..., 0], np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def _place_distractor(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """Outline (n, 3) in the rotor frame and RGB (0-255) of the colour distractor, or None."""
+        o = self.options
+        if o.colour_distractor == "none":
+            return None
+        r_s = self.params.rotor.radius_m - 1e-3
+        theta = np.deg2rad(self.rng.uniform(35.0, 60.0))
+        phi = self.rng.uniform(0.0, 2.0 * np.pi)
+        n = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)])
+        e1 = np.cross(n, [0.0, 0.0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        t = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)[:, None]
+        rad = o.distractor_diameter_mm / 2000.0
+        outline = (r_s + 1e-4) * n + rad * (np.cos(t) * e1 + np.sin(t) * e2)
+        rgb = RED_RGB if o.colour_distractor == "red" else YELLOW_RGB
+        return outline, _rgb255(rgb)
+
+    def _draw_highlights(self) -> NDArray[np.float32] | None:
+        """Stationary specular highlights (H, W, 3) in DN at illumination 1, or None."""
+        o = self.options
+        if o.n_highlights == 0:
+            return None
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float32)
+        cu, cv = (self.width - 1) / 2.0, (self.height - 1) / 2.0
+        rim = float(np.hypot(*(np.argwhere(self._rotor_mask > 0.5) - [cv, cu]).T).max())
+        sigma = o.highlight_sigma_sensor_px / self.binning
+        acc = np.zeros((self.height, self.width), np.float32)
+        for _ in range(o.n_highlights):
+            rad, ang = 0.85 * rim * np.sqrt(self.rng.uniform()), self.rng.uniform(0, 2 * np.pi)
+            du, dv = u - (cu + rad * np.cos(ang)), v - (cv + rad * np.sin(ang))
+            acc += np.exp(-(du * du + dv * dv) / (2.0 * sigma * sigma))
+        blob = 255.0 * o.highlight_peak * np.minimum(acc, 1.0) * self._rotor_mask
+        return np.repeat(blob[..., None], 3, axis=2).astype(np.float32)
+
+    # --- per frame ----------------------------------------------------------------------------
+    def _shade(self, point: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
+        """Shading factor of a surface at ``point`` (stator frame, m) with unit ``normal``."""
+        to_cam = self.camera.center_m - point
+        cos = max(float(normal @ to_cam / np.linalg.norm(to_cam)), 0.0)
+        return SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
+
+    def _layers(self, qs: NDArray[np.float64]) -> list[tuple[NDArray, int, list]]:
+        """The drawn layers in order (distractor, plate, red disc, yellow disc): each as RGB
+        colour (3,), supersampling factor and its image polygon (n, 2) per sub-frame (None
+        where the distractor faces away from the camera)."""
+        R = attitude.to_matrix(qs)  # (n_sub, 3, 3)
+        R_mid = R[len(qs) // 2]
+        down = R_mid @ np.array([0.0, 0.0, -1.0])  # the plate's normal
+        shade = self._shade(self.params.rotor.radius_m * down, down)
+        layers = [
+            (self._plate, _rgb255(PLATE_RGB) * shade, SUPERSAMPLE_PLATE),
+            (self._discs[0], _rgb255(RED_RGB) * shade, SUPERSAMPLE),
+            (self._discs[1], _rgb255(YELLOW_RGB) * shade, SUPERSAMPLE),
+        ]
+        if self._distractor is not None:
+            outline, rgb = self._distractor
+            centre = R_mid @ outline.mean(axis=0)
+            d_shade = self._shade(centre, centre / np.linalg.norm(centre))
+            layers.insert(0, (outline, rgb * d_shade, SUPERSAMPLE))
+        counts = [len(pts) for pts, _, _ in layers]
+        stator = np.einsum("kij,nj->kni", R, np.vstack([pts for pts, _, _ in layers]))
+        uv = self.camera.project(stator.reshape(-1, 3), self.binning).reshape(len(qs), -1, 2)
+        per_layer = np.split(uv, np.cumsum(counts)[:-1], axis=1)
+        out = []
+        for li, ((_, colour, ss), polys) in enumerate(zip(layers, per_layer, strict=True)):
+            polys = list(polys)
+            if li == 0 and self._distractor is not None:
+                for k in range(len(qs)):
+                    centre = stator[k, : counts[0]].mean(axis=0)  # its normal is along centre
+                    if centre @ (self.camera.center_m - centre) <= 0.0:
+                        polys[k] = None
+            out.append((colour, ss, polys))
+        return out
+
+    def _draw_vfc(self, qs: NDArray[np.float64]) -> NDArray[np.uint8]:
+        """Background with the plate, discs and distractor, motion-blurred over sub-frames ``qs``.
+
+        Each layer's coverage is averaged over the sub-frames and the layers are composited
+        once. That equals averaging composited sub-frames wherever a layer lies on a fully
+        covered one (the discs on the plate); only where the distractor passes under the
+        plate's edge is it an approximation.
+        """
+        img = self._background.copy()
+        layers = self._layers(qs)
+        allpts = np.vstack([p for _, _, polys in layers for p in polys if p is not None])
+        x0, y0 = np.maximum(np.floor(allpts.min(axis=0)).astype(int) - 2, 0)
+        x1, y1 = np.ceil(allpts.max(axis=0)).astype(int) + 3
+        x1, y1 = min(x1, self.width), min(y1, self.height)
+        if x1 <= x0 or y1 <= y0:
+            return img
+        w, h = x1 - x0, y1 - y0
+        roi = self._background[y0:y1, x0:x1].astype(np.float32)
+        inv_n = np.float32(1.0 / len(qs))
+        for colour, ss, polys in layers:
+            acc = np.zeros((h, w), np.float32)
+            lo, hi = np.array([h, w]), np.array([0, 0])
+            for poly in polys:
+                cov = None if poly is None else polygon_coverage(poly - [x0, y0], w, h, ss)
+                if cov is None:
+                    continue
+                (sy, sx), alpha = cov
+                acc[sy, sx] += alpha
+                lo = np.minimum(lo, [sy.start, sx.start])
+                hi = np.maximum(hi, [sy.stop, sx.stop])
+            if np.any(hi <= lo):
+                continue
+            box = (slice(lo[0], hi[0]), slice(lo[1], hi[1]))
+            alpha = acc[box]
+            alpha *= inv_n
+            patch = roi[box]
+            # patch += alpha * (colour - patch), with OpenCV: numpy's broadcasting over the
+            # colour axis is ten times slower here
+            diff = cv2.subtract((*colour.tolist(), 0.0), patch)
+            step = cv2.multiply(diff, cv2.merge([alpha] * 3))
+            patch[...] = cv2.add(patch, step)
+        img[y0:y1, x0:x1] = cv2.convertScaleAbs(roi)  # values are >= 0: rounds and saturates
+        return img
+
+    def _camera_effects(self, img: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """Illumination, highlights, read noise and gain; back to uint8 with saturation."""
+        o = self.options
+        plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
+        if plain and o.noise_sigma_dn == 0.0:
+            return img
+        f = img.astype(np.float32)
+        if self._highlights is not None:
+            f += self._highlights
+        if o.illumination != 1.0:
+            f *= np.float32(o.illumination)
+        if o.noise_sigma_dn > 0.0:
+            raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8).reshape(f.shape)
+            f += cv2.LUT(raw, self._noise_table)
+        if o.gain != 1.0:
+            f *= np.float32(o.gain)
+        np.maximum(f, 0.0, out=f)
+        return cv2.convertScaleAbs(f)  # rounds and saturates at 255
+
+    def render(
+        self,
+        q: ArrayLike,
+        t_exposure: float = 0.0,
+        exposure_s: float | None = None,
+        omega: ArrayLike | None = None,
+        *,
+        n_sub: int | None = None,
+    ) -> Frame:
+        """Render one frame.
+
+        Parameters
+        ----------
+        q : array_like (4,)
+            Mid-exposure attitude (w, x, y, z; rotor to stator).
+        t_exposure : float
+            Mid-exposure time, s (recorded in the frame).
+        exposure_s : float, optional
+            Exposure time, s (default ``params.camera.exposure_s``).
+        omega : array_like (3,), optional
+            Body-frame angular velocity, rad/s, held over the exposure (default: at rest).
+        n_sub : int, optional
+            Sub-exposure renders to average; default automatic from the image travel of the
+            markers and plate corners (``options.blur_step_px``), 1 without motion.
+
+        Returns
+        -------
+        Frame
+            RGB image and full-sensor ground truth at mid-exposure.
+        """
+        q = attitude.normalize(q)
+        t, e, w = check_exposure(self.params, t_exposure, exposure_s, omega)
+        if n_sub is None:
+            n = 1
+            if self.options.motion_blur:
+                travel = vfc_pixel_travel(self.params, q, w, e, self.binning)
+                n = choose_n_sub(travel, self.options.blur_step_px, self.options.max_sub_frames)
+        else:
+            if isinstance(n_sub, bool) or int(n_sub) != n_sub or not 1 <= n_sub <= 255:
+                raise ValueError(f"n_sub must be an integer in [1, 255], got {n_sub!r}")
+            n = int(n_sub)
+        qs = sub_exposure_attitudes(q, w, e, n)
+        img = self._camera_effects(self._draw_vfc(qs))
+        marker_px, boxes_px = ground_truth(self.params, q)
+        return Frame(img, marker_px, boxes_px, q, t, e, self.binning, n)
