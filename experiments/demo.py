@@ -110,6 +110,7 @@ def _plot(df: pd.DataFrame, path: Path, i_max: float) -> None:
 def run_demo(out_root: Path = Path("runs"), params: PlantParams | None = None) -> Path:
     """Simulate, render a few frames, plot, and write ``runs/<timestamp>-demo/report.md``."""
     from PIL import Image
+
     from plant.render_analytic import AnalyticRenderer
     from plant.render_mujoco import MujocoRenderer
 
