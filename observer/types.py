@@ -1,4 +1,5 @@
-"""The observer's seams (DESIGN.md): what a tracker, an attitude solver and an observer return.
+"""The observer's seams (DESIGN.md): what an attitude solver returns; ``Estimate`` (what an
+observer releases) lives in ``plant.estimate`` because the controllers need it too.
 
 Pixels are full-sensor pixels (the seed's unit) unless a name says otherwise. A quaternion is
 (w, x, y, z), rotor to stator. A result that cannot be trusted is returned with ``valid=False``
@@ -12,6 +13,10 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+
+from plant.estimate import Estimate
+
+__all__ = ["AttitudeSolver", "Estimate", "SolverResult"]
 
 
 def _nan(*shape: int) -> NDArray[np.float64]:
@@ -52,41 +57,3 @@ class AttitudeSolver(Protocol):
     def solve(
         self, marker_px: NDArray[np.float64], q_prev: NDArray[np.float64] | None = None
     ) -> SolverResult: ...
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """What an observer releases for one frame.
-
-    Attributes
-    ----------
-    t_exposure : mid-exposure time of the frame, s.
-    t_available : when the observer released the estimate, s (latency = the difference).
-    q : (4,) attitude estimate (at ``t_exposure`` unless the observer predicts forward; then at
-        ``t_available``), NaN when invalid.
-    euler_zyz : (3,) the seed's (spin, tilt, yaw), rad, for reports.
-    marker_px : (N, 2) marker pixels used, sensor px.
-    covariance : (3, 3) attitude covariance (rotation vector, body frame), rad^2.
-    valid : the attitude can be used.
-    lost : the tracker has lost the markers (the estimate may be a prediction).
-    reason : why the estimate is invalid or lost.
-    compute_time_s : measured wall-clock compute time of the observer for this frame, s.
-    omega : (3,) body rate estimate, rad/s, NaN when the observer has none.
-    """
-
-    t_exposure: float
-    t_available: float
-    q: NDArray[np.float64]
-    euler_zyz: NDArray[np.float64]
-    marker_px: NDArray[np.float64]
-    covariance: NDArray[np.float64]
-    valid: bool
-    lost: bool = False
-    reason: str = ""
-    compute_time_s: float = 0.0
-    omega: NDArray[np.float64] = field(default_factory=lambda: _nan(3))
-
-    @property
-    def latency_s(self) -> float:
-        """t_available - t_exposure, s."""
-        return self.t_available - self.t_exposure
