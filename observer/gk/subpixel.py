@@ -1,0 +1,412 @@
+"""Sub-pixel marker centres by contour extraction and circle fitting (seed 004 §4).
+
+A refinement stage for any tracker: given an RGB frame, a marker colour and a region of interest
+(the tracker's box, enlarged), it returns the centre of the circle fitted to the marker's edge.
+The steps follow seed 004 §4.1–4.3:
+
+1. **Segmentation** (§4.1, "region growth"): the colour's HSV mask (``observer.gk.hsv_gate``)
+   inside the ROI, opened with a small kernel; the largest connected region is the marker.
+2. **Contour** (§4.1): the region's outer boundary pixels (``cv2.findContours``). The seed uses
+   Canny edges, which are integer pixels too. We move each boundary pixel to sub-pixel accuracy:
+   a colour "coverage" map α = ((p − b)·(f − b)) / |f − b|² (f, b: median RGB of the marker's
+   interior and of a ring just outside it; α ≈ the anti-aliased coverage of the pixel by the
+   marker) is sampled bilinearly along the ray from the region's centroid through the pixel, and
+   the edge is where α crosses 1/2. This assumes a locally uniform background a few pixels around
+   the disc (the dark VFC plate).
+3. **Burr removal** (§4.2, eq. 25): the curvature k = 1/r of the circle through three contour
+   points is computed at every point; points whose k exceeds ``burr_curvature_factor`` times the
+   contour's median curvature k_ref (a robust estimate of the marker's own 1/R) are burrs and
+   dropped. Our addition: points with k below k_ref / ``burr_curvature_factor`` (straight or
+   concave pieces, e.g. the edge of an occluder cutting the disc) are dropped too. On a pixel
+   contour, three *adjacent* points are ~1 px apart and their circle is dominated by noise, so
+   the three points are taken ``span`` points apart, ``span`` ≈ r₀/3 (r₀ the radius of a disc of
+   the region's area; our choice: about 20° of arc).
+4. **Circle fit** (§4.3, eqs. 26–28): the algebraic (Kåsa) least-squares circle
+   x² + y² = 2 x_c x + 2 y_c y + (R² − x_c² − y_c²) starts a Gauss–Newton minimisation of the
+   geometric error f = Σ (√((x_j − x_c)² + (y_j − y_c)²) − R)² (eq. 27). Points whose residual
+   exceeds ``outlier_k`` robust standard deviations are dropped and the fit repeated (our
+   choice; it removes what the curvature test misses, e.g. an occluder's straight edge).
+
+**Bias of the circle model.** A disc in a plane tilted by θ from the image plane projects to an
+ellipse (axis ratio ≈ cos θ), and the centre of that ellipse is not the projection of the disc
+centre: perspective moves it by roughly f·(ρ/Z)²·tan θ (ρ the disc radius, Z its depth, f in
+px). With our camera (f = 7246 sensor px, Z ≈ 0.30 m, ρ = 4 mm) that is 0 at θ = 0 and about
+0.3 sensor px at the 15° tilt stop. The circle fit to the whole contour of an ellipse returns
+the ellipse centre (the least-squares problem is symmetric about both axes), so this
+perspective offset is the fit's bias; ``tests/test_gk.py`` and ``benchmarks/bench_gk.py``
+measure it against the renderer's ground truth. It could be removed given the attitude; we do not.
+
+Units: ROIs, centres and radii are in *image* pixels of the frame passed in (OpenCV pixel-centre
+convention); ``SubpixelResult.centre_sensor_px`` converts to full-sensor pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from observer.gk.hsv_gate import RED, YELLOW, Colour, HSVRange, check_rgb_image, colour_mask
+from plant.camera import image_to_sensor
+
+_ELLIPSE3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+
+
+class SubpixelConfig(BaseModel):
+    """Parameters of the sub-pixel centre stage. All are our choices (seed 004 gives none)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    pad_px: int = Field(3, ge=0, description="Image px added around the ROI before cropping.")
+    open_kernel_px: int = Field(
+        3, ge=0, description="Side of the elliptic opening kernel, image px (0: no opening); "
+        "removes isolated noise pixels from the colour mask."
+    )
+    min_area_px: int = Field(12, ge=1, description="Smallest marker region, image px².")
+    min_contrast_dn: float = Field(
+        25.0, gt=0.0, description="Smallest |f − b| between marker and background colour (DN)."
+    )
+    edge_search_px: float = Field(
+        3.0, gt=0.0, description="Half-length of the radial α profile searched around each "
+        "boundary pixel, image px."
+    )
+    edge_step_px: float = Field(0.25, gt=0.0, le=1.0, description="Profile sampling step, px.")
+    burr_span_fraction: float = Field(
+        1.0 / 3.0, gt=0.0, le=2.0, description="Arc length between the three points of the "
+        "curvature test, as a fraction of r₀ (seed 004 eq. 25 uses adjacent points)."
+    )
+    burr_curvature_factor: float = Field(
+        2.5, gt=1.0, description="A point is a burr when its curvature is above this times, or "
+        "below 1/this times, the contour's median curvature."
+    )
+    outlier_k: float = Field(
+        3.0, gt=0.0, description="Geometric-fit residuals beyond this many robust sigmas "
+        "(1.4826·MAD) are outliers."
+    )
+    outlier_floor_px: float = Field(
+        0.3, ge=0.0, description="Residuals below this (image px) are never outliers."
+    )
+    max_iter: int = Field(20, ge=1, description="Gauss–Newton iterations per fit.")
+    min_points: int = Field(12, ge=3, description="Fewest edge points for a valid fit.")
+    min_arc_coverage: float = Field(
+        0.4, ge=0.0, le=1.0, description="Fewest 10° sectors (fraction of 36) holding edge "
+        "points, seen from the fitted centre."
+    )
+    max_rms_fraction: float = Field(
+        0.2, gt=0.0, description="Largest RMS residual / radius for a valid fit."
+    )
+
+
+@dataclass(frozen=True)
+class SubpixelResult:
+    """A fitted marker circle.
+
+    Attributes
+    ----------
+    centre_image_px : (2,) fitted centre (u, v), image px of the frame (NaN when invalid).
+    radius_image_px : fitted radius R, image px (NaN when invalid).
+    residual_rms_image_px : RMS of the geometric residuals of the points used, image px.
+    n_points : edge points used in the final fit.
+    n_burrs : points removed by the curvature test (seed 004 eq. 25).
+    n_outliers : points removed by the residual test.
+    arc_coverage : fraction of the 36 ten-degree sectors around the centre holding points.
+    valid : whether the centre can be used.
+    reason : why not ("" when valid).
+    """
+
+    centre_image_px: NDArray[np.float64]
+    radius_image_px: float
+    residual_rms_image_px: float
+    n_points: int
+    n_burrs: int
+    n_outliers: int
+    arc_coverage: float
+    valid: bool
+    reason: str = ""
+
+    @classmethod
+    def invalid(cls, reason: str, n_points: int = 0) -> SubpixelResult:
+        return cls(np.full(2, np.nan), math.nan, math.nan, n_points, 0, 0, 0.0, False, reason)
+
+    def centre_sensor_px(self, binning: int) -> NDArray[np.float64]:
+        """The centre in full-sensor pixels, for a frame binned by ``binning``."""
+        return image_to_sensor(self.centre_image_px, binning)
+
+
+# --- circle fits (seed 004 §4.3) -------------------------------------------------------------
+def fit_circle_algebraic(points: ArrayLike) -> tuple[NDArray[np.float64], float]:
+    """Kåsa's algebraic least-squares circle through points (n, 2), n >= 3.
+
+    Solves x² + y² = a x + b y + c in the least-squares sense (coordinates taken relative to the
+    points' mean for conditioning); centre (a/2, b/2), R = √(c + x_c² + y_c²). Returns
+    ``(centre (2,), R)``; NaN if the points are collinear.
+    """
+    p = np.asarray(points, dtype=float)
+    m = p.mean(axis=0)
+    q = p - m
+    A = np.column_stack([q, np.ones(len(q))])
+    rhs = (q * q).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    c = 0.5 * sol[:2]
+    r2 = sol[2] + c @ c
+    if not np.all(np.isfinite(sol)) or r2 <= 0.0 or np.linalg.matrix_rank(A) < 3:
+        return np.full(2, np.nan), math.nan
+    return c + m, float(math.sqrt(r2))
+
+
+def fit_circle_geometric(
+    points: ArrayLike, centre0: ArrayLike, radius0: float, max_iter: int = 20, tol: float = 1e-7
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """Geometric least-squares circle (seed 004 eq. 27) by Gauss–Newton from (centre0, radius0).
+
+    Minimises f = Σ_j (d_j − R)², d_j = |p_j − c|; the normal equations of the linearised
+    problem are the seed's eq. 28 (∂f/∂x_c = ∂f/∂y_c = 0, and ∂f/∂R = 0). Returns
+    ``(centre (2,), R, residuals d_j − R (n,))``.
+    """
+    p = np.asarray(points, dtype=float)
+    c = np.asarray(centre0, dtype=float).copy()
+    R = float(radius0)
+    for _ in range(max_iter):
+        diff = p - c
+        d = np.hypot(diff[:, 0], diff[:, 1])
+        d = np.maximum(d, 1e-12)
+        r = d - R
+        J = np.column_stack([-diff / d[:, None], -np.ones(len(p))])
+        try:  # Gauss–Newton normal equations
+            step = np.linalg.solve(J.T @ J, -(J.T @ r))
+        except np.linalg.LinAlgError:
+            break
+        c += step[:2]
+        R += step[2]
+        if float(np.abs(step).max()) < tol:
+            break
+    diff = p - c
+    return c, R, np.hypot(diff[:, 0], diff[:, 1]) - R
+
+
+def contour_curvature(points: ArrayLike, span: int, closed: bool = True) -> NDArray[np.float64]:
+    """Signed curvature (1/px) at each contour point (n, 2, in contour order): seed 004 eq. 25,
+    k = 1/r of the circle through points i − span, i, i + span, i.e. k = 4·area/(abc) of that
+    triangle, signed by the turn direction (positive for a left turn in (u, v) coordinates).
+    Wraps around when ``closed``; at the ends of an open contour the neighbours are clipped."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    if n < 3:
+        return np.zeros(n)
+    i = np.arange(n)
+    if closed:
+        a_idx, c_idx = (i - span) % n, (i + span) % n
+    else:
+        a_idx, c_idx = np.clip(i - span, 0, n - 1), np.clip(i + span, 0, n - 1)
+    A, B, C = p[a_idx], p[i], p[c_idx]
+    ab = np.linalg.norm(B - A, axis=1)
+    bc = np.linalg.norm(C - B, axis=1)
+    ca = np.linalg.norm(A - C, axis=1)
+    cross = (B - A)[:, 0] * (C - B)[:, 1] - (B - A)[:, 1] * (C - B)[:, 0]
+    denom = ab * bc * ca
+    return np.where(denom > 1e-12, 2.0 * cross / np.maximum(denom, 1e-12), 0.0)
+
+
+def burr_mask(k: ArrayLike, k_ref: float, factor: float) -> NDArray[np.bool_]:
+    """True for contour points that are burrs: curvature ``k`` (signed, 1/px, positive for the
+    marker's convex outline) above ``factor · k_ref`` (seed 004 §4.2: a burr is a point of
+    excessive curvature) or below ``k_ref / factor`` (our addition: straight or concave pieces of
+    the outline, such as an occluder's edge, are no part of the marker's circle either)."""
+    kk = np.asarray(k, dtype=float)
+    return (kk > factor * k_ref) | (kk < k_ref / factor)
+
+
+def _arc_coverage(points: NDArray[np.float64], centre: NDArray[np.float64]) -> float:
+    ang = np.arctan2(points[:, 1] - centre[1], points[:, 0] - centre[0])
+    bins = np.floor((ang + np.pi) / (2 * np.pi) * 36).astype(int) % 36
+    return len(np.unique(bins)) / 36.0
+
+
+def _median_rgb(image: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """Per-channel median (3,) of the 8-bit pixels under ``mask``, from 256-bin histograms."""
+    out = np.empty(3, np.float32)
+    for ch in range(3):
+        hist = cv2.calcHist([image], [ch], mask, [256], [0, 256]).ravel()
+        cum = np.cumsum(hist)
+        out[ch] = float(np.searchsorted(cum, 0.5 * cum[-1]))
+    return out
+
+
+# --- the stage ---------------------------------------------------------------------------------
+def _range_of(colour: Colour | HSVRange) -> HSVRange:
+    if isinstance(colour, HSVRange):
+        return colour
+    return {"red": RED, "yellow": YELLOW}[colour]
+
+
+def refine_marker_centre(
+    image_rgb: NDArray[np.uint8],
+    colour: Colour | HSVRange,
+    roi_image_px: ArrayLike,
+    config: SubpixelConfig | None = None,
+) -> SubpixelResult:
+    """Sub-pixel centre of the marker of ``colour`` inside ``roi_image_px`` (seed 004 §4).
+
+    Parameters
+    ----------
+    image_rgb : ndarray (H, W, 3) uint8
+        The frame, **RGB** channel order (see ``observer.gk.hsv_gate``).
+    colour : "red", "yellow" or an ``HSVRange``
+        The marker's colour class (seed 000 §3.2.1 ranges for the named ones).
+    roi_image_px : array_like (4,)
+        Region (x, y, w, h) in image px of this frame that contains the whole marker (a tracker's
+        box enlarged by a margin); it is padded by ``config.pad_px`` and clipped to the frame.
+    config : SubpixelConfig, optional
+
+    Returns
+    -------
+    SubpixelResult
+        Centre and radius in image px, fit residual, ``valid`` and a ``reason``. Bad input
+        (wrong frame, NaN ROI, no marker, low contrast, too few points) gives ``valid=False``;
+        nothing raises.
+    """
+    cfg = config or SubpixelConfig()
+    bad = check_rgb_image(image_rgb)
+    if bad:
+        return SubpixelResult.invalid(bad)
+    try:
+        hsv_range = _range_of(colour)
+    except KeyError:
+        return SubpixelResult.invalid(f"unknown colour {colour!r}")
+    try:
+        x, y, w, h = (float(c) for c in np.asarray(roi_image_px, dtype=float).reshape(4))
+    except (TypeError, ValueError):
+        return SubpixelResult.invalid("roi must be (x, y, w, h)")
+    if not all(math.isfinite(c) for c in (x, y, w, h)) or w <= 0.0 or h <= 0.0:
+        return SubpixelResult.invalid("roi is not finite or has w, h <= 0")
+    H, W = image_rgb.shape[:2]
+    c0 = max(int(math.floor(x)) - cfg.pad_px, 0)
+    r0 = max(int(math.floor(y)) - cfg.pad_px, 0)
+    c1 = min(int(math.ceil(x + w)) + cfg.pad_px + 1, W)
+    r1 = min(int(math.ceil(y + h)) + cfg.pad_px + 1, H)
+    if c1 - c0 < 3 or r1 - r0 < 3:
+        return SubpixelResult.invalid("roi lies outside the frame")
+    crop = np.ascontiguousarray(image_rgb[r0:r1, c0:c1])
+    offset = np.array([c0, r0], dtype=float)
+
+    # 1. segmentation: colour mask, opening, largest connected region
+    mask = colour_mask(crop, hsv_range)
+    if cfg.open_kernel_px > 0:
+        kern = cv2.getStructuringElement(
+            cv2.MORPH_ELLIPSE, (cfg.open_kernel_px, cfg.open_kernel_px)
+        )
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kern)
+    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n_lab < 2:
+        return SubpixelResult.invalid("no marker-coloured region in the roi")
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    area = int(stats[k, cv2.CC_STAT_AREA])
+    if area < cfg.min_area_px:
+        return SubpixelResult.invalid(f"marker region too small ({area} px)")
+    region = (labels == k).astype(np.uint8)
+    r_area = math.sqrt(area / math.pi)
+
+    # marker and background colours -> coverage map alpha
+    inner = cv2.erode(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(inner) < 3:
+        inner = region
+    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(ring) < 3:
+        return SubpixelResult.invalid("no background visible around the marker in the roi")
+    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
+    crop_f = crop.astype(np.float32)
+    d = fg - bg
+    dd = float(d @ d)
+    if math.sqrt(dd) < cfg.min_contrast_dn:
+        return SubpixelResult.invalid(f"marker contrast {math.sqrt(dd):.1f} DN too low")
+    alpha = ((crop_f - bg) @ (d / dd)).astype(np.float32)
+
+    # 2. contour, moved to the alpha = 1/2 crossing along the ray from the centroid
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    contour = max(contours, key=len).reshape(-1, 2).astype(float)
+    m = cv2.moments(region, binaryImage=True)
+    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    ray = contour - centroid
+    norm = np.hypot(ray[:, 0], ray[:, 1])
+    keep = norm > 0.5
+    hh, ww = region.shape
+    on_border = (
+        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
+        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
+    )
+    # Pixels on the crop's border: the region may continue outside it, not a real edge.
+    keep &= ~on_border
+    contour, ray, norm = contour[keep], ray[keep], norm[keep]
+    if len(contour) < cfg.min_points:
+        return SubpixelResult.invalid("too few contour points", len(contour))
+    u = ray / norm[:, None]
+    t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
+    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
+    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
+    prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=float("nan"))
+    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
+    cross = inside & outside
+    t_mid = 0.5 * (t[:-1] + t[1:])
+    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
+    found = cross[np.arange(len(j)), j]
+    a0 = prof[np.arange(len(j)), j].astype(float)
+    a1 = prof[np.arange(len(j)), j + 1].astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
+    found &= np.isfinite(ts)
+    edge = contour[found] + u[found] * ts[found, None]
+    if len(edge) < cfg.min_points:
+        return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
+
+    # 3. burr removal (seed 004 eq. 25)
+    spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
+    span = max(2, int(round(cfg.burr_span_fraction * r_area / max(spacing, 1e-6))))
+    k = contour_curvature(edge, span, closed=True)
+    k_ref = float(np.median(k))
+    if k_ref < 0.0:  # the contour runs clockwise: make the marker's convex outline positive
+        k, k_ref = -k, -k_ref
+    if k_ref <= 0.0:
+        return SubpixelResult.invalid("contour has no convex outline", len(edge))
+    burr = burr_mask(k, k_ref, cfg.burr_curvature_factor)
+    pts = edge[~burr]
+    n_burrs = int(burr.sum())
+    if len(pts) < cfg.min_points:
+        return SubpixelResult.invalid("too few points after burr removal", len(pts))
+
+    # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
+    c_alg, R_alg = fit_circle_algebraic(pts)
+    if not np.all(np.isfinite(c_alg)):
+        return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
+    c, R, res = fit_circle_geometric(pts, c_alg, R_alg, cfg.max_iter)
+    n_out = 0
+    for _ in range(3):
+        med = float(np.median(res))
+        sigma = 1.4826 * float(np.median(np.abs(res - med)))
+        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
+        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
+            break
+        n_out += int(bad_pts.sum())
+        pts = pts[~bad_pts]
+        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
+    rms = float(np.sqrt(np.mean(res * res)))
+    cover = _arc_coverage(pts, c)
+    centre = c + offset
+    result = SubpixelResult(centre, float(R), rms, len(pts), n_burrs, n_out, cover, True)
+    reason = ""
+    if not (np.all(np.isfinite(c)) and math.isfinite(R) and R > 0.0):
+        reason = "circle fit did not converge"
+    elif rms > cfg.max_rms_fraction * R:
+        reason = f"fit residual {rms:.2f} px exceeds {cfg.max_rms_fraction} of the radius"
+    elif cover < cfg.min_arc_coverage:
+        reason = f"edge points cover only {cover:.2f} of the circle"
+    elif not (0.0 <= c[0] <= ww - 1 and 0.0 <= c[1] <= hh - 1):
+        reason = "fitted centre outside the roi"
+    if reason:
+        return SubpixelResult(np.full(2, np.nan), math.nan, rms, len(pts), n_burrs, n_out,
+                              cover, False, reason)
+    return result
