@@ -42,11 +42,14 @@ def normalize(q: ArrayLike, name: str = "q") -> NDArray[np.float64]:
     norm (including zero) raises ``ValueError`` naming the argument, since it most likely is not
     an attitude at all.
     """
-    q = check_finite(name, q)
+    q = np.asarray(q, dtype=float)
     if q.shape[-1:] != (4,):
         raise ValueError(f"{name} must have shape (..., 4) as (w, x, y, z), got {q.shape}")
-    n = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(np.abs(n - 1.0) > UNIT_TOLERANCE):
+    n = np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
+    # A NaN or inf anywhere makes n non-finite, so this one test also rejects non-finite input.
+    if not np.all(np.abs(n - 1.0) <= UNIT_TOLERANCE):
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"{name} must be finite, got {q!r}")
         raise ValueError(
             f"{name} must be a unit quaternion (|q| within {UNIT_TOLERANCE} of 1), "
             f"got |q| = {np.squeeze(n)}"
@@ -58,11 +61,17 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p ⊗ q`` of quaternions (w, x, y, z); broadcasts over leading axes."""
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
-    pw, pv = p[..., :1], p[..., 1:]
-    qw, qv = q[..., :1], q[..., 1:]
-    w = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
-    v = pw * qv + qw * pv + np.cross(pv, qv)
-    return np.concatenate([w, v], axis=-1)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
 
 
 def conjugate(q: ArrayLike) -> NDArray[np.float64]:
@@ -73,7 +82,17 @@ def conjugate(q: ArrayLike) -> NDArray[np.float64]:
 
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrix R(q) (3x3, or (..., 3, 3)) with ``v_stator = R @ v_rotor``."""
-    w, x, y, z = np.moveaxis(normalize(q), -1, 0)
+    q = normalize(q)
+    if q.ndim == 1:  # fast path for one attitude (the physics loop calls this every step)
+        w, x, y, z = (float(v) for v in q)
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+    w, x, y, z = np.moveaxis(q, -1, 0)
     return np.stack(
         [
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
@@ -159,20 +178,31 @@ def to_zyz(q: ArrayLike) -> tuple[float, float, float]:
     """The seed's (spin alpha, tilt beta, yaw gamma) in rad from a unit quaternion.
 
     Returns alpha and gamma in [0, 2*pi) and beta in [0, pi]. At beta = 0 (or pi) only the sum
-    alpha + gamma is observable; then gamma = 0 and alpha holds the rotation about Z.
+    alpha + gamma is observable; then gamma = 0 and alpha holds the rotation about Z. For an
+    (N, 4) array use ``to_zyz_array``.
     """
+    alpha, beta, gamma = to_zyz_array(np.asarray(q, dtype=float)[None, :])[0]
+    return float(alpha), float(beta), float(gamma)
+
+
+def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
+    """(N, 3) array of (spin, tilt, yaw), rad, for (N, 4) quaternions (see ``to_zyz``)."""
     R = to_matrix(q)
-    s_beta = np.hypot(R[0, 2], R[1, 2])
-    beta = float(np.arctan2(s_beta, R[2, 2]))
-    if s_beta > _SINGULAR_SIN_BETA:
-        alpha = np.arctan2(R[2, 1], -R[2, 0])
-        gamma = np.arctan2(R[1, 2], R[0, 2])
-    elif R[2, 2] > 0:  # beta = 0: R = Rz(alpha + gamma)
-        alpha, gamma = np.arctan2(R[1, 0], R[0, 0]), 0.0
-    else:  # beta = pi: R = Ry(pi) Rz(alpha) with gamma = 0
-        alpha, gamma = np.arctan2(R[1, 0], R[1, 1]), 0.0
+    s_beta = np.hypot(R[..., 0, 2], R[..., 1, 2])
+    beta = np.arctan2(s_beta, R[..., 2, 2])
+    regular = s_beta > _SINGULAR_SIN_BETA
+    up = R[..., 2, 2] > 0
+    # beta = 0: R = Rz(alpha + gamma); beta = pi: R = Ry(pi) Rz(alpha); both with gamma = 0.
+    alpha = np.where(
+        regular,
+        np.arctan2(R[..., 2, 1], -R[..., 2, 0]),
+        np.where(
+            up, np.arctan2(R[..., 1, 0], R[..., 0, 0]), np.arctan2(R[..., 1, 0], R[..., 1, 1])
+        ),
+    )
+    gamma = np.where(regular, np.arctan2(R[..., 1, 2], R[..., 0, 2]), 0.0)
     two_pi = 2.0 * np.pi
-    return float(np.mod(alpha, two_pi)), beta, float(np.mod(gamma, two_pi))
+    return np.stack([np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)], axis=-1)
 
 
 def tilt(q: ArrayLike) -> float:
@@ -184,13 +214,15 @@ def tilt(q: ArrayLike) -> float:
     return float(np.arctan2(s, c))
 
 
-def geodesic_angle(q1: ArrayLike, q2: ArrayLike) -> float:
+def geodesic_angle(q1: ArrayLike, q2: ArrayLike) -> float | NDArray[np.float64]:
     """Angle (rad, in [0, pi]) of the rotation taking attitude ``q1`` to ``q2``.
 
-    This is the attitude error without the Euler singularity.
+    This is the attitude error without the Euler singularity. Broadcasts over leading axes of
+    (..., 4) arrays (then returns an array).
     """
     d = multiply(conjugate(normalize(q1, "q1")), normalize(q2, "q2"))
-    return float(2.0 * np.arctan2(np.linalg.norm(d[1:]), abs(d[0])))
+    angle = 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+    return float(angle) if np.ndim(angle) == 0 else angle
 
 
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:

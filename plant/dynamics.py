@@ -98,22 +98,43 @@ class MujocoPlant:
         ``ValueError``, as do non-finite values and a ``dt`` that is not a positive multiple of
         the physics step.
         """
+        cmd = self._check_currents(currents)
+        h = self.params.physics_dt_s
+        n = round(dt / h)
+        if n < 1 or abs(n * h - dt) > 1e-9 * max(1.0, dt):
+            raise ValueError(f"dt = {dt} s must be a positive multiple of physics_dt_s = {h} s")
+        self._integrate(cmd, [h] * n)
+
+    def advance(self, currents: ArrayLike, dt: float) -> None:
+        """Like ``step`` but for any ``dt`` > 0 (s): whole physics steps, then one shorter
+        step for the remainder, so that events of a timed loop fall on their exact times."""
+        cmd = self._check_currents(currents)
+        if not dt >= 0:
+            raise ValueError(f"dt must be >= 0, got {dt}")
+        h = self.params.physics_dt_s
+        n = int(np.floor(dt / h + 1e-9))
+        rest = dt - n * h
+        self._integrate(cmd, [h] * n + ([rest] if rest > 1e-12 else []))
+
+    def _check_currents(self, currents: ArrayLike) -> NDArray[np.float64]:
         cmd = attitude.check_finite("currents", currents).reshape(-1)
         if cmd.shape != (N_COILS,):
             raise ValueError(f"currents must have {N_COILS} entries, got shape {cmd.shape}")
         i_max = self.params.motor.i_max_A
         if np.max(np.abs(cmd)) > i_max * (1 + 1e-9):
             raise ValueError(f"currents exceed the limit ±{i_max} A: max |I| = {np.abs(cmd).max()}")
-        h = self.params.physics_dt_s
-        n = round(dt / h)
-        if n < 1 or abs(n * h - dt) > 1e-9 * max(1.0, dt):
-            raise ValueError(f"dt = {dt} s must be a positive multiple of physics_dt_s = {h} s")
+        return cmd
+
+    def _integrate(self, cmd: NDArray[np.float64], steps: list[float]) -> None:
         tau_L = self.params.motor.coil_time_constant_s
-        decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
-        for _ in range(n):
+        h0 = self.model.opt.timestep
+        for h in steps:
+            decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
             self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
             self.data.qfrc_applied[:] = self.applied_torque()
+            self.model.opt.timestep = h
             mujoco.mj_step(self.model, self.data)
+        self.model.opt.timestep = h0
 
     def tilt_stop_active(self) -> bool:
         """True when the tilt-stop constraint is engaged."""

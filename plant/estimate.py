@@ -34,6 +34,9 @@ class Estimate:
     reason : why the estimate is invalid or lost.
     compute_time_s : measured wall-clock compute time of the observer for this frame, s.
     omega : (3,) body rate estimate, rad/s, NaN when the observer has none.
+    t_state : the time (s) that ``q`` and ``omega`` describe: ``t_exposure`` for a plain
+        measurement, ``t_available`` for an observer that predicts across its own latency.
+        None means ``t_exposure``.
     """
 
     t_exposure: float
@@ -47,6 +50,12 @@ class Estimate:
     reason: str = ""
     compute_time_s: float = 0.0
     omega: NDArray[np.float64] = field(default_factory=lambda: _nan(3))
+    t_state: float | None = None
+
+    @property
+    def state_time(self) -> float:
+        """The time (s) that ``q`` describes."""
+        return self.t_exposure if self.t_state is None else self.t_state
 
     @property
     def latency_s(self) -> float:

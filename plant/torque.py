@@ -53,8 +53,8 @@ class TorqueMap:
         """K(q) (3 x 16), N·m/A: stator-frame torque on the rotor per coil current."""
         r = self.m @ attitude.to_matrix(q).T  # (18, 3) magnet axes in the stator frame
         gain = self.motor.k_T_Nm_per_A * self.s * window(self.c @ r.T, self.cos_cutoff)  # (16, 18)
-        cross = np.cross(self.c[:, None, :], r[None, :, :])  # (16, 18, 3)
-        return np.einsum("ij,ijk->ki", gain, cross)
+        # sum_j g_ij (c_i x r_j) = c_i x (sum_j g_ij r_j): one cross product per coil.
+        return np.cross(self.c, gain @ r).T
 
 
 class Allocation(NamedTuple):

@@ -1,0 +1,305 @@
+"""Centre-of-rotation constrained least-squares attitude (seed 002 §2.4, App. A).
+
+The markers move on spheres about a fixed CoR, so the attitude is the only unknown: three
+parameters, not the six of a PnP pose. We minimise the reprojection error (seed 002 eq. 12–16)
+
+    q* = argmin_q Σ_j |uv_j^meas − π(R(q) P_j + t_cor)|²
+
+over the modified Rodrigues parameters p of a multiplicative update ``q = q_ref ⊗ q(p)``
+(``observer.cor_model``), re-centred after every accepted step so that each iteration solves
+for a small p about the current estimate. Each step is a Levenberg–Marquardt step
+``(JᵀJ + λ diag(JᵀJ)) Δp = Jᵀ r`` with the analytic Jacobian J (seed 002 eq. 17 is the λ = 0
+Gauss–Newton step; the damping only acts when a step would increase the cost, so a warm start
+converges like Gauss–Newton).
+
+Covariance. At the solution the body-frame rotation vector is δ = 4p + O(p³), so the Jacobian
+with respect to δ is ``J_δ = J_p/4`` and, for independent pixel noise of σ px per coordinate,
+``Cov(δ) = σ² (J_δᵀ J_δ)⁻¹ = 16 σ² (J_pᵀ J_p)⁻¹`` (rad², body frame, ``q_true = q ⊗ exp(δ)``), the
+convention of ``observer.types.SolverResult``. σ is the configured pixel noise (default 0.5 px,
+our choice), or, with ``sigma_px=None``, the a-posteriori estimate ``|r|²/(m − 3)`` (seed 002
+eq. 24), which is very noisy with two markers (one degree of freedom).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from observer.cor_model import CorModel
+from observer.types import SolverResult
+
+
+@dataclass(frozen=True)
+class CorSolverConfig:
+    """Settings of ``CorSolver`` (all our choices; units in the names).
+
+    sigma_px : pixel noise σ for the covariance, px per coordinate; None = estimate it from the
+        residual (needs more than 3 measurements).
+    max_iterations : LM iterations before giving up ("did not converge").
+    step_tol_rad : converged when the next step would rotate by less than this (rad), or when a
+        step smaller than 100× this fails to lower the cost (round-off; 1e-8 rad is 2 mas, four
+        orders of magnitude below the noise-induced error at 0.5 px).
+    max_residual_rms_px : a solution whose RMS residual exceeds this is flagged invalid
+        (mismatched markers, wrong model or a local minimum).
+    max_tilt_rad : a solution tilted more than this from stator Z is flagged invalid (the far-side
+        mirror solution of the ray–sphere intersection); default 45°, three times the
+        mechanical stop of seed 000 §2.4.
+    max_condition : JᵀJ with a larger condition number is flagged ill-conditioned.
+    """
+
+    sigma_px: float | None = 0.5
+    max_iterations: int = 30
+    step_tol_rad: float = 1e-8
+    max_residual_rms_px: float = 5.0
+    max_tilt_rad: float = float(np.deg2rad(45.0))
+    max_condition: float = 1e12
+
+    def __post_init__(self) -> None:
+        if self.sigma_px is not None and not (np.isfinite(self.sigma_px) and self.sigma_px > 0):
+            raise ValueError(f"sigma_px must be > 0 px or None, got {self.sigma_px!r}")
+        if int(self.max_iterations) < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations!r}")
+        for name in ("step_tol_rad", "max_residual_rms_px", "max_tilt_rad", "max_condition"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite positive number, got {v!r}")
+
+
+def _tilt(q: NDArray[np.float64]) -> float:
+    """Angle (rad) between the rotor z axis and stator Z."""
+    w, x, y, _ = q
+    c = 1.0 - 2.0 * (x * x + y * y)
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _qmul(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Hamilton product of two single quaternions (w, x, y, z)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def _mrp_quat(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """q(p) = ((1 − |p|²), 2p)/(1 + |p|²) for one p (see observer.cor_model.mrp_to_quat)."""
+    s = float(p @ p)
+    return np.array([1.0 - s, 2.0 * p[0], 2.0 * p[1], 2.0 * p[2]]) / (1.0 + s)
+
+
+def _axis_quat(axis: int, angle: float) -> NDArray[np.float64]:
+    q = np.zeros(4)
+    q[0] = np.cos(0.5 * angle)
+    q[1 + axis] = np.sin(0.5 * angle)
+    return q
+
+
+class CorSolver:
+    """CoR-constrained attitude solver (seed 002 §2.4) as an ``AttitudeSolver``.
+
+    ``solve(marker_px, q_prev)``: ``marker_px`` is (N, 2), sensor px, rows in the order of
+    ``model.markers_m``; rows with NaN or infinite entries are missing markers and are dropped.
+    ``q_prev`` (w, x, y, z) warm-starts the iteration; without it (or if it is not a finite unit
+    quaternion) ``coarse_guess`` supplies a cold start.
+    """
+
+    def __init__(self, model: CorModel, config: CorSolverConfig | None = None) -> None:
+        self.model = model
+        self.config = CorSolverConfig() if config is None else config
+
+    # -- cold start ---------------------------------------------------------------------------
+
+    def coarse_guess(self, marker_px: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray:
+        """A cold-start attitude from the visible markers (our construction, any N ≥ 2).
+
+        1. Turn about the camera axis: the 2-D Procrustes angle between the visible markers'
+           pixels and their projections at the identity, both centred on their centroids (a turn
+           about stator +Z turns the image from +u toward +v in our camera).
+        2. Tilt: the centroid's pixel shift left over after that turn, scaled to metres at the
+           CoR depth (Z/f), is the lateral motion of the markers' centroid, ``−r sin β (cos γ,
+           sin γ)`` with r its distance from the CoR; hence β and γ.
+        Good to a few degrees over the workspace; the LM iteration does the rest.
+        """
+        m = self.model
+        meas = marker_px[mask]
+        P = m.markers_m[mask]
+        zero = np.zeros_like(meas)
+        pred = -self._residual_jac(np.array([1.0, 0.0, 0.0, 0.0]), P, zero)[0].reshape(-1, 2)
+        a = meas - meas.mean(axis=0)
+        b = pred - pred.mean(axis=0)
+        cross = np.sum(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0])
+        dot = np.sum(b * a)
+        q_spin = _axis_quat(2, float(np.arctan2(cross, dot)))
+        pred_spin = -self._residual_jac(q_spin, P, zero)[0].reshape(-1, 2)
+        shift = meas.mean(axis=0) - pred_spin.mean(axis=0)
+        Z = m.t_cor_m[2]
+        lateral = shift * Z / np.array([m.intrinsics.fx, m.intrinsics.fy])
+        r = float(np.linalg.norm(P.mean(axis=0)))
+        s = min(float(np.linalg.norm(lateral)) / max(r, 1e-9), np.sin(self.config.max_tilt_rad))
+        beta = float(np.arcsin(s))
+        gamma = float(np.arctan2(-lateral[1], -lateral[0]))
+        # pure tilt toward azimuth gamma: Rz(gamma) Ry(beta) Rz(-gamma)
+        q_tilt = _qmul(_axis_quat(2, gamma), _qmul(_axis_quat(1, beta), _axis_quat(2, -gamma)))
+        return _qmul(q_tilt, q_spin)
+
+    # -- one frame ----------------------------------------------------------------------------
+
+    def _residual_jac(self, q: NDArray, P: NDArray, uv: NDArray) -> tuple[NDArray, NDArray]:
+        """Residual r = uv_meas − uv(q) (2n,) and J = ∂uv/∂p at p = 0 about q (2n, 3).
+
+        The same model as ``CorModel.jacobian_mrp`` written out for speed: with g = ∂u/∂X (a row)
+        and ``∂X/∂p = −4 R(q) [P]× = −4 [R P]× R``, ``∂u/∂p = −4 (g × R P)ᵀ R``.
+        """
+        intr = self.model.intrinsics
+        w, x, y, z = q
+        R = np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])
+        RP = P @ R.T
+        X = RP + self.model.t_cor_m
+        iz = 1.0 / X[:, 2]
+        xn, yn = X[:, 0] * iz, X[:, 1] * iz
+        r2 = xn * xn + yn * yn
+        s = 1.0 + r2 * (intr.k1 + r2 * (intr.k2 + r2 * intr.k3))
+        ds = intr.k1 + r2 * (2.0 * intr.k2 + 3.0 * r2 * intr.k3)
+        n = len(P)
+        res = np.empty((n, 2))
+        res[:, 0] = uv[:, 0] - (intr.fx * s * xn + intr.cx)
+        res[:, 1] = uv[:, 1] - (intr.fy * s * yn + intr.cy)
+        c = 2.0 * xn * yn * ds
+        a11, a12 = intr.fx * (s + 2.0 * xn * xn * ds) * iz, intr.fx * c * iz
+        a21, a22 = intr.fy * c * iz, intr.fy * (s + 2.0 * yn * yn * ds) * iz
+        G = np.empty((n, 2, 3))
+        G[:, 0, 0], G[:, 0, 1], G[:, 0, 2] = a11, a12, -(a11 * xn + a12 * yn)
+        G[:, 1, 0], G[:, 1, 1], G[:, 1, 2] = a21, a22, -(a21 * xn + a22 * yn)
+        b = RP[:, None, :]
+        GxRP = np.empty((n, 2, 3))  # G × RP, written out (np.cross is slow for tiny arrays)
+        GxRP[..., 0] = G[..., 1] * b[..., 2] - G[..., 2] * b[..., 1]
+        GxRP[..., 1] = G[..., 2] * b[..., 0] - G[..., 0] * b[..., 2]
+        GxRP[..., 2] = G[..., 0] * b[..., 1] - G[..., 1] * b[..., 0]
+        J = -4.0 * GxRP.reshape(-1, 3) @ R
+        if not np.all(X[:, 2] > 0.0):
+            res[:] = np.nan
+        return res.reshape(-1), J
+
+    def solve(
+        self, marker_px: NDArray[np.float64], q_prev: NDArray[np.float64] | None = None
+    ) -> SolverResult:
+        """Attitude from marker pixels; never raises on bad input (see the class docstring)."""
+        cfg = self.config
+        try:
+            uv = np.asarray(marker_px, dtype=float)
+        except (TypeError, ValueError):
+            return SolverResult.invalid("marker_px is not a numeric array")
+        n_model = self.model.n_markers
+        if uv.shape != (n_model, 2):
+            return SolverResult.invalid(
+                f"marker_px must have shape ({n_model}, 2) for this target, got {uv.shape}"
+            )
+        mask = np.all(np.isfinite(uv), axis=1)
+        n_vis = int(mask.sum())
+        if n_vis < 2:
+            return SolverResult.invalid(
+                f"{n_vis} marker(s) visible: the attitude needs at least 2 (3 unknowns)"
+            )
+        P = self.model.markers_m[mask]
+        uv_v = uv[mask]
+
+        q = None
+        if q_prev is not None:
+            qp = np.asarray(q_prev, dtype=float)
+            if qp.shape == (4,) and np.all(np.isfinite(qp)) and abs(np.linalg.norm(qp) - 1) < 1e-3:
+                q = qp / np.linalg.norm(qp)
+        if q is None:
+            q = self.coarse_guess(uv, mask)
+
+        r, J = self._residual_jac(q, P, uv_v)
+        if not np.all(np.isfinite(r)):
+            return SolverResult.invalid("start attitude projects markers behind the camera")
+        cost = float(r @ r)
+        lam = 1e-6
+        converged = False
+        it = 0
+        for it in range(1, cfg.max_iterations + 1):  # noqa: B007 (used after the loop)
+            H = J.T @ J
+            A = H + lam * np.diag(np.diag(H))
+            try:
+                dp = np.linalg.solve(A, J.T @ r)
+            except np.linalg.LinAlgError:
+                return SolverResult(
+                    q=np.full(4, np.nan), valid=False, iterations=it,
+                    reason="singular normal equations (markers degenerate)",
+                )
+            step = 4.0 * float(np.sqrt(dp @ dp))  # rotation angle of q(dp), rad (small dp)
+            if step < cfg.step_tol_rad:
+                converged = True  # the next step would rotate by less than the tolerance
+                break
+            q_new = _qmul(q, _mrp_quat(dp))
+            r_new, J_new = self._residual_jac(q_new, P, uv_v)
+            cost_new = float(r_new @ r_new) if np.all(np.isfinite(r_new)) else np.inf
+            if cost_new <= cost:
+                q, r, J, cost = q_new, r_new, J_new, cost_new
+                lam = max(lam / 10.0, 1e-12)
+            else:
+                lam *= 10.0
+                if step < 100.0 * cfg.step_tol_rad or lam > 1e8:
+                    converged = True  # no step lowers the cost beyond round-off: a minimum
+                    break
+        if not converged:
+            return SolverResult(
+                q=np.full(4, np.nan), valid=False, iterations=it,
+                reason=f"did not converge in {cfg.max_iterations} iterations",
+                residual_rms_px=float(np.sqrt(cost / len(r))),
+            )
+        q = q / np.linalg.norm(q)
+        if q[0] < 0:
+            q = -q
+        rms = float(np.sqrt(cost / len(r)))
+        H = J.T @ J
+        cond = float(np.linalg.cond(H))
+        if not np.isfinite(cond) or cond > cfg.max_condition:
+            return SolverResult(
+                q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
+                reason=f"ill-conditioned geometry (cond(JᵀJ) = {cond:.3g})",
+            )
+        if cfg.sigma_px is None:
+            dof = len(r) - 3
+            sigma2 = cost / dof if dof > 0 else np.nan
+        else:
+            sigma2 = cfg.sigma_px**2
+        cov = 16.0 * sigma2 * np.linalg.inv(H)
+        if rms > cfg.max_residual_rms_px:
+            return SolverResult(
+                q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
+                covariance=cov,
+                reason=f"diverged: residual RMS {rms:.3g} px > {cfg.max_residual_rms_px} px",
+            )
+        if _tilt(q) > cfg.max_tilt_rad:
+            return SolverResult(
+                q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
+                reason=f"solution tilt {np.rad2deg(_tilt(q)):.1f}° beyond max_tilt_rad "
+                "(far-side solution)",
+            )
+        return SolverResult(q=q, covariance=cov, residual_rms_px=rms, iterations=it)
+
+
+def solve_batch(
+    solver: CorSolver, marker_px: ArrayLike, q_start: ArrayLike | None = None
+) -> list[SolverResult]:
+    """Solve a sequence of frames (M, N, 2); each frame warm-starts from the previous valid
+    result (the first from ``q_start`` or cold)."""
+    out = []
+    q = None if q_start is None else np.asarray(q_start, dtype=float)
+    for uv in np.asarray(marker_px, dtype=float):
+        res = solver.solve(uv, q)
+        out.append(res)
+        if res.valid:
+            q = res.q
+    return out
