@@ -36,6 +36,7 @@ class MujocoPlant:
     State: attitude ``q`` (w, x, y, z; rotor to stator), body-frame angular velocity ``omega``
     (rad/s) and the actual coil currents (A). ``step(currents, dt)`` holds the commanded currents
     over ``dt`` seconds (a whole number of physics steps of ``params.physics_dt_s``).
+    ``sensor_delay_s`` adds MuJoCo's natively delayed attitude sensor (``delayed_q``).
     """
 
     def __init__(
@@ -43,9 +44,10 @@ class MujocoPlant:
         params: PlantParams | None = None,
         q0: ArrayLike = (1.0, 0.0, 0.0, 0.0),
         omega0: ArrayLike = (0.0, 0.0, 0.0),
+        sensor_delay_s: float | None = None,
     ) -> None:
         self.params = params or PlantParams()
-        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params))
+        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params, sensor_delay_s))
         self.data = mujoco.MjData(self.model)
         self.torque_map = TorqueMap(self.params.motor)
         self.currents = np.zeros(N_COILS)
@@ -69,6 +71,15 @@ class MujocoPlant:
     def omega(self) -> NDArray[np.float64]:
         """Angular velocity in the rotor (body) frame, rad/s."""
         return self.data.qvel.copy()
+
+    def delayed_q(self) -> NDArray[np.float64]:
+        """The ``rotor_quat_delayed`` sensor. MuJoCo evaluates sensors before integrating, so
+        after a step to time t it reports the attitude at t - dt - sensor_delay_s."""
+        sid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SENSOR, "rotor_quat_delayed")
+        if sid < 0:
+            raise ValueError("this plant was built without sensor_delay_s")
+        adr = self.model.sensor_adr[sid]
+        return self.data.sensordata[adr : adr + 4].copy()
 
     @property
     def time(self) -> float:

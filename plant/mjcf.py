@@ -24,6 +24,10 @@ from plant.params import PlantParams
 #: Stop tendon anchor height H above O and shaft-site distance a from O (m): our choice.
 STOP_ANCHOR_M = 0.20
 STOP_SHAFT_M = 0.10
+#: Time constant of the tilt stop's soft constraint (MuJoCo solreflimit), s: our choice, at
+#: MuJoCo's recommended minimum of two physics steps for the default 1 ms step. An impact at
+#: tilt rate w penetrates about w*STOP_TIMECONST_S/e (critically damped).
+STOP_TIMECONST_S = 0.002
 #: Marker colours (RGB in [0, 1]); inside the seed's HSV gates (000 §3.2.1) after shading.
 RED_RGB = (0.86, 0.08, 0.06)
 YELLOW_RGB = (0.95, 0.80, 0.08)
@@ -49,8 +53,22 @@ def _v(x) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.ravel(x))
 
 
-def build_mjcf(p: PlantParams) -> str:
-    """MJCF text of the motor and scene for parameters ``p``."""
+def build_mjcf(p: PlantParams, sensor_delay_s: float | None = None) -> str:
+    """MJCF text of the motor and scene for parameters ``p``.
+
+    ``sensor_delay_s`` adds a ``ballquat`` sensor ``rotor_quat_delayed`` that reports the
+    attitude that much earlier through MuJoCo's native sensor delay (MuJoCo >= 3.5), an
+    independent check of the timed loop's delay pipeline.
+    """
+    delayed = ""
+    if sensor_delay_s is not None:
+        if not sensor_delay_s >= 0:
+            raise ValueError(f"sensor_delay_s must be >= 0, got {sensor_delay_s}")
+        n = int(np.ceil(sensor_delay_s / p.physics_dt_s)) + 2
+        delayed = (
+            f'\n    <ballquat name="rotor_quat_delayed" joint="ball" nsample="{n}" '
+            f'delay="{sensor_delay_s:.9g}"/>'
+        )
     r, cam = p.rotor, Camera.from_plant(p)
     R = r.radius_m
     w_full, h_full = cam.size(1)
@@ -75,6 +93,7 @@ def build_mjcf(p: PlantParams) -> str:
     )
     l_max = stop_tendon_length(np.deg2rad(r.tilt_stop_deg))
     dt = p.physics_dt_s
+    stop_tc = max(STOP_TIMECONST_S, 2 * dt)
     return f"""<mujoco model="pmspm">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{dt:.9g}" integrator="RK4" gravity="0 0 {-r.gravity_m_s2:.9g}"/>
@@ -109,14 +128,14 @@ def build_mjcf(p: PlantParams) -> str:
     </body>
   </worldbody>
   <tendon>
-    <spatial name="tilt_stop" limited="true" range="0 {l_max:.9g}" solreflimit="0.004 1">
+    <spatial name="tilt_stop" limited="true" range="0 {l_max:.9g}" solreflimit="{stop_tc:.9g} 1">
       <site site="stop_anchor"/>
       <site site="shaft_tip"/>
     </spatial>
   </tendon>
   <sensor>
     <ballquat name="rotor_quat" joint="ball"/>
-    <ballangvel name="rotor_angvel" joint="ball"/>
+    <ballangvel name="rotor_angvel" joint="ball"/>{delayed}
   </sensor>
 </mujoco>
 """

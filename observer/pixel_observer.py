@@ -1,0 +1,206 @@
+"""Marker pixels -> ``Estimate``: the attitude back end that every front end feeds.
+
+A front end (the measurement model, or a renderer + tracker + GK assistance) produces the marker
+pixels of a frame. A ``PixelObserver`` turns them into the ``Estimate`` a controller reads, in
+two phases that match the timed loop:
+
+* ``process(marker_px, t_exposure, ...)`` when the frame is taken (the pixels are fused at their
+  exposure time);
+* ``release(t_release)`` when the observer hands the result over; a delay-compensating observer
+  predicts its state to ``t_release`` with the torque commands recorded up to then.
+
+``FilterObserver`` does this with the quaternion EKF/AEKF of ``observer.aekf``; ``SolverObserver``
+with a per-frame attitude solver and no filter.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from observer.aekf import AEKFConfig, QuaternionAEKF
+from observer.types import AttitudeSolver
+from plant import attitude
+from plant.estimate import Estimate
+from plant.params import PlantParams
+
+
+class PixelObserver(Protocol):
+    """Back end from marker pixels (sensor px) to attitude estimates."""
+
+    def reset(self, q0: ArrayLike, t0: float) -> None: ...
+
+    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None: ...
+
+    def process(
+        self,
+        marker_px: NDArray[np.float64],
+        t_exposure: float,
+        lost: bool = False,
+        reason: str = "",
+        compute_time_s: float = 0.0,
+    ) -> None: ...
+
+    def release(self, t_release: float) -> Estimate: ...
+
+
+class FilterObserver:
+    """Quaternion EKF/AEKF on marker pixels, optionally predicting across the latency.
+
+    Parameters
+    ----------
+    params : PlantParams
+        The filter's model of the rotor and camera.
+    config : AEKFConfig
+        Filter settings (``adaptive=False`` for the plain EKF).
+    compensate_delay : bool
+        If True, ``release`` returns the state predicted to the release time (``t_state`` =
+        ``t_available``); if False, the state at the frame's exposure time.
+    max_coast_s : float
+        After this long (s) without an accepted measurement the estimate is flagged invalid.
+    """
+
+    def __init__(
+        self,
+        params: PlantParams,
+        config: AEKFConfig | None = None,
+        compensate_delay: bool = True,
+        max_coast_s: float = 0.5,
+    ) -> None:
+        if max_coast_s <= 0:
+            raise ValueError(f"max_coast_s must be positive, got {max_coast_s}")
+        self.params = params
+        self.config = config or AEKFConfig()
+        self.compensate_delay = compensate_delay
+        self.max_coast_s = max_coast_s
+        self.reset([1.0, 0.0, 0.0, 0.0], 0.0)
+
+    def reset(self, q0: ArrayLike, t0: float) -> None:
+        """Start from attitude ``q0`` at rest at time ``t0`` (s)."""
+        self.filter = QuaternionAEKF(self.params, self.config, q0=q0, t0=t0)
+        self._last_accepted = -np.inf
+        self._pending: tuple | None = None
+
+    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None:
+        """The torque (N·m, stator frame) commanded from time ``t`` (s)."""
+        self.filter.set_torque(t, torque_stator)
+
+    def process(
+        self,
+        marker_px: NDArray[np.float64],
+        t_exposure: float,
+        lost: bool = False,
+        reason: str = "",
+        compute_time_s: float = 0.0,
+    ) -> None:
+        """Fuse the pixels (N, 2) of a frame exposed at ``t_exposure`` (s). A front end that
+        has lost the markers passes ``lost=True`` (its pixels, if any, are then ignored)."""
+        z = np.asarray(marker_px, dtype=float)
+        if lost:
+            result_reason = reason or "front end lost the markers"
+            accepted = False
+        else:
+            r = self.filter.update(z, t_exposure)
+            accepted, result_reason = r.accepted, r.reason
+        if accepted:
+            self._last_accepted = t_exposure
+        self._pending = (z, t_exposure, lost, result_reason, compute_time_s)
+
+    def release(self, t_release: float) -> Estimate:
+        """The estimate handed over at ``t_release`` (s) for the last processed frame."""
+        if self._pending is None:
+            raise RuntimeError("release() before process()")
+        z, t_exposure, lost, reason, compute_time_s = self._pending
+        t_state = t_release if self.compensate_delay else max(t_exposure, self.filter.t)
+        q, omega, cov = self.filter.estimate_at(t_state)
+        stale = t_release - self._last_accepted > self.max_coast_s
+        valid = not stale
+        if stale:
+            reason = reason or "no accepted measurement"
+            reason = f"{reason}; coasting for more than {self.max_coast_s} s"
+        return Estimate(
+            t_exposure=t_exposure,
+            t_available=t_release,
+            q=q,
+            euler_zyz=np.array(attitude.to_zyz(q)),
+            marker_px=z,
+            covariance=cov,
+            valid=valid,
+            lost=lost,
+            reason=reason,
+            compute_time_s=compute_time_s,
+            omega=omega,
+            t_state=t_state,
+        )
+
+
+class SolverObserver:
+    """A per-frame attitude solver (no filter): the estimate is the solution at the frame's
+    exposure time, warm-started from the previous one; the rate is unknown (NaN).
+
+    Parameters
+    ----------
+    solver : AttitudeSolver
+        e.g. ``observer.cor_solver.CorSolver(CorModel.nominal(params))``.
+    max_invalid_s : float
+        After this long (s) without a valid solution the estimate is flagged invalid; until
+        then the last valid solution is held (and its ``reason`` says so).
+    """
+
+    def __init__(self, solver: AttitudeSolver, max_invalid_s: float = 0.5) -> None:
+        if max_invalid_s <= 0:
+            raise ValueError(f"max_invalid_s must be positive, got {max_invalid_s}")
+        self.solver = solver
+        self.max_invalid_s = max_invalid_s
+        self.reset([1.0, 0.0, 0.0, 0.0], 0.0)
+
+    def reset(self, q0: ArrayLike, t0: float) -> None:
+        self._q = attitude.normalize(q0, "q0")
+        self._cov = np.full((3, 3), np.nan)
+        self._last_valid = t0
+        self._pending: tuple | None = None
+
+    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None:
+        """A per-frame solver ignores the commands."""
+
+    def process(
+        self,
+        marker_px: NDArray[np.float64],
+        t_exposure: float,
+        lost: bool = False,
+        reason: str = "",
+        compute_time_s: float = 0.0,
+    ) -> None:
+        z = np.asarray(marker_px, dtype=float)
+        if lost:
+            reason = reason or "front end lost the markers"
+        else:
+            r = self.solver.solve(z, self._q)
+            if r.valid:
+                self._q, self._cov, self._last_valid = r.q, r.covariance, t_exposure
+            reason = r.reason
+        self._pending = (z, t_exposure, lost, reason, compute_time_s)
+
+    def release(self, t_release: float) -> Estimate:
+        if self._pending is None:
+            raise RuntimeError("release() before process()")
+        z, t_exposure, lost, reason, compute_time_s = self._pending
+        held = self._last_valid < t_exposure
+        if held:
+            reason = f"{reason}; holding the solution from t = {self._last_valid:.4f} s"
+        valid = t_exposure - self._last_valid <= self.max_invalid_s
+        return Estimate(
+            t_exposure=t_exposure,
+            t_available=t_release,
+            q=self._q.copy(),
+            euler_zyz=np.array(attitude.to_zyz(self._q)),
+            marker_px=z,
+            covariance=self._cov,
+            valid=valid,
+            lost=lost,
+            reason=reason,
+            compute_time_s=compute_time_s,
+            t_state=self._last_valid,
+        )

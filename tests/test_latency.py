@@ -1,0 +1,106 @@
+"""Latency models and the frame pipeline's timing semantics."""
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from latency.models import (
+    SEED_LATENCY_S,
+    Constant,
+    Empirical,
+    Gamma,
+    Normal,
+    Uniform,
+    parse_latency,
+    seed_profile,
+)
+from latency.pipeline import FrameScheduler, PipelineConfig
+
+
+def test_seed_profiles_are_table_1():
+    assert seed_profile("gk_transt").value_s == pytest.approx(16.33e-3)
+    assert seed_profile("dual_transt").value_s == pytest.approx(31.23e-3)
+    assert seed_profile("kcf").value_s == pytest.approx(10.86e-3)
+    assert seed_profile("csrt").value_s == pytest.approx(67.62e-3)
+    # Table 1's FPS column is the inverse of its latency column.
+    for name, fps in [("gk_transt", 61.23), ("dual_transt", 32.02), ("kcf", 92.05)]:
+        assert 1 / SEED_LATENCY_S[name] == pytest.approx(fps, rel=2e-3)
+    with pytest.raises(ValueError, match="gk_transt"):
+        seed_profile("transt")
+
+
+def test_distributions_match_their_moments():
+    rng = np.random.default_rng(0)
+    n = 20000
+    g = Gamma(shape_k=4.0, scale_theta_s=2e-3, offset_s=10e-3)
+    x = np.array([g.sample(rng) for _ in range(n)])
+    assert x.mean() == pytest.approx(g.mean_s, rel=0.01)
+    assert x.var() == pytest.approx(4.0 * (2e-3) ** 2, rel=0.05)  # k theta^2
+    u = Uniform(low_s=0.01, high_s=0.02)
+    y = np.array([u.sample(rng) for _ in range(n)])
+    assert y.min() >= 0.01 and y.max() <= 0.02
+    assert y.var() == pytest.approx(0.01**2 / 12, rel=0.05)
+    nrm = Normal(mean_value_s=1e-3, std_s=2e-3)  # heavily truncated at 0
+    z = np.array([nrm.sample(rng) for _ in range(n)])
+    assert z.min() >= 0.0
+
+
+def test_same_seed_same_latencies():
+    m = Normal(mean_value_s=0.02, std_s=0.003)
+    a = [m.sample(np.random.default_rng(5)) for _ in range(3)]
+    b = [m.sample(np.random.default_rng(5)) for _ in range(3)]
+    assert a == b
+
+
+def test_empirical_profile_round_trip(tmp_path):
+    measured = [0.012, 0.013, 0.0125, 0.020]
+    prof = Empirical.from_measurements(measured, source="unit test")
+    prof.save(tmp_path / "p.json")
+    back = Empirical.load(tmp_path / "p.json")
+    assert back == prof
+    assert back.mean_s == pytest.approx(np.mean(measured))
+    rng = np.random.default_rng(1)
+    assert {back.sample(rng) for _ in range(200)} == set(measured)
+
+
+def test_bad_latency_configs_name_the_field():
+    with pytest.raises(ValidationError, match="value_s"):
+        Constant(value_s=-0.01)
+    with pytest.raises(ValidationError, match="high_s"):
+        Uniform(low_s=0.02, high_s=0.01)
+    with pytest.raises(ValidationError, match="samples_s"):
+        Empirical(samples_s=(0.01, -0.002))
+    with pytest.raises(ValidationError, match="frame_rate_hz"):
+        PipelineConfig(frame_rate_hz=0.0)
+    assert parse_latency({"kind": "gamma", "shape_k": 2, "scale_theta_s": 0.001}).mean_s == 0.002
+
+
+def releases(profile, mode, duration=1.0):
+    cfg = PipelineConfig(observer=seed_profile(profile), mode=mode)
+    return FrameScheduler(cfg, np.random.default_rng(0)).schedule(duration)
+
+
+def test_sequential_observer_drops_frames_while_busy():
+    # 31.23 ms of processing at a 27.8 ms frame period: every second frame is dropped, so the
+    # update rate halves (issue 5); CSRT's 67.62 ms keeps one frame in three.
+    for profile, keep_every in [("kcf", 1), ("gk_transt", 1), ("dual_transt", 2), ("csrt", 3)]:
+        frames = releases(profile, "sequential")
+        kept = [f.index for f in frames if not f.dropped]
+        assert kept == list(range(0, 36, keep_every))
+        for f in frames:
+            if not f.dropped:
+                assert f.latency_s == pytest.approx(1e-3 + SEED_LATENCY_S[profile])
+
+
+def test_pipelined_observer_keeps_every_frame_in_order():
+    frames = releases("csrt", "pipelined")
+    assert not any(f.dropped for f in frames) and len(frames) == 36
+    rel = [f.t_release for f in frames]
+    assert rel == sorted(rel)
+    assert frames[0].latency_s == pytest.approx(1e-3 + 67.62e-3)
+
+
+def test_exposure_longer_than_the_frame_period_is_rejected():
+    with pytest.raises(ValueError, match="exposure_s"):
+        cfg = PipelineConfig(frame_rate_hz=500.0, exposure_s=0.004)
+        FrameScheduler(cfg, np.random.default_rng())
