@@ -15,12 +15,14 @@ with a per-frame attitude solver and no filter.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from observer.aekf import AEKFConfig, QuaternionAEKF
+from observer.gk.pixel_kalman import PixelKalman, PixelKalmanConfig
 from observer.types import AttitudeSolver
 from plant import attitude
 from plant.estimate import Estimate
@@ -204,3 +206,57 @@ class SolverObserver:
             compute_time_s=compute_time_s,
             t_state=self._last_valid,
         )
+
+
+class PixelKalmanObserver:
+    """The seed's pixel Kalman filter (seed 000 §3.2.1: constant velocity, Δt = 1 frame) on
+    each marker centre, then a per-frame solver on the filtered centres.
+
+    This is the filter whose Q and R the closed-loop tuning of issue 6 adjusts: a small Q/R
+    smooths the pixels but lags them; a large Q/R passes the noise through.
+    """
+
+    def __init__(
+        self,
+        solver: AttitudeSolver,
+        config: PixelKalmanConfig | None = None,
+        max_invalid_s: float = 0.5,
+    ) -> None:
+        self.config = config or PixelKalmanConfig()
+        self.inner = SolverObserver(solver, max_invalid_s)
+        self.filters = [PixelKalman(self.config), PixelKalman(self.config)]
+        self._lost = False
+
+    def reset(self, q0: ArrayLike, t0: float) -> None:
+        self.inner.reset(q0, t0)
+        for f in self.filters:
+            f.reset()
+
+    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None:
+        """The pixel filters ignore the commands."""
+
+    def process(
+        self,
+        marker_px: NDArray[np.float64],
+        t_exposure: float,
+        lost: bool = False,
+        reason: str = "",
+        compute_time_s: float = 0.0,
+    ) -> None:
+        z = np.asarray(marker_px, dtype=float).reshape(-1, 2)
+        filtered = np.full_like(z, np.nan)
+        for i, f in enumerate(self.filters):
+            f.predict()
+            if lost or not np.all(np.isfinite(z[i])):
+                f.coast()
+            else:
+                f.update(z[i])
+            filtered[i] = f.position
+        # The Kalman prediction stands in for a lost observation (seed 000 §3.2.1); the
+        # estimate is still flagged lost.
+        self._lost = lost
+        predicted = lost and bool(np.all(np.isfinite(filtered)))
+        self.inner.process(filtered, t_exposure, lost and not predicted, reason, compute_time_s)
+
+    def release(self, t_release: float) -> Estimate:
+        return replace(self.inner.release(t_release), lost=self._lost)
