@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from observer.frame_observer import MarkerLocator
+from plant import attitude
 from plant.camera import marker_pixels
 from plant.params import PlantParams
 
@@ -44,41 +45,98 @@ class FrontEnd(Protocol):
 
 
 class MeasurementConfig(BaseModel):
-    """Noise of the measurement model, sensor px."""
+    """Noise and loss model of the measurement front end, sensor px.
+
+    Tracking loss is modelled from the motion (our construction, so that loss depends on the
+    delay, the frame drops and the reference's aggressiveness as with a real tracker): the tracker
+    searches a window of radius ``search_radius_px`` around its expected marker position (the last
+    measurement, advanced by the last inter-frame motion when ``predictive_search``, as the GK
+    Kalman prediction does); a marker outside the window is lost until a re-detection
+    ``reacquire_after_frames`` processed frames later. A marker smeared over more than
+    ``blur_limit_px`` during the exposure is lost for that frame.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     sigma_px: float = Field(
-        0.5, ge=0.0, description="Our choice: per-coordinate noise; the GK sub-pixel stage "
-        "measured 0.15 px median, 0.3 px p95 on rendered frames (benchmarks/RESULTS.md)."
+        0.5,
+        ge=0.0,
+        description="Our choice: per-coordinate noise; the GK sub-pixel stage "
+        "measured 0.15 px median, 0.3 px p95 on rendered frames (benchmarks/RESULTS.md).",
     )
     dropout_prob: float = Field(0.0, ge=0.0, le=1.0, description="Frames with no markers.")
     outlier_prob: float = Field(0.0, ge=0.0, le=1.0, description="Frames with a jumped centre.")
     outlier_px: float = Field(60.0, ge=0.0, description="Size of an outlier jump, sensor px.")
+    search_radius_px: float | None = Field(
+        None,
+        gt=0.0,
+        description="Tracker search window radius, sensor px; None: never lost "
+        "by motion. A KCF-like window of 2.5 marker diameters is about 240 sensor px.",
+    )
+    predictive_search: bool = Field(True, description="Centre the window on a CV prediction.")
+    reacquire_after_frames: int = Field(
+        5, ge=1, description="Our choice: processed frames until a re-detection finds it."
+    )
+    blur_limit_px: float | None = Field(
+        None,
+        gt=0.0,
+        description="Marker travel during the exposure beyond which the frame is "
+        "lost, sensor px; None: blur never loses it.",
+    )
 
 
 class MeasurementFrontEnd:
-    """True marker pixels plus noise, dropout and outliers (measurement-model mode)."""
+    """True marker pixels plus noise, dropout, outliers and motion-induced tracking loss
+    (measurement-model mode; see ``MeasurementConfig``)."""
 
     def __init__(
         self, params: PlantParams, config: MeasurementConfig, rng: np.random.Generator
     ) -> None:
         self.params, self.config, self.rng = params, config, rng
+        self.reset()
 
     def reset(self) -> None:
-        """Nothing to reset: the model has no memory."""
+        """Forget the tracker's state (last position, motion, loss count)."""
+        self._last: NDArray[np.float64] | None = None
+        self._motion = np.zeros((2, 2))
+        self._lost_frames = 0
+        self._frames_since = 0  # processed frames since the last measurement
+
+    def _blur_travel_px(self, q: NDArray[np.float64], omega: NDArray[np.float64]) -> float:
+        half = 0.5 * self.params.camera.exposure_s
+        ends = [
+            marker_pixels(self.params, attitude.multiply(q, attitude.from_rotvec(s * half * omega)))
+            for s in (-1.0, 1.0)
+        ]
+        return float(np.max(np.linalg.norm(ends[1] - ends[0], axis=1)))
 
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
         c = self.config
         truth = marker_pixels(self.params, q)
+        nothing = np.full((2, 2), np.nan)
         if self.rng.random() < c.dropout_prob:
-            return Capture(np.full((2, 2), np.nan), truth, True, "dropout (measurement model)")
+            return Capture(nothing, truth, True, "dropout (measurement model)")
+        self._frames_since += 1
+        if (
+            c.search_radius_px is not None
+            and self._last is not None
+            and self._lost_frames < c.reacquire_after_frames  # else: re-detected this frame
+        ):
+            centre = self._last + (self._motion if c.predictive_search else 0.0)
+            if np.max(np.linalg.norm(truth - centre, axis=1)) > c.search_radius_px:
+                self._lost_frames += 1
+                return Capture(nothing, truth, True, "marker left the search window")
+        if c.blur_limit_px is not None and self._blur_travel_px(q, omega) > c.blur_limit_px:
+            return Capture(nothing, truth, True, "motion blur beyond the tracker's limit")
         z = truth + self.rng.normal(scale=c.sigma_px, size=(2, 2))
         if self.rng.random() < c.outlier_prob:
             angle = self.rng.uniform(0, 2 * np.pi)
             z[self.rng.integers(2)] += c.outlier_px * np.array([np.cos(angle), np.sin(angle)])
+        if self._last is not None:
+            self._motion = (z - self._last) / self._frames_since  # per processed frame
+        self._last, self._lost_frames, self._frames_since = z, 0, 0
         return Capture(z, truth)
 
 

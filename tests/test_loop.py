@@ -134,7 +134,10 @@ def test_results_save_as_parquet(tmp_path):
     r = measurement_loop(duration=0.3).run()
     out = r.save(tmp_path / "run")
     assert {p.name for p in out.iterdir()} == {
-        "steps.parquet", "frames.parquet", "events.parquet", "summary.json"
+        "steps.parquet",
+        "frames.parquet",
+        "events.parquet",
+        "summary.json",
     }
 
 
@@ -192,3 +195,35 @@ def test_image_in_the_loop_with_kcf_and_gk_closes_the_loop():
         marker_pixels(P, [1.0, 0, 0, 0])[0],
         atol=1e-6,
     )
+
+
+def test_motion_loss_model_of_the_measurement_front_end():
+    # Spin about the shaft at a constant rate: the markers move on a circle, d px per frame.
+    w = 4.0  # rad/s
+    frame = 1 / 36
+    lever_px = (
+        np.linalg.norm(marker_pixels(P, [1.0, 0, 0, 0])[0] - marker_pixels(P, [1, 0, 0, 0])[1]) / 2
+    )
+    d = lever_px * w * frame  # chord ~ arc per frame, sensor px
+    qs = [A.axis_angle([0, 0, 1], w * k * frame) for k in range(30)]
+    omega = np.array([0.0, 0.0, w])
+
+    def lost_flags(**kw):
+        fe = MeasurementFrontEnd(P, MeasurementConfig(sigma_px=0.0, **kw), np.random.default_rng(0))
+        return [fe.capture(q, omega, k * frame).lost for k, q in enumerate(qs)]
+
+    assert not any(lost_flags(search_radius_px=1.5 * d, predictive_search=False))
+    flags = lost_flags(search_radius_px=0.5 * d, predictive_search=False, reacquire_after_frames=3)
+    assert flags[:2] == [False, True]  # lost at the first move...
+    assert flags[1:5] == [True, True, True, False]  # ...re-detected after 3 lost frames
+    # A constant-velocity prediction follows the circle up to the curvature error (about
+    # d^2 / lever = 4 px here; 11 px right after a re-detection, whose motion estimate spans the
+    # lost frames): after the first move, which it cannot predict, and a re-detection 3 frames
+    # later, a window half the per-frame motion keeps the markers.
+    r = 0.5 * d
+    flags = lost_flags(search_radius_px=r, predictive_search=True, reacquire_after_frames=3)
+    assert flags[:5] == [False, True, True, True, False] and not any(flags[5:])
+    # Blur: the markers travel w * exposure * lever during the exposure.
+    travel = lever_px * w * P.camera.exposure_s
+    assert all(lost_flags(blur_limit_px=0.9 * travel))
+    assert not any(lost_flags(blur_limit_px=1.1 * travel))
