@@ -24,6 +24,7 @@ from controller.pid import PIDConfig, PIDController
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
 from latency.frontends import ImageFrontEnd, MeasurementConfig, MeasurementFrontEnd
 from latency.loop import ClosedLoop, LoopConfig, LoopResult
+from latency.models import Constant, LatencyModel
 from latency.pipeline import PipelineConfig
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
@@ -109,6 +110,10 @@ class Scenario(_Model):
     controller: ControllerSpec = PIDSpec()
     reference: ReferenceSpec = TiltStepSpec()
     on_invalid: Literal["zero", "hold"] = "hold"
+    controller_latency: LatencyModel | Literal["measured"] = Field(
+        default_factory=lambda: Constant(value_s=0.0),
+        description="Controller compute latency in the loop; 'measured' uses the wall clock.",
+    )
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Scenario:
@@ -149,9 +154,17 @@ def build_loop(s: Scenario) -> ClosedLoop:
     if isinstance(s.controller, PIDSpec):
         controller = PIDController(s.controller.config, p)
     else:
-        controller = MPCController(s.controller.config, p)
+        mpc = s.controller.config
+        if mpc.compute_latency_s is None and s.controller_latency != "measured":
+            # The MPC's delay compensation must assume the latency the loop applies.
+            mpc = mpc.model_copy(update={"compute_latency_s": s.controller_latency.mean_s})
+        controller = MPCController(mpc, p)
     config = LoopConfig(
-        duration_s=s.duration_s, pipeline=s.pipeline, seed=s.seed, on_invalid=s.on_invalid
+        duration_s=s.duration_s,
+        pipeline=s.pipeline,
+        seed=s.seed,
+        on_invalid=s.on_invalid,
+        controller_latency=s.controller_latency,
     )
     return ClosedLoop(p, controller, s.reference.build(), front, observer, config)
 

@@ -329,6 +329,7 @@ class ClosedLoop:
                 "latency_s": est.latency_s,
             }
         )
+        overridden = not est.valid
         if not est.valid:
             events.append((t, "invalid_estimate", est.reason))
             torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]
@@ -340,17 +341,20 @@ class ClosedLoop:
             if torque.shape != (3,) or not np.all(np.isfinite(torque)):
                 events.append((t, "invalid_command", f"controller returned {torque!r}"))
                 torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]
+                overridden = True
         frames[frame_row]["controller_compute_s"] = ctrl_time
         latency = (
             ctrl_time
             if c.controller_latency == "measured"
             else c.controller_latency.sample(rng_ctrl)
         )
-        push(t + latency, "command", (torque, est))
+        push(t + latency, "command", (torque, est, overridden))
 
     def _on_command(self, t, payload, plant, events, state) -> None:
         """Apply a torque command: allocate currents within the limits, hold them."""
-        torque, est = payload
+        torque, est, overridden = payload
+        if overridden and hasattr(self.controller, "record_command"):
+            self.controller.record_command(t, torque)  # e.g. the MPC's delay compensation
         q_alloc = plant.q if self.config.allocate_with == "truth" or not est.valid else est.q
         alloc = plant.allocate(torque, q_alloc)
         if alloc.saturated != state["saturated"]:
