@@ -331,6 +331,25 @@ class PIDController:
         continuous, derivative filter included (module docstring)."""
         return self.gains[axis].transfer_function()
 
+    def discrete_transfer_function(
+        self, period_s: float, axis: int = 0
+    ) -> control.TransferFunction:
+        """C(z) of body axis ``axis`` exactly as ``command`` runs it when called every
+        ``period_s`` seconds on estimates without a rate, linearised about a constant reference:
+
+            C(z) = Kp + Ki T/(z - 1) + Kd (1 - beta)(z - 1) / (T (z - beta)),  beta = exp(-T/tau_f)
+
+        (the forward-Euler integrator that uses the previous error, the backward difference of
+        the measured attitude, and the exact discrete first-order low-pass). Torque per attitude
+        error, for the exact sampled-loop margins of ``latency.margins.sampled_margins``."""
+        if not period_s > 0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        g, T = self.gains[axis], float(period_s)
+        beta = float(np.exp(-T / g.tau_f))
+        integral = control.tf([g.Ki * T], [1.0, -1.0], T)
+        derivative = control.tf([g.Kd * (1 - beta) / T, -g.Kd * (1 - beta) / T], [1.0, -beta], T)
+        return control.tf([g.Kp], [1.0], T) + integral + derivative
+
     def reset(self) -> None:
         """Clear the integrator, the derivative filter, the rate estimator and the hold value."""
         self.integral = np.zeros(3)

@@ -6,7 +6,9 @@ Simulated time only (s). Per run:
   the coil currents held between commands (zero-order hold);
 * **frames** exposed at the camera's rate (``latency.pipeline``); the front end measures the
   markers at mid-exposure (rendered with motion blur in image mode, ground truth plus noise in
-  measurement-model mode) and the observer fuses them;
+  measurement-model mode); the observer fuses them, at their exposure time, when it releases
+  the frame's estimate (so a pipelined observer with several frames in flight never uses a
+  frame before its processing has finished);
 * **estimates** released at ``t_exposure + exposure/2 + readout + observer latency``; dropped frames
   (sequential pipeline) are never processed;
 * **commands** computed on each released estimate and applied after the controller's latency
@@ -267,7 +269,6 @@ class ClosedLoop:
 
         def measure(k: int) -> float:
             cap = self.front_end.capture(plant.q, plant.omega, t)
-            self.observer.process(cap.marker_px, t, cap.lost, cap.reason, cap.compute_time_s)
             captured["cap"] = cap
             if c.observer_latency == "measured":
                 return cap.compute_time_s
@@ -309,11 +310,14 @@ class ClosedLoop:
             }
         )
         frames.append(row)
-        push(timing.t_release, "release", len(frames) - 1)
+        push(timing.t_release, "release", (len(frames) - 1, cap, t))
 
-    def _on_release(self, t, frame_row, push, frames, events, state, rng_ctrl) -> None:
-        """An estimate becomes available: compute the command, schedule its application."""
+    def _on_release(self, t, payload, push, frames, events, state, rng_ctrl) -> None:
+        """An estimate becomes available: the observer fuses the frame's pixels (at their
+        exposure time) and hands over its estimate; compute the command, schedule it."""
         c = self.config
+        frame_row, cap, t_exposure = payload
+        self.observer.process(cap.marker_px, t_exposure, cap.lost, cap.reason, cap.compute_time_s)
         est: Estimate = self.observer.release(t)
         state["estimate"] = est
         if hasattr(self.front_end, "tilt_hint_rad") and est.valid:
