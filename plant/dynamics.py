@@ -96,10 +96,10 @@ class MujocoPlant:
     def applied_torque(self) -> NDArray[np.float64]:
         """Body-frame torque (N·m) held over the next physics step: electromagnetic K(q) I plus
         the smooth Coulomb friction."""
-        q, omega, r = self.q, self.omega, self.params.rotor
-        T_stator = self.torque_map(q) @ self.currents
-        tau = attitude.to_matrix(q).T @ T_stator
-        return tau + coulomb_torque(omega, r.coulomb_Nm, r.coulomb_smoothing_rad_s)
+        r = self.params.rotor
+        R = attitude.to_matrix(self.data.qpos)
+        tau = R.T @ (self.torque_map.from_matrix(R) @ self.currents)
+        return tau + coulomb_torque(self.data.qvel, r.coulomb_Nm, r.coulomb_smoothing_rad_s)
 
     # --- time --------------------------------------------------------------------------------
     def step(self, currents: ArrayLike, dt: float) -> None:

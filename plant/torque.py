@@ -51,10 +51,22 @@ class TorqueMap:
 
     def __call__(self, q: ArrayLike) -> NDArray[np.float64]:
         """K(q) (3 x 16), N·m/A: stator-frame torque on the rotor per coil current."""
-        r = self.m @ attitude.to_matrix(q).T  # (18, 3) magnet axes in the stator frame
+        return self.from_matrix(attitude.to_matrix(q))
+
+    def from_matrix(self, R: NDArray[np.float64]) -> NDArray[np.float64]:
+        """K for the rotation matrix R = R(q) (rotor to stator), N·m/A."""
+        r = self.m @ R.T  # (18, 3) magnet axes in the stator frame
         gain = self.motor.k_T_Nm_per_A * self.s * window(self.c @ r.T, self.cos_cutoff)  # (16, 18)
-        # sum_j g_ij (c_i x r_j) = c_i x (sum_j g_ij r_j): one cross product per coil.
-        return np.cross(self.c, gain @ r).T
+        # sum_j g_ij (c_i x r_j) = c_i x (sum_j g_ij r_j): one cross product per coil, written
+        # out because numpy's cross has a large fixed cost for small arrays.
+        c, v = self.c, gain @ r
+        return np.stack(
+            [
+                c[:, 1] * v[:, 2] - c[:, 2] * v[:, 1],
+                c[:, 2] * v[:, 0] - c[:, 0] * v[:, 2],
+                c[:, 0] * v[:, 1] - c[:, 1] * v[:, 0],
+            ]
+        )
 
 
 class Allocation(NamedTuple):
