@@ -384,10 +384,14 @@ class PIDController:
         return self.last_torque.copy()
 
     def _command(self, est: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
+        # The discrete dynamics (integrator, derivative filter) advance by the time between the
+        # samples the estimates describe, not between the calls: with a jittery observer the
+        # calls are irregular while the frames are not.
+        t_sample = est.state_time if np.isfinite(est.state_time) else t
         if not estimate_usable(est):
-            return self._safe(t)
-        dt = 0.0 if self._t_prev is None else max(t - self._t_prev, 0.0)
-        self._t_prev = t
+            return self._safe(t_sample)
+        dt = 0.0 if self._t_prev is None else max(t_sample - self._t_prev, 0.0)
+        self._t_prev = t_sample
         q = attitude.normalize(est.q, "estimate.q")
         ref = reference.sample(t)
         q_e = attitude.multiply(attitude.conjugate(q), attitude.normalize(ref.q, "reference.q"))

@@ -52,11 +52,13 @@ and the covariance is propagated grain by grain through every delay branch.
 
 Validation against the measurement-model closed loop
 ----------------------------------------------------
-:func:`trajectory_cost` and :func:`compare_with_simulation` are the hook for that comparison.
-The measurement-model loop (issue 5 §3) does not exist yet; when it does, linearise it about an
-operating attitude, drive it with process noise of intensity ``R1c`` and measurement noise
-``R2`` (the same model as here), use the same delay pmf, and pass the recorded
-``(t, x, u)`` of several independent runs to :func:`compare_with_simulation`.
+``tests/test_jitterbug_loop.py`` runs the timed closed loop (MuJoCo plant, white disturbance
+torque ``LoopConfig.disturbance_psd_Nm2s``, noise-free pixels, per-frame solver, PID, a random
+latency on a 1 ms grain) and compares its time-averaged cost with this analysis through
+:func:`compare_with_simulation`. Measured: the simulated cost sits 11–22 % above the analysis,
+1.4–2.1 standard errors, in three experiments (random and fixed delay); the source of that
+small, consistently positive gap (the nonlinear 3-D plant, the allocation at the delayed
+attitude, or statistics) is not identified.
 """
 
 from __future__ import annotations

@@ -82,6 +82,10 @@ class LoopConfig(BaseModel):
         description="Our choice: the run stops when the geodesic error between "
         "truth and reference exceeds this.",
     )
+    disturbance_psd_Nm2s: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="Body-frame white disturbance torque intensity per axis, "
+        "(N·m)²·s (E w(t) w(s) = q δ(t - s)); 0 = none. Drawn per physics step as N(0, q/h)."
+    )
     seed: int = 0
     q0: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     omega0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -168,8 +172,13 @@ class ClosedLoop:
     def run(self, progress: bool = False) -> LoopResult:
         c, p = self.config, self.params
         rng = np.random.default_rng(c.seed)
-        rng_pipe, rng_ctrl = (np.random.default_rng(s) for s in rng.integers(2**32, size=2))
+        rng_pipe, rng_ctrl, rng_dist = (
+            np.random.default_rng(s) for s in rng.integers(2**32, size=3)
+        )
         plant = MujocoPlant(p, c.q0, c.omega0_rad_s)
+        psd = np.asarray(c.disturbance_psd_Nm2s)
+        if np.any(psd > 0):
+            plant.disturbance = lambda h: rng_dist.normal(size=3) * np.sqrt(psd / h)
         self.controller.reset()
         self.front_end.reset()
         self.observer.reset(c.q0, 0.0)

@@ -15,6 +15,8 @@ the step's start; damping, gravity and the gyroscopic term are integrated by MuJ
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -51,6 +53,9 @@ class MujocoPlant:
         self.data = mujoco.MjData(self.model)
         self.torque_map = TorqueMap(self.params.motor)
         self.currents = np.zeros(N_COILS)
+        #: Optional disturbance: called with each physics step's length h (s), returns a
+        #: body-frame torque (N·m) held over that step (e.g. white noise of variance q/h).
+        self.disturbance: Callable[[float], NDArray[np.float64]] | None = None
         self.reset(q0, omega0)
 
     # --- state -------------------------------------------------------------------------------
@@ -142,7 +147,10 @@ class MujocoPlant:
         for h in steps:
             decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
             self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
-            self.data.qfrc_applied[:] = self.applied_torque()
+            tau = self.applied_torque()
+            if self.disturbance is not None:
+                tau = tau + self.disturbance(h)
+            self.data.qfrc_applied[:] = tau
             self.model.opt.timestep = h
             mujoco.mj_step(self.model, self.data)
         self.model.opt.timestep = h0
