@@ -344,12 +344,15 @@ def summary_text(
             f"{100 * val(fast, DUAL_MS, 'lost_frame_fraction'):.1f} % of the frames lost; "
             f"{int((g.diverged > 0.5).sum())} of {len(g)} runs diverged."
         )
+    def settle(s: dict) -> str:
+        t = s["settling_time_s"]
+        return f"settles in {t:.2f} s" if np.isfinite(t) else "does not settle within the run"
+
     for d in (GK_MS, DUAL_MS):
         p, m = ts[f"pid_{d:.2f}ms"], ts[f"mpc_{d:.2f}ms"]
         lines.append(
-            f"- **5° tilt step at {d:.2f} ms.** PID overshoot {p['overshoot_pct']:.1f} %, "
-            f"settling {p['settling_time_s']:.2f} s; MPC overshoot {m['overshoot_pct']:.1f} %, "
-            f"settling {m['settling_time_s']:.2f} s."
+            f"- **5° tilt step at {d:.2f} ms.** PID: overshoot {p['overshoot_pct']:.1f} %, "
+            f"{settle(p)}; MPC: overshoot {m['overshoot_pct']:.1f} %, {settle(m)}."
         )
     return lines
 
