@@ -79,6 +79,6 @@ def test_margins_command_writes_plots(tmp_path):
 
 
 def test_every_command_has_an_example_in_its_help():
-    for cmd in ("study", "simulate", "margins", "sweep", "measure-latency", "demo"):
+    for cmd in ("study", "simulate", "margins", "sweep", "measure-latency", "demo", "tune-kalman"):
         result = RUNNER.invoke(app, [cmd, "--help"])
         assert result.exit_code == 0 and "Example" in result.output, cmd
