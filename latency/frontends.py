@@ -5,6 +5,9 @@
 * ``ImageFrontEnd`` (image-in-the-loop mode): a rendered frame (with motion blur over the
   exposure), a real tracker on the red marker and the GK assistance of seed 000 §3.2 for both
   centres. Its compute time is measured.
+* ``OrbFrontEnd`` (image-in-the-loop, rotor without markers, issue 8): a rendered frame of the
+  textured rotor and the ORB matches of ``observer.orb``; its ``Capture.marker_px`` carries the
+  ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
 
 Both return a ``Capture`` in full-sensor pixels, with the truth beside the measurement so that the
 loop can flag tracking loss by the seed's 20 px criterion (seed 000 §4.2).
@@ -179,3 +182,29 @@ class ImageFrontEnd:
             self.locator.start(frame.image, frame.binning, frame.boxes_px[0])
         loc = self.locator.locate(frame.image, frame.binning)
         return Capture(loc.marker_px, frame.marker_px, loc.lost, loc.reason, loc.compute_time_s)
+
+
+class OrbFrontEnd:
+    """Render the textured rotor and match ORB features against the observer's reference view.
+
+    Parameters
+    ----------
+    renderer : a renderer built with a texture (``AnalyticRenderOptions(texture=...)``).
+    observer : ``observer.orb_observer.OrbObserver`` whose ``measure(frame)`` is used; the loop
+        passes the measurement back to the same observer's ``process``.
+    """
+
+    def __init__(self, renderer, observer) -> None:
+        self.renderer = renderer
+        self.observer = observer
+
+    def reset(self) -> None:
+        """Nothing to reset: the reference view is fixed."""
+
+    def capture(
+        self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
+    ) -> Capture:
+        frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
+        m = self.observer.measure(frame)
+        return Capture(m, np.full((2, 2), np.nan), not m.valid, m.reason, m.compute_time_s)
+

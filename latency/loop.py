@@ -297,22 +297,27 @@ class ClosedLoop:
             frames.append(row)
             return
         cap = captured["cap"]
-        err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
+        pixels = isinstance(cap.marker_px, np.ndarray) and cap.marker_px.shape == (2, 2)
+        if pixels and np.all(np.isfinite(cap.true_px)):
+            err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
+        else:  # no marker truth (e.g. a textured rotor): the front end's own verdict only
+            err = np.full(2, np.nan if cap.lost else 0.0)
         lost = bool(cap.lost or not np.all(err <= c.loss_threshold_px))
         if lost != state["lost"]:
             detail = cap.reason or f"centre error {np.nanmax(err):.1f} px"
             events.append((t, "tracking_loss" if lost else "reacquisition", detail))
             state["lost"] = lost
+        meas = cap.marker_px if pixels else np.full((2, 2), np.nan)
         row.update(
             {
                 "true_red_u_px": cap.true_px[0, 0],
                 "true_red_v_px": cap.true_px[0, 1],
                 "true_yellow_u_px": cap.true_px[1, 0],
                 "true_yellow_v_px": cap.true_px[1, 1],
-                "meas_red_u_px": cap.marker_px[0, 0],
-                "meas_red_v_px": cap.marker_px[0, 1],
-                "meas_yellow_u_px": cap.marker_px[1, 0],
-                "meas_yellow_v_px": cap.marker_px[1, 1],
+                "meas_red_u_px": meas[0, 0],
+                "meas_red_v_px": meas[0, 1],
+                "meas_yellow_u_px": meas[1, 0],
+                "meas_yellow_v_px": meas[1, 1],
                 "centre_error_px": float(np.nanmax(err)) if np.any(np.isfinite(err)) else np.nan,
                 "lost": lost,
                 "observer_compute_s": cap.compute_time_s,

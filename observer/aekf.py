@@ -12,6 +12,12 @@ by the commanded stator-frame torque (N·m), so the filter can predict across th
 * Update (App. C.2): K = P H^T (H P H^T + λ R)^-1, via filterpy's ``ExtendedKalmanFilter``.
 * Covariance matching (App. C.3): innovation e(k) = Z - h(X(k|k-1)); C_e = mean of e e^T over
   the last N innovations; C = H P H^T + R; λ = max(1, tr C_e / tr C).
+* Point observations (``update_points``, issue 8, seed 001 §4.2.2 Eq. 13): any rotor-frame
+  points (for example ORB features on a printed texture, ``observer.orb``) and their pixels; the
+  Jacobian of the pinhole projection with distortion is CasADi's, evaluated over the points
+  with ``Function.map``. Points outside a per-point chi-square gate are dropped; the trace ratio
+  of App. C.3 is taken per observation component, because the number of points changes from
+  frame to frame (see ``update_points``).
 * Delay compensation: a measurement is fused at its exposure time; ``estimate_at(t)`` then
   predicts from there to t with the stored torque history, so a controller sees the present.
 
@@ -83,6 +89,7 @@ class UpdateResult:
     reason: str = ""
     lam: float = 1.0
     nis: float = float("nan")
+    n_points: int = 0  # observations used by ``update_points`` (0 for ``update``)
 
 
 def _pixels_symbolic(p: PlantParams) -> ca.Function:
@@ -103,6 +110,23 @@ def _pixels_symbolic(p: PlantParams) -> ca.Function:
         out += [K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]]
     z = ca.vertcat(*out)
     return ca.Function("h", [q], [z, ca.jacobian(z, q)], ["q"], ["z", "H"])
+
+
+def _point_symbolic(p: PlantParams) -> ca.Function:
+    """(q (4), P (3)) -> (uv (2), d uv/d q (2x4)): one rotor-frame point (m) through the
+    pinhole camera with OpenCV distortion (k1 k2 p1 p2 k3), sensor px (seed 001 Eq. 13)."""
+    cam = Camera.from_plant(p)
+    K = cam.matrix(1)
+    k1, k2, p1, p2, k3 = p.camera.dist_coeffs
+    q, P = ca.SX.sym("q", 4), ca.SX.sym("P", 3)
+    X_c = quat_to_matrix(q / ca.norm_2(q)) @ P - ca.DM(cam.center_m)
+    x, y = X_c[0] / X_c[2], X_c[1] / X_c[2]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    z = ca.vertcat(K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2])
+    return ca.Function("h_point", [q, P], [z, ca.jacobian(z, q)], ["q", "P"], ["z", "H"])
 
 
 class _RigidBodyEKF(ExtendedKalmanFilter):
@@ -154,6 +178,10 @@ class QuaternionAEKF:
         x1 = ca.vertcat(x1[:4] / ca.norm_2(x1[:4]), x1[4:])
         self._rk4 = ca.Function("rk4", [x, T, h], [x1, ca.jacobian(x1, x)])
         self._h = _pixels_symbolic(self.params)
+        self._h_point = _point_symbolic(self.params)
+        self._h_point_maps: dict[int, ca.Function] = {}
+        #: (sum of squared innovations, number of components) of the last N point updates.
+        self._point_window: deque[tuple[float, int]] = deque(maxlen=self.config.window_N)
         self.ekf = _RigidBodyEKF(self._propagate)
         self.ekf.x = np.r_[attitude.normalize(q0, "q0"), attitude.check_finite("omega0", omega0)]
         P0 = attitude.check_finite("P0_diag", P0_diag)
@@ -267,6 +295,150 @@ class QuaternionAEKF:
         self.ekf.x[:4] /= np.linalg.norm(self.ekf.x[:4])
         self.lam = lam
         return UpdateResult(True, "", lam, nis)
+
+    def restart(
+        self,
+        q0: ArrayLike,
+        t0: float,
+        omega0: ArrayLike = (0.0, 0.0, 0.0),
+        P0_diag: ArrayLike = (1e-4, 1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0),
+    ) -> None:
+        """Start again from attitude ``q0`` and body rate ``omega0`` (rad/s) at time ``t0``
+        (s) with covariance diagonal ``P0_diag``, as a new filter would, but without
+        rebuilding the CasADi functions (about 0.25 s). The torque history is cleared."""
+        q0 = attitude.normalize(q0, "q0")
+        w0 = attitude.check_finite("omega0", omega0).reshape(3)
+        P0 = attitude.check_finite("P0_diag", P0_diag)
+        if P0.shape != (7,) or np.any(P0 <= 0):
+            raise ValueError("P0_diag must be 7 positive variances")
+        self.ekf.x = np.r_[q0, w0]
+        self.ekf.P = np.diag(P0)
+        self.t = float(t0)
+        self.lam = 1.0
+        self._innovations.clear()
+        self._point_window.clear()
+        self._torque_t = [float(t0)]
+        self._torque = [np.zeros(3)]
+
+    # --- point observations (issue 8) -------------------------------------------------------
+    def project_points(
+        self, points_rotor_m: ArrayLike, q: ArrayLike | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Pixels (N, 2), sensor px, of rotor-frame points (N, 3), m, at attitude ``q``
+        (default the filter's) and the Jacobian (2N, 4) of the stacked (u1, v1, u2, ...) with
+        respect to the quaternion (including its normalisation)."""
+        P = np.asarray(points_rotor_m, dtype=float).reshape(-1, 3)
+        n = len(P)
+        f = self._h_point_maps.get(n)
+        if f is None:
+            if len(self._h_point_maps) >= 64:  # point counts vary from frame to frame
+                self._h_point_maps.pop(next(iter(self._h_point_maps)))
+            f = self._h_point_maps[n] = self._h_point.map(n)
+        qv = self.ekf.x[:4] if q is None else np.asarray(q, dtype=float)
+        z, H = f(qv, P.T)
+        z = np.asarray(z).T  # (n, 2)
+        H = np.asarray(H).reshape(2, n, 4).transpose(1, 0, 2).reshape(2 * n, 4)
+        return z, H
+
+    def update_points(
+        self,
+        points_rotor_m: ArrayLike,
+        pixels_px: ArrayLike,
+        t_exposure: float,
+        sigma_px: ArrayLike | float | None = None,
+        min_points: int = 3,
+    ) -> UpdateResult:
+        """Fuse the pixels (N, 2), sensor px, of rotor-frame points (N, 3), m, observed at
+        mid-exposure ``t_exposure`` (s) (seed 001 §4.2.2 Eq. 13 and App. C).
+
+        ``sigma_px`` is the per-coordinate pixel noise, one value or one per point (default
+        ``config.sigma_px``). Steps, after predicting to ``t_exposure`` with the torque
+        history (App. C.1, ``P = F P F^T + ϑ λ Q``):
+
+        1. innovation ``e = z - h(X(k|k-1))`` and covariance matching (App. C.3) per
+           observation component, since the number of points varies: ``c_e = Σ |e|² / Σ m``
+           over the last N point updates (this one included, m = 2 N_points components each),
+           ``c = tr(H P H^T + R) / m``, ``λ = max(1, c_e / c)``;
+        2. each point's 2-vector is tested against its own 2x2 ``H_i P H_i^T + λ R_i`` with
+           the chi-square gate (``gate_probability``, 2 dof) and dropped outside it (a
+           mismatched feature);
+        3. update (App. C.2) with ``λ R``: ``K = P H^T (H P H^T + λR)^-1``, computed as
+           ``(I + P H^T W H)^-1 P H^T W`` with ``W = (λR)^-1`` (a 7x7 solve instead of a
+           2m x 2m one), Joseph-form covariance; the quaternion is renormalised. The NIS of
+           the kept innovation (with λR) is reported, not gated: outliers are removed per
+           point, and a whole-frame gate would reject every frame while R is underestimated,
+           which is when covariance matching has to act (measured, docs/orb.md).
+
+        Fewer than ``min_points`` usable points, a stale time or a gated frame leave the
+        filter unchanged (it keeps predicting) and say why.
+        """
+        P_r = np.asarray(points_rotor_m, dtype=float).reshape(-1, 3)
+        z = np.asarray(pixels_px, dtype=float).reshape(-1, 2)
+        if len(P_r) != len(z):
+            return UpdateResult(False, f"{len(P_r)} points but {len(z)} pixels")
+        c = self.config
+        sig = np.broadcast_to(
+            np.asarray(c.sigma_px if sigma_px is None else sigma_px, dtype=float), (len(z),)
+        )
+        if t_exposure < self.t - 1e-12:
+            return UpdateResult(
+                False,
+                f"stale measurement: exposure {t_exposure} s is before the filter's time "
+                f"{self.t} s",
+            )
+        keep = np.all(np.isfinite(P_r), axis=1) & np.all(np.isfinite(z), axis=1)
+        keep &= np.isfinite(sig) & (sig > 0)
+        if keep.sum() < min_points:
+            return UpdateResult(False, f"too few points: {int(keep.sum())} (need {min_points})")
+        P_r, z, sig = P_r[keep], z[keep], sig[keep]
+        self._predict_to(float(t_exposure), self.lam)
+        hx, Hq = self.project_points(P_r)
+        n = len(z)
+        H = np.hstack([Hq, np.zeros((2 * n, 3))])
+        e = (z - hx).reshape(-1)
+        r = np.repeat(sig**2, 2)
+        Pk = self.ekf.P
+        HP = H @ Pk
+        # 1. covariance matching per component (App. C.3), over all points of this frame
+        lam = 1.0
+        if c.adaptive:
+            self._point_window.append((float(e @ e), 2 * n))
+            sum_e2 = sum(a for a, _ in self._point_window)
+            sum_m = sum(b for _, b in self._point_window)
+            c_theory = (float(np.einsum("ij,ij->", HP, H)) + float(r.sum())) / (2 * n)
+            lam = max(1.0, (sum_e2 / sum_m) / c_theory)
+        # 2. per-point gate with λR
+        blocks = np.einsum("nia,nja->nij", HP.reshape(n, 2, 7), H.reshape(n, 2, 7))
+        blocks += lam * np.einsum("n,ij->nij", sig**2, np.eye(2))
+        e2 = e.reshape(n, 2)
+        d2 = np.einsum("ni,ni->n", e2, np.linalg.solve(blocks, e2[..., None])[..., 0])
+        inside = d2 <= chi2.ppf(c.gate_probability, 2)
+        if inside.sum() < min_points:
+            return UpdateResult(
+                False,
+                f"too few points inside the gate: {int(inside.sum())} of {n} "
+                f"(need {min_points})",
+                lam,
+                n_points=int(inside.sum()),
+            )
+        rows = np.repeat(inside, 2)
+        H, e, r = H[rows], e[rows], r[rows]
+        m = len(e)
+        # 3. gain and NIS with λR; S^-1 = W - W H (I + P H^T W H)^-1 P H^T W, W = (λR)^-1
+        W = 1.0 / (lam * r)
+        HtW = H.T * W  # (7, m)
+        A = np.eye(7) + Pk @ HtW @ H
+        K = np.linalg.solve(A, Pk @ HtW)  # (7, m): P H^T (H P H^T + λR)^-1
+        g = HtW @ e
+        nis = float(e @ (W * e) - g @ np.linalg.solve(A, Pk @ g))
+        # 4. update (App. C.2), Joseph form
+        I_KH = np.eye(7) - K @ H
+        self.ekf.x = self.ekf.x + K @ e
+        self.ekf.x[:4] /= np.linalg.norm(self.ekf.x[:4])
+        P_new = I_KH @ Pk @ I_KH.T + (K * (lam * r)) @ K.T
+        self.ekf.P = 0.5 * (P_new + P_new.T)
+        self.lam = lam
+        return UpdateResult(True, "", lam, nis, m // 2)
 
     @property
     def q(self) -> NDArray[np.float64]:

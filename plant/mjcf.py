@@ -11,6 +11,10 @@
 * Scene: the bottom camera of ``plant.camera`` (MuJoCo cameras look along their -z with +y up in
   the image, so ``xyaxes = (1 0 0, 0 -1 0)`` gives image u along +X and v along +Y), a ring of
   lights around it, the dark VFC plate at the bottom pole with the red and yellow marker discs.
+* Textured variant (issue 8, ``texture=``; off by default): instead of the marker discs, a
+  square mesh on the plane z = -R carries the printed pattern of ``plant.texture`` as a 2-D
+  texture asset (``mjcf_assets``), with texture coordinates at its corners so that texel
+  (i, j) lands on the rotor point of ``plant.texture.Texture``'s convention.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 from plant.camera import Camera
 from plant.geometry import marker_points
 from plant.params import PlantParams
+from plant.texture import Texture, encode_png
 
 #: Stop tendon anchor height H above O and shaft-site distance a from O (m): our choice.
 STOP_ANCHOR_M = 0.20
@@ -38,6 +43,8 @@ ROTOR_RGB = (0.55, 0.56, 0.58)
 #: rgb colour above (rotor mid grey, plate dark, markers saturated red and yellow) and darkens
 #: mildly toward the rotor's silhouette, as in ``plant.render_analytic``. No specular light:
 #: the plate and discs are matte prints.
+#: File name under which the print of the textured variant is handed to MuJoCo (``mjcf_assets``).
+TEXTURE_FILE = "rotor_print.png"
 HEADLIGHT_AMBIENT = 0.42
 HEADLIGHT_DIFFUSE = 0.30
 RING_DIFFUSE = 0.06
@@ -53,12 +60,42 @@ def _v(x) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.ravel(x))
 
 
-def build_mjcf(p: PlantParams, sensor_delay_s: float | None = None) -> str:
+def mjcf_assets(texture: Texture | None) -> dict[str, bytes]:
+    """The asset files that ``build_mjcf(..., texture=texture)`` refers to, for
+    ``mujoco.MjModel.from_xml_string(xml, assets)``; empty without a texture."""
+    return {} if texture is None else {TEXTURE_FILE: encode_png(texture)}
+
+
+def _print_mesh(texture: Texture) -> tuple[str, str]:
+    """(asset, geom) MJCF of the textured variant's print: a square of two triangles on the
+    plane z = -R facing the camera (-z), texture corner (0, 0) at rotor (-h, -h) and (1, 1) at
+    (h, h), as in ``plant.texture``."""
+    h, z = texture.half_size_m, texture.z_m
+    verts = [[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]]
+    asset = f"""  <asset>
+    <texture name="print" type="2d" file="{TEXTURE_FILE}"/>
+    <material name="print" texture="print" rgba="1 1 1 1" specular="0" shininess="0"
+              reflectance="0"/>
+    <mesh name="print" vertex="{_v(verts)}" texcoord="0 0 1 0 1 1 0 1" face="0 2 1 0 3 2"
+          inertia="shell"/>
+  </asset>
+"""
+    geom = """      <geom name="print" type="mesh" mesh="print" material="print"
+            contype="0" conaffinity="0" mass="0"/>"""
+    return asset, geom
+
+
+def build_mjcf(
+    p: PlantParams, sensor_delay_s: float | None = None, texture: Texture | None = None
+) -> str:
     """MJCF text of the motor and scene for parameters ``p``.
 
     ``sensor_delay_s`` adds a ``ballquat`` sensor ``rotor_quat_delayed`` that reports the
     attitude that much earlier through MuJoCo's native sensor delay (MuJoCo >= 3.5), an
     independent check of the timed loop's delay pipeline.
+
+    ``texture`` (issue 8; default None) replaces the two marker discs by the printed pattern
+    of ``plant.texture.generate_texture``; load the model with ``mjcf_assets(texture)``.
     """
     delayed = ""
     if sensor_delay_s is not None:
@@ -91,6 +128,18 @@ def build_mjcf(p: PlantParams, sensor_delay_s: float | None = None) -> str:
         f'type="spot" cutoff="40"/>'
         for k, a in enumerate(np.deg2rad(np.arange(0, 360, 60)))
     )
+    markers = f"""
+      <geom name="marker_red" type="cylinder" pos="{_v(red + [0, 0, disc_half])}"
+            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(RED_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>
+      <geom name="marker_yellow" type="cylinder" pos="{_v(yellow + [0, 0, disc_half])}"
+            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(YELLOW_RGB)} 1"
+            contype="0" conaffinity="0" mass="0"/>"""
+    asset = ""
+    if texture is not None:
+        asset, geom = _print_mesh(texture)
+        markers = "\n" + geom
+        half_plate = max(half_plate, texture.half_size_m)  # the dark plate backs the print
     l_max = stop_tendon_length(np.deg2rad(r.tilt_stop_deg))
     dt = p.physics_dt_s
     stop_tc = max(STOP_TIMECONST_S, 2 * dt)
@@ -103,7 +152,7 @@ def build_mjcf(p: PlantParams, sensor_delay_s: float | None = None) -> str:
                specular="0 0 0"/>
     <quality offsamples="4"/>
   </visual>
-  <worldbody>
+{asset}  <worldbody>
 {lights}
     <camera name="bottom" pos="{_v(cam.center_m)}" xyaxes="1 0 0 0 -1 0" fovy="{fovy_deg:.9g}"/>
     <site name="stop_anchor" pos="0 0 {STOP_ANCHOR_M:.9g}" size="0.002"/>
@@ -117,13 +166,7 @@ def build_mjcf(p: PlantParams, sensor_delay_s: float | None = None) -> str:
             rgba="0.7 0.7 0.72 1" contype="0" conaffinity="0" mass="0"/>
       <geom name="vfc_plate" type="box" pos="0 0 {plate_z:.9g}"
             size="{half_plate:.9g} {half_plate:.9g} {plate_half:.9g}" rgba="{_v(PLATE_RGB)} 1"
-            contype="0" conaffinity="0" mass="0"/>
-      <geom name="marker_red" type="cylinder" pos="{_v(red + [0, 0, disc_half])}"
-            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(RED_RGB)} 1"
-            contype="0" conaffinity="0" mass="0"/>
-      <geom name="marker_yellow" type="cylinder" pos="{_v(yellow + [0, 0, disc_half])}"
-            size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(YELLOW_RGB)} 1"
-            contype="0" conaffinity="0" mass="0"/>
+            contype="0" conaffinity="0" mass="0"/>{markers}
       <site name="shaft_tip" pos="0 0 {STOP_SHAFT_M:.9g}" size="0.002"/>
     </body>
   </worldbody>

@@ -18,6 +18,17 @@ drawn disc is within 0.03 px of the true one.
 Camera effects, all optional and seeded: motion blur (the average of sub-exposure renders at
 ``plant.scene.sub_exposure_attitudes``), illumination scale, gain, Gaussian read noise, and
 distractors: stationary specular highlights and a red or yellow sticker elsewhere on the rotor.
+
+Textured variant (issue 8, ``AnalyticRenderOptions.texture``; off by default): the bottom plate
+carries the printed pattern of ``plant.texture`` instead of the dark plate and the two markers.
+Each pixel's viewing ray is intersected with the print's plane at the sub-frame's attitude (the
+plane-to-image map is the homography of ``plant.texture.plane_homography`` in normalised camera
+coordinates, composed with the lens undistortion when the lens is not ideal) and the texture
+is sampled there: rendered at ``SUPERSAMPLE_TEXTURE`` times the resolution from a prefiltered
+level of the texture and area-averaged down, so it does not alias. The print's outline is
+composited with the same anti-aliased coverage as the plate, and it is shaded like the plate.
+The frame's ``marker_px`` and ``boxes_px`` then describe where the markers would be (they are
+not drawn); the attitude ``q`` is the ground truth.
 """
 
 from __future__ import annotations
@@ -45,6 +56,7 @@ from plant.scene import (
     sub_exposure_attitudes,
     vfc_pixel_travel,
 )
+from plant.texture import TextureParams, generate_texture, outline_rotor, plane_homography
 
 #: Housing seen around the rotor (RGB in [0, 1]); our choice: nearly black, like MuJoCo's
 #: empty background.
@@ -62,6 +74,9 @@ AA_GROWTH_PX = 0.6
 #: within about 0.1 px, at a quarter of the cost).
 SUPERSAMPLE = 4
 SUPERSAMPLE_PLATE = 2
+#: Supersampling factor of the textured plate (our choice: with a texture level of about one
+#: texel per fine pixel, edges of the print are area-averaged over 2 x 2 samples).
+SUPERSAMPLE_TEXTURE = 2
 #: Fixed-point fraction bits of the polygon vertices passed to ``cv2.fillPoly`` (1/256 px).
 _SHIFT = 8
 #: Boundary points of the rotor silhouette.
@@ -136,6 +151,11 @@ class AnalyticRenderOptions(BaseModel):
     )
     distractor_diameter_mm: float = Field(
         8.0, gt=0.0, description="Our choice: the distractor sticker's diameter, mm."
+    )
+    texture: TextureParams | None = Field(
+        None,
+        description="Issue 8: a printed texture (``plant.texture``) on the bottom plate "
+        "instead of the dark plate and the two markers; None (default) keeps the markers.",
     )
 
 
@@ -218,6 +238,12 @@ class AnalyticRenderer:
         self.width, self.height = self.camera.size(self.binning)
         self._plate = plate_outline_rotor(self.params)
         self._discs = disc_outlines_rotor(self.params)
+        self.texture = None
+        if self.options.texture is not None:
+            self.texture = generate_texture(self.params, self.options.texture)
+            self._plate = outline_rotor(self.texture)
+            self._texture_level = self._choose_texture_level()
+            self._undistort_fine: NDArray[np.float32] | None = None
         self._rotor_mask, self._background = self._draw_background()
         self._distractor = self._place_distractor()
         self._highlights = self._draw_highlights()
@@ -313,6 +339,8 @@ class AnalyticRenderer:
             (self._discs[0], _rgb255(RED_RGB) * shade, SUPERSAMPLE),
             (self._discs[1], _rgb255(YELLOW_RGB) * shade, SUPERSAMPLE),
         ]
+        if self.texture is not None:  # the print replaces plate colour and markers
+            layers = [(self._plate, np.full(3, shade), SUPERSAMPLE_PLATE)]
         if self._distractor is not None:
             outline, rgb = self._distractor
             centre = R_mid @ outline.mean(axis=0)
@@ -343,6 +371,7 @@ class AnalyticRenderer:
         """
         img = self._background.copy()
         layers = self._layers(qs)
+        textured = len(layers) - 1 if self.texture is not None else -1
         allpts = np.vstack([p for _, _, polys in layers for p in polys if p is not None])
         x0, y0 = np.maximum(np.floor(allpts.min(axis=0)).astype(int) - 2, 0)
         x1, y1 = np.ceil(allpts.max(axis=0)).astype(int) + 3
@@ -352,7 +381,10 @@ class AnalyticRenderer:
         w, h = x1 - x0, y1 - y0
         roi = self._background[y0:y1, x0:x1].astype(np.float32)
         inv_n = np.float32(1.0 / len(qs))
-        for colour, ss, polys in layers:
+        for li, (colour, ss, polys) in enumerate(layers):
+            if li == textured:
+                self._composite_texture(roi, (x0, y0), qs, polys, float(colour[0]))
+                continue
             acc = np.zeros((h, w), np.float32)
             lo, hi = np.array([h, w]), np.array([0, 0])
             for poly in polys:
@@ -376,6 +408,111 @@ class AnalyticRenderer:
             patch[...] = cv2.add(patch, step)
         img[y0:y1, x0:x1] = cv2.convertScaleAbs(roi)  # values are >= 0: rounds and saturates
         return img
+
+    # --- textured plate (issue 8) -------------------------------------------------------------
+    def _choose_texture_level(self) -> int:
+        """Texels per side of the prefiltered texture level sampled when rendering: about one
+        texel per supersampled pixel at the print's distance, never more than the print has."""
+        cam, tex = self.camera, self.texture
+        f_fine = cam.matrix(self.binning)[0, 0] * SUPERSAMPLE_TEXTURE  # fine px per rad
+        distance = float(tex.z_m - cam.center_m[2])  # optical centre to the print at rest, m
+        n = int(np.ceil(2.0 * tex.half_size_m / distance * f_fine))
+        return int(min(tex.n, max(n, 16)))
+
+    def _fine_to_normalised(self, origin: tuple[int, int]) -> NDArray[np.float64]:
+        """3x3 matrix from the supersampled pixel grid of a region whose top-left image pixel
+        is ``origin`` to normalised camera coordinates (ideal lens)."""
+        ss = SUPERSAMPLE_TEXTURE
+        off = 0.5 / ss - 0.5
+        S = np.array(
+            [[1.0 / ss, 0.0, origin[0] + off], [0.0, 1.0 / ss, origin[1] + off], [0.0, 0.0, 1.0]]
+        )
+        return np.linalg.inv(self.camera.matrix(self.binning)) @ S
+
+    def _normalised_fine_grid(self) -> NDArray[np.float32]:
+        """Undistorted normalised coordinates (H ss, W ss, 2) of the supersampled pixel grid of
+        the whole frame (computed once, only for a distorted lens)."""
+        if self._undistort_fine is None:
+            ss = SUPERSAMPLE_TEXTURE
+            u, v = np.meshgrid(
+                (np.arange(self.width * ss) + 0.5) / ss - 0.5,
+                (np.arange(self.height * ss) + 0.5) / ss - 0.5,
+            )
+            uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
+            xy = cv2.undistortPoints(
+                uv, self.camera.matrix(self.binning), np.asarray(self.camera.params.dist_coeffs)
+            )
+            self._undistort_fine = xy.reshape(self.height * ss, self.width * ss, 2).astype(
+                np.float32
+            )
+        return self._undistort_fine
+
+    def _warp_texture(
+        self, q: NDArray[np.float64], origin: tuple[int, int], size: tuple[int, int]
+    ) -> NDArray[np.float32]:
+        """The print as seen at attitude ``q`` over an image region (``size`` = (w, h) image
+        px, top-left pixel ``origin``): RGB float32 (h, w, 3), unshaded, at image resolution."""
+        ss = SUPERSAMPLE_TEXTURE
+        n = self._texture_level
+        tex = self.texture.resampled(n)
+        G = plane_homography(self.texture, attitude.to_matrix(q), self.camera.center_m, n)
+        w_f, h_f = size[0] * ss, size[1] * ss
+        if not np.any(self.camera.params.dist_coeffs):
+            M = G @ self._fine_to_normalised(origin)  # fine pixel -> texel
+            fine = cv2.warpPerspective(
+                tex,
+                M,
+                (w_f, h_f),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+        else:
+            xy = self._normalised_fine_grid()[
+                origin[1] * ss : origin[1] * ss + h_f, origin[0] * ss : origin[0] * ss + w_f
+            ]
+            den = G[2, 0] * xy[..., 0] + G[2, 1] * xy[..., 1] + G[2, 2]
+            mx = (G[0, 0] * xy[..., 0] + G[0, 1] * xy[..., 1] + G[0, 2]) / den
+            my = (G[1, 0] * xy[..., 0] + G[1, 1] * xy[..., 1] + G[1, 2]) / den
+            fine = cv2.remap(
+                tex,
+                mx.astype(np.float32),
+                my.astype(np.float32),
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+        out = cv2.resize(fine, size, interpolation=cv2.INTER_AREA) if ss > 1 else fine
+        return out.astype(np.float32)
+
+    def _composite_texture(
+        self,
+        roi: NDArray[np.float32],
+        origin: tuple[int, int],
+        qs: NDArray[np.float64],
+        polys: list,
+        shade: float,
+    ) -> None:
+        """Composite the print over ``roi`` (float32 RGB, top-left image pixel ``origin``) in
+        place, averaged over the sub-frame attitudes ``qs`` whose outlines are ``polys``
+        (image px): ``roi = roi (1 - mean coverage) + shade * mean(coverage * texture)``."""
+        h, w = roi.shape[:2]
+        x0, y0 = origin
+        alpha_acc = np.zeros((h, w), np.float32)
+        colour_acc = np.zeros((h, w, 3), np.float32)
+        for q, poly in zip(qs, polys, strict=True):
+            cov = polygon_coverage(poly - [x0, y0], w, h, SUPERSAMPLE_PLATE)
+            if cov is None:
+                continue
+            (sy, sx), alpha = cov
+            tex = self._warp_texture(
+                q, (x0 + sx.start, y0 + sy.start), (alpha.shape[1], alpha.shape[0])
+            )
+            alpha_acc[sy, sx] += alpha
+            colour_acc[sy, sx] += tex * alpha[..., None]
+        inv_n = np.float32(1.0 / len(qs))
+        alpha_acc *= inv_n
+        colour_acc *= np.float32(shade) * inv_n
+        roi *= (1.0 - alpha_acc)[..., None]
+        roi += colour_acc
 
     def _camera_effects(self, img: NDArray[np.uint8]) -> NDArray[np.uint8]:
         """Illumination, highlights, read noise and gain; back to uint8 with saturation."""

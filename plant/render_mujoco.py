@@ -5,6 +5,10 @@ of view of ``plant.camera.Camera``, so frames agree with ``plant.render_analytic
 ground truth of ``plant.scene``. MuJoCo renders an ideal pinhole; a non-zero lens distortion
 (``CameraParams.dist_coeffs``) is applied afterwards by resampling the ideal image.
 
+Textured variant (issue 8; ``texture=`` a ``plant.texture.TextureParams``, default None): the
+plate carries the printed pattern of ``plant.texture`` instead of the two markers (see
+``plant.mjcf``); OpenGL's mipmapped texture filtering does the anti-aliasing.
+
 OpenGL backend: MuJoCo chooses it from the environment variable ``MUJOCO_GL`` when ``mujoco``
 is first imported. This module sets ``MUJOCO_GL=egl`` (headless, works on CPU-only machines
 through Mesa) unless the variable is already set, *before* importing mujoco. If something
@@ -27,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
 from plant import attitude  # noqa: E402
 from plant.camera import Camera  # noqa: E402
-from plant.mjcf import build_mjcf  # noqa: E402
+from plant.mjcf import build_mjcf, mjcf_assets  # noqa: E402
 from plant.params import PlantParams  # noqa: E402
 from plant.scene import (  # noqa: E402
     Frame,
@@ -39,6 +43,7 @@ from plant.scene import (  # noqa: E402
     sub_exposure_attitudes,
     vfc_pixel_travel,
 )
+from plant.texture import TextureParams, generate_texture  # noqa: E402
 
 #: Name of the camera in the MJCF of ``plant.mjcf``.
 CAMERA_NAME = "bottom"
@@ -61,6 +66,9 @@ class MujocoRenderer:
         costs a full render).
     max_sub_frames : int
         Cap on the automatic number of sub-frames (our choice: 16).
+    texture : TextureParams, optional
+        Issue 8: draw the printed texture of ``plant.texture`` on the bottom plate instead of
+        the two markers (default None: the markers).
 
     The renderer holds an OpenGL context: call ``close()`` or use it as a context manager.
     """
@@ -72,6 +80,7 @@ class MujocoRenderer:
         *,
         blur_step_px: float = 1.0,
         max_sub_frames: int = 16,
+        texture: TextureParams | None = None,
     ) -> None:
         self.params = params or PlantParams()
         self.binning = check_binning(self.params, binning)
@@ -83,7 +92,13 @@ class MujocoRenderer:
         self.max_sub_frames = int(max_sub_frames)
         self.camera = Camera.from_plant(self.params)
         self.width, self.height = self.camera.size(self.binning)
-        self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params))
+        self.texture = None if texture is None else generate_texture(self.params, texture)
+        if self.texture is None:
+            self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params))
+        else:
+            self.model = mujoco.MjModel.from_xml_string(
+                build_mjcf(self.params, texture=self.texture), mjcf_assets(self.texture)
+            )
         self.data = mujoco.MjData(self.model)
         off_w, off_h = self.model.vis.global_.offwidth, self.model.vis.global_.offheight
         if self.width > off_w or self.height > off_h:
