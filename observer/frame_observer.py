@@ -87,7 +87,7 @@ class MarkerLocator:
         )
         if res.red_source != "measurement" and np.all(np.isfinite(res.red_px)):
             # Restart the tracker where the Kalman prediction puts the red marker.
-            r = 1.6 * self.gk.marker_radius_px()
+            r = 1.6 * self.gk.marker_radius_px
             guess = np.r_[res.red_px - r, 2 * r, 2 * r]
             self.tracker.init(image, box_sensor_to_image(guess, binning))
         return Located(res.marker_px, res.lost, res.reason, time.perf_counter() - t0, res)

@@ -56,3 +56,22 @@ def test_filter_observer_on_rendered_frames_estimates_the_rate():
         R = A.to_matrix(cone(e.state_time))
         w_true = R.T @ (np.array([0.0, 0.0, 1.0]) - R[:, 2])
         assert np.linalg.norm(e.omega - w_true) < 0.1 * np.linalg.norm(w_true)
+
+
+def test_locator_predicts_through_blank_frames_and_reacquires():
+    renderer = AnalyticRenderer(P, seed=4)
+    loc = MarkerLocator(P)
+    frame = renderer.render(cone(0.0))
+    loc.start(frame.image, frame.binning, frame.boxes_px[0])
+    dt = 1.0 / P.camera.frame_rate_hz
+    for k in range(1, 4):
+        loc.locate(renderer.render(cone(k * dt)).image, frame.binning)
+    for _ in range(4, 8):  # the markers vanish: the Kalman prediction stands in, tracker restarts
+        blank = np.zeros_like(frame.image)
+        res = loc.locate(blank, frame.binning)
+        assert res.gk.red_source == "prediction"
+    for k in range(8, 12):
+        f = renderer.render(cone(k * dt))
+        res = loc.locate(f.image, f.binning)
+    assert not res.lost and res.gk.red_source == "measurement"
+    assert np.linalg.norm(res.marker_px - f.marker_px, axis=1).max() < 3.0

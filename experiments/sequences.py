@@ -1,0 +1,305 @@
+"""Tracking sequences rendered deterministically from seeds, with the seed's synthetic cases.
+
+**Motion** (seed 000 §4.1: the rotor "was manually manipulated" and recorded continuously; the
+seed gives no trajectory, so the model is our choice): a hand moves the rotor from one pose to
+the next and pauses. The pose is (spin ψ about the shaft, tilt β, tilt azimuth γ) with the
+attitude ``q = from_zyz(ψ - γ, β, γ)`` (``docs/plant.md``: a pure tilt toward γ is
+``from_zyz(-γ, β, γ)``, so ψ is the turn about the shaft). Each move changes the spin, the tilt
+(with its azimuth), or both, towards a random target (|Δψ| ≤ 90°, β ∈ [0, 15°] the mechanical
+range of seed 000 §2.4, |Δγ| ≤ 120°) along a minimum-jerk profile lasting 0.6-2.0 s (a brisk
+hand: up to about 300°/s at the peak of a short spin move), followed by a dwell of 0-0.8 s; a
+small hand tremor (0.05° per angle, 3-8 Hz) rides on top. Frames at 36 frames/s (seed 000 §5).
+
+**Rendering**: ``plant.render_analytic.AnalyticRenderer`` (default camera, 612 x 512 at binning
+4), with the body rate from the trajectory for the exposure blur, and per-sequence illumination
+0.85-1.15, 0-2 stationary highlights and read noise 1.5-3 DN drawn from the seed (our choices,
+for variety between sequences). Ground truth: ``Frame.marker_px`` (2, 2) and ``Frame.boxes_px``
+(2, 4), full-sensor px, red then yellow.
+
+**Cases** on top of the same underlying motion:
+
+* ``clean``: frame k shows trajectory frame k.
+* ``occlusion`` (seed 000 §4.3.1): frames 100-110 get a black (0) rectangle over both markers'
+  boxes plus a 20 px margin (sensor px; converted to image px, every pixel the rectangle touches).
+  The ground truth is kept.
+* ``blur`` (seed 000 §4.3.2): frames 130-160 advance the trajectory K = 5 frames each
+  (τ = 130 + 5 (k - 130)), so the markers move five times faster, and each is the mean of
+  M = 6 consecutive trajectory frames τ-5 … τ (linear superposition). Ground truth of a blurred
+  frame: the mean of those six centres (the centre of the smear) and the mean box. After frame 160
+  the trajectory continues at normal speed (τ = k + 120).
+
+**Seeds**. Validation sequences use seeds ``VALIDATION_SEED_BASE + i`` (7,000,000 + i); they are
+for reported numbers only, never for training or tuning. Development and tuning use
+``DEVELOPMENT_SEED_BASE + i`` (6,000,000 + i). The TransT network is trained on renderer data from
+the training script's own seeds (``observer/transt``), which stay below 6,000,000; keep it so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from plant import attitude
+from plant.params import PlantParams
+from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
+
+Case = Literal["clean", "occlusion", "blur"]
+CASES: tuple[Case, ...] = ("clean", "occlusion", "blur")
+
+#: Seed 000 §4.3.1: occluded frames 100-110 (inclusive) and the occluder's margin, sensor px.
+OCCLUSION_FRAMES = range(100, 111)
+OCCLUSION_MARGIN_SENSOR_PX = 20.0
+#: Seed 000 §4.3.2: blurred frames 130-160 (inclusive), temporal downsampling K, frames averaged M.
+BLUR_FRAMES = range(130, 161)
+K_DOWNSAMPLE = 5
+M_AVERAGE = 6
+
+#: Seed ranges (see the module docstring). Training data must use seeds below both.
+VALIDATION_SEED_BASE = 7_000_000
+DEVELOPMENT_SEED_BASE = 6_000_000
+
+
+def validation_seeds(n: int) -> list[int]:
+    """The first ``n`` validation seeds (reported numbers only; never train or tune on them)."""
+    return [VALIDATION_SEED_BASE + i for i in range(int(n))]
+
+
+def development_seeds(n: int) -> list[int]:
+    """The first ``n`` development seeds (for tuning and tests)."""
+    return [DEVELOPMENT_SEED_BASE + i for i in range(int(n))]
+
+
+class ManualMotionConfig(BaseModel):
+    """The hand-moved trajectory (all our choices, see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    tilt_max_deg: float = Field(15.0, gt=0.0, le=15.0, description="Seed 000 §2.4: 0-15°.")
+    spin_step_deg: float = Field(90.0, ge=0.0, description="Largest spin change of one move.")
+    azimuth_step_deg: float = Field(120.0, ge=0.0, description="Largest azimuth change of a "
+                                    "move.")
+    move_s: tuple[float, float] = Field((0.6, 2.0), description="Duration range of a move, s.")
+    dwell_s: tuple[float, float] = Field((0.0, 0.8), description="Pause range after a move, s.")
+    tremor_deg: float = Field(0.05, ge=0.0, description="Hand tremor amplitude per angle, deg.")
+    tremor_hz: tuple[float, float] = Field((3.0, 8.0), description="Tremor frequency range, Hz.")
+
+
+class SequenceSpec(BaseModel):
+    """What to render: seed, length, case and motion."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seed: int = Field(..., ge=0, description="Seed of the motion, the scene variations and noise.")
+    case: Case = "clean"
+    n_frames: int = Field(300, ge=1, description="Frames in the sequence (seed cases need 161).")
+    fps: float = Field(36.0, gt=0.0, description="Seed 000 §5: 36 frames/s.")
+    motion: ManualMotionConfig = ManualMotionConfig()
+    binning: int | None = Field(None, description="Renderer binning (default: the camera's).")
+
+    @property
+    def name(self) -> str:
+        return f"s{self.seed}_{self.case}"
+
+
+@dataclass
+class TrackingSequence:
+    """Frames with ground truth for the tracking benchmark.
+
+    Attributes
+    ----------
+    name : identifier (e.g. ``s7000000_blur`` or a CVAT task name).
+    images : (N, H, W, 3) uint8 RGB frames, binned by ``binning``.
+    marker_px : (N, 2, 2) true centres, red then yellow, full-sensor px (NaN where unknown).
+    boxes_px : (N, 2, 4) true boxes (x, y, w, h), full-sensor px (NaN where unknown).
+    binning : sensor px per image px.
+    fps : frame rate, frames/s.
+    case : "clean", "occlusion", "blur" or "recorded".
+    occluded, blurred : (N,) flags of the synthetic disturbances (or CVAT's ``occluded``).
+    params : the plant/camera parameters the frames belong to.
+    seed : the spec's seed (None for recordings).
+    tilt_rad : (N,) true tilt at each frame (NaN where unknown).
+    """
+
+    name: str
+    images: NDArray[np.uint8]
+    marker_px: NDArray[np.float64]
+    boxes_px: NDArray[np.float64]
+    binning: int
+    fps: float
+    case: str
+    occluded: NDArray[np.bool_]
+    blurred: NDArray[np.bool_]
+    params: PlantParams = field(default_factory=PlantParams)
+    seed: int | None = None
+    tilt_rad: NDArray[np.float64] | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.images.shape[0])
+
+    def __post_init__(self) -> None:
+        n = self.images.shape[0]
+        if self.images.ndim != 4 or self.images.shape[3] != 3 or self.images.dtype != np.uint8:
+            raise ValueError(f"images must be (N, H, W, 3) uint8, got {self.images.shape} "
+                             f"{self.images.dtype}")
+        for name, arr, shape in (("marker_px", self.marker_px, (n, 2, 2)),
+                                 ("boxes_px", self.boxes_px, (n, 2, 4)),
+                                 ("occluded", self.occluded, (n,)),
+                                 ("blurred", self.blurred, (n,))):
+            if np.shape(arr) != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {np.shape(arr)}")
+
+
+# --- motion ------------------------------------------------------------------------------------
+def _min_jerk(s: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Minimum-jerk profile 10 s³ - 15 s⁴ + 6 s⁵ on s ∈ [0, 1]."""
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def manual_motion(
+    rng: np.random.Generator, n_frames: int, fps: float, cfg: ManualMotionConfig
+) -> NDArray[np.float64]:
+    """(n_frames, 3) angles (spin ψ, tilt β, azimuth γ) in rad at t = k / fps (see the module
+    docstring)."""
+    t = np.arange(n_frames) / fps
+    # tremor first, so that the motion of the first frames does not depend on n_frames
+    trem_f = rng.uniform(*cfg.tremor_hz, size=(3, 3))
+    trem_ph = rng.uniform(0.0, 2.0 * math.pi, size=(3, 3))
+    pose = np.array([rng.uniform(-math.pi, math.pi),
+                     rng.uniform(0.0, math.radians(cfg.tilt_max_deg)),
+                     rng.uniform(-math.pi, math.pi)])
+    knots_t, knots_p = [0.0], [pose.copy()]
+    t_now = 0.0
+    while t_now < t[-1] + 1.0:
+        kind = rng.choice(["spin", "tilt", "both"], p=[0.35, 0.35, 0.30])
+        target = pose.copy()
+        if kind in ("spin", "both"):
+            target[0] += math.radians(rng.uniform(-cfg.spin_step_deg, cfg.spin_step_deg))
+        if kind in ("tilt", "both"):
+            target[1] = rng.uniform(0.0, math.radians(cfg.tilt_max_deg))
+            target[2] += math.radians(rng.uniform(-cfg.azimuth_step_deg, cfg.azimuth_step_deg))
+        dur = rng.uniform(*cfg.move_s)
+        dwell = rng.uniform(*cfg.dwell_s)
+        knots_t += [t_now + dur, t_now + dur + dwell]
+        knots_p += [target, target.copy()]
+        pose, t_now = target, t_now + dur + dwell
+    angles = np.empty((n_frames, 3))
+    kt = np.array(knots_t)
+    kp = np.array(knots_p)
+    idx = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, len(kt) - 2)
+    span = np.maximum(kt[idx + 1] - kt[idx], 1e-12)
+    s = _min_jerk(np.clip((t - kt[idx]) / span, 0.0, 1.0))
+    angles[:] = kp[idx] + s[:, None] * (kp[idx + 1] - kp[idx])
+    if cfg.tremor_deg > 0.0:
+        for j in range(3):
+            f, ph = trem_f[j], trem_ph[j]
+            trem = np.sin(2.0 * math.pi * f[:, None] * t[None, :] + ph[:, None]).sum(axis=0)
+            angles[:, j] += math.radians(cfg.tremor_deg) * trem / math.sqrt(1.5)
+    tmax = math.radians(cfg.tilt_max_deg)
+    angles[:, 1] = np.clip(np.abs(angles[:, 1]), 0.0, tmax)
+    return angles
+
+
+def attitudes(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 4) quaternions from (spin ψ, tilt β, azimuth γ) rows: from_zyz(ψ - γ, β, γ)."""
+    return np.array([attitude.from_zyz(a[0] - a[2], a[1], a[2]) for a in angles])
+
+
+def body_rates(qs: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    """(N, 3) body-frame angular velocity, rad/s, by central differences of the attitudes."""
+    rv = np.array([attitude.to_rotvec(attitude.multiply(attitude.conjugate(qs[k]), qs[k + 1]))
+                   for k in range(len(qs) - 1)]) * fps
+    if len(rv) == 0:
+        return np.zeros((len(qs), 3))
+    w = np.empty((len(qs), 3))
+    w[0], w[-1] = rv[0], rv[-1]
+    w[1:-1] = 0.5 * (rv[:-1] + rv[1:])
+    return w
+
+
+def trajectory_index(k: int, case: Case) -> int:
+    """Trajectory frame τ shown by output frame k (the blur case's time warp)."""
+    if case != "blur" or k < BLUR_FRAMES.start:
+        return k
+    if k in BLUR_FRAMES:
+        return BLUR_FRAMES.start + K_DOWNSAMPLE * (k - BLUR_FRAMES.start)
+    return k + (K_DOWNSAMPLE - 1) * (len(BLUR_FRAMES) - 1)
+
+
+# --- rendering ---------------------------------------------------------------------------------
+def occluder_pixels(
+    boxes_sensor_px: NDArray[np.float64], binning: int, width: int, height: int,
+    margin_sensor_px: float = OCCLUSION_MARGIN_SENSOR_PX,
+) -> tuple[slice, slice]:
+    """Rows and columns of the occluder (seed 000 §4.3.1): the union of the boxes (k, 4) plus
+    ``margin_sensor_px`` on each side (sensor px), as every pixel of a ``width`` x ``height``
+    frame binned by ``binning`` that the rectangle touches."""
+    lo = np.min(boxes_sensor_px[:, :2], axis=0) - margin_sensor_px
+    hi = np.max(boxes_sensor_px[:, :2] + boxes_sensor_px[:, 2:], axis=0) + margin_sensor_px
+    lo_i = (lo + 0.5) / binning - 0.5
+    hi_i = (hi + 0.5) / binning - 0.5
+    c0, r0 = (max(int(math.ceil(v - 0.5)), 0) for v in lo_i)
+    c1 = min(int(math.floor(hi_i[0] + 0.5)), width - 1)
+    r1 = min(int(math.floor(hi_i[1] + 0.5)), height - 1)
+    return slice(r0, r1 + 1), slice(c0, c1 + 1)
+
+
+def render_sequence(spec: SequenceSpec, params: PlantParams | None = None) -> TrackingSequence:
+    """Render the sequence of ``spec`` (deterministic: same spec, same frames)."""
+    p = params or PlantParams()
+    n = spec.n_frames
+    n_traj = n + (K_DOWNSAMPLE - 1) * (len(BLUR_FRAMES) - 1)  # the same motion for every case
+    angles = manual_motion(np.random.default_rng([spec.seed, 0x7A3C]), n_traj, spec.fps,
+                           spec.motion)
+    qs = attitudes(angles)
+    omegas = body_rates(qs, spec.fps)
+    rng = np.random.default_rng([spec.seed, 0x0B7])
+    options = AnalyticRenderOptions(
+        illumination=float(rng.uniform(0.85, 1.15)),
+        n_highlights=int(rng.integers(0, 3)),
+        noise_sigma_dn=float(rng.uniform(1.5, 3.0)),
+    )
+    renderer = AnalyticRenderer(p, binning=spec.binning, options=options,
+                                seed=np.random.default_rng([spec.seed, 0x51D]))
+    b = renderer.binning
+    images = np.empty((n, renderer.height, renderer.width, 3), np.uint8)
+    marker = np.empty((n, 2, 2))
+    boxes = np.empty((n, 2, 4))
+    tilt = np.empty(n)
+    occluded = np.zeros(n, bool)
+    blurred = np.zeros(n, bool)
+    for k in range(n):
+        tau = trajectory_index(k, spec.case)
+        if spec.case == "blur" and k in BLUR_FRAMES:
+            taus = list(range(tau - M_AVERAGE + 1, tau + 1))
+            blurred[k] = True
+        else:
+            taus = [tau]
+        frames = [renderer.render(qs[j], j / spec.fps, omega=omegas[j]) for j in taus]
+        if len(frames) == 1:
+            images[k] = frames[0].image
+        else:
+            acc = np.mean([f.image.astype(np.float32) for f in frames], axis=0)
+            images[k] = np.clip(np.rint(acc), 0, 255).astype(np.uint8)
+        marker[k] = np.mean([f.marker_px for f in frames], axis=0)
+        boxes[k] = np.mean([f.boxes_px for f in frames], axis=0)
+        tilt[k] = attitude.tilt(qs[tau])
+        if spec.case == "occlusion" and k in OCCLUSION_FRAMES:
+            rows, cols = occluder_pixels(boxes[k], b, renderer.width, renderer.height)
+            images[k][rows, cols] = 0
+            occluded[k] = True
+    return TrackingSequence(spec.name, images, marker, boxes, b, spec.fps, spec.case, occluded,
+                            blurred, p, spec.seed, tilt)
+
+
+def validation_suite(
+    n_seeds: int = 2, cases: tuple[Case, ...] = CASES, n_frames: int = 300
+) -> list[SequenceSpec]:
+    """Specs of the validation sequences: ``n_seeds`` seeds x ``cases``."""
+    return [SequenceSpec(seed=s, case=c, n_frames=n_frames)
+            for s in validation_seeds(n_seeds) for c in cases]

@@ -1,0 +1,151 @@
+"""GK-TransT (seed 000 §3.2): one network on the main marker, guided and gated by the GK
+assistance; the auxiliary marker from rigid-body geometry.
+
+Per frame (seed 000 §3.2.3, Figure 9):
+
+1. The GK assistance's Kalman filter predicts the red centre (``GKAssist.search_centre_sensor_px``,
+   seed 000 §3.2.1). The prediction is passed to the network as its search centre: "the attention
+   range is restricted by the Kalman filter" (seed 000 §4.2). Before the first observation, or with
+   ``guide_search=False``, the network searches around its own previous result.
+2. The network (``observer.transt.tracker.TransTTracker``, or any tracker with its API) returns a
+   box and a score for the red marker.
+3. ``GKAssist.step`` gates the box with the HSV valid-pixel ratio (> 0.05): a confident box updates
+   the Kalman filter (its centre refined by the sub-pixel circle fit when ``refine``); otherwise the
+   prediction stands in. It then finds the yellow marker around the red one and checks it against
+   D_exp = L·S·cos β, else P_yellow = P_red + V_rel (seed 000 §3.2.2), and updates the scale EMA.
+
+After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
+prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
+``GKAssist`` flags the track lost after ``max_coast_frames`` frames without a confident box. Only
+one network runs per frame: that is the seed's latency argument (C_T + C_K + C_G against 2 C_T).
+
+``start`` initialises the network on the red box and runs ``GKAssist.step`` once on the start frame
+with the annotated red box, which initialises the filter, the red→yellow vector V_rel and the
+scale; if the yellow marker was not found there, V_rel is taken from the two annotated boxes.
+
+Units: sensor px in and out (``observer.trackers``); the network sees image px of the binned frame.
+``tilt_hint_rad`` (None by default: cos β = 1 and the scale EMA locked) may be set by the caller
+from the latest attitude estimate before each ``step``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from observer.gk.assist import GKAssist, GKConfig, GKResult
+from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.trackers import MarkerPairTracker, PairResult, box_around
+from plant.camera import sensor_to_image
+from plant.params import PlantParams
+
+
+class GKTransTPairTracker(MarkerPairTracker):
+    """GK-TransT on the marker pair (see the module docstring).
+
+    Parameters
+    ----------
+    tracker : the red marker's single-object tracker with the TransT API: ``init(frame, box)``,
+        ``track(frame, search_centre_image_px=None) -> (box, score)``, ``compute_time_s``
+        (image px). ``TransTTracker.small()``; a ``NumpyKCF`` is a fast stand-in.
+    params : PlantParams, optional
+    gk_config : GKConfig, optional
+        Seed 000 §3.2 defaults.
+    refine : bool, optional
+        Sub-pixel circle fit of both centres (``GKConfig.refine_red`` and ``aux.refine``); None
+        keeps ``gk_config`` as given (default: both on).
+    guide_search : bool
+        Pass the Kalman prediction to the network as its search centre (seed 000 §3.2).
+    name : str
+    """
+
+    def __init__(
+        self,
+        tracker: Any,
+        params: PlantParams | None = None,
+        gk_config: GKConfig | None = None,
+        refine: bool | None = True,
+        guide_search: bool = True,
+        name: str = "gk_transt",
+    ) -> None:
+        cfg = gk_config or GKConfig()
+        if refine is not None:
+            cfg = cfg.model_copy(update={
+                "refine_red": bool(refine),
+                "aux": cfg.aux.model_copy(update={"refine": bool(refine)}),
+            })
+        super().__init__(params, bool(cfg.refine_red), cfg.subpixel)
+        self.tracker = tracker
+        self.gk = GKAssist(self.params, cfg)
+        self.guide_search = bool(guide_search)
+        self.name = name
+        self.tilt_hint_rad: float | None = None
+        self.last_gk: GKResult | None = None
+
+    def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
+        assert self.binning is not None
+        self.tracker.init(image, box_sensor_to_image(boxes_sensor_px[0], self.binning))
+        self.gk.reset()
+        self.last_gk = self.gk.step(image, self.binning, box_sensor_px=boxes_sensor_px[0],
+                                    tilt_prev_rad=self.tilt_hint_rad)
+        if self.gk.aux.V_rel is None:
+            centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
+            self.gk.aux.V_rel = centres[1] - centres[0]
+
+    def search_centre_image_px(self) -> NDArray[np.float64] | None:
+        """The Kalman prediction of the red centre for the next frame in image px, clipped to
+        the frame; None when there is none (or guidance is off)."""
+        if not self.guide_search or self.binning is None or self.frame_shape is None:
+            return None
+        prior = self.gk.search_centre_sensor_px()
+        if not np.all(np.isfinite(prior)):
+            return None
+        c = sensor_to_image(prior, self.binning)
+        H, W = self.frame_shape[:2]
+        return np.clip(c, [0.0, 0.0], [W - 1.0, H - 1.0])
+
+    def _result(self, res: GKResult, box_sensor: NDArray | None, score: float,
+                net_time_s: float) -> PairResult:
+        red_measured = res.red_source == "measurement"
+        red_size = box_sensor[2:] if (red_measured and box_sensor is not None) \
+            else self.box_size_px[0]
+        red_box = box_around(res.red_px, red_size) if np.all(np.isfinite(res.red_px)) else None
+        yellow_box = box_around(res.yellow_px, self.box_size_px[1]) \
+            if np.all(np.isfinite(res.yellow_px)) else None
+        yellow_lost = res.lost or res.yellow_source == "none"
+        return PairResult(
+            red_px=res.red_px, yellow_px=res.yellow_px, lost=res.lost or yellow_lost,
+            reason=res.reason, compute_time_s=0.0, red_lost=res.lost, yellow_lost=yellow_lost,
+            red_measured=red_measured, yellow_measured=res.yellow_source == "measurement",
+            red_box_px=red_box, yellow_box_px=yellow_box, red_score=score,
+            tracker_time_s=net_time_s,
+        )
+
+    def _step(self, image: NDArray[np.uint8]) -> PairResult:
+        assert self.binning is not None
+        centre = self.search_centre_image_px()
+        box_img, score = self.tracker.track(image, search_centre_image_px=centre)
+        net_time = float(getattr(self.tracker, "compute_time_s", np.nan))
+        box_img = np.asarray(box_img, dtype=float).reshape(-1)
+        box = box_image_to_sensor(box_img, self.binning) \
+            if box_img.shape == (4,) and np.all(np.isfinite(box_img)) else None
+        score_f = float(score) if score is not None else float("nan")
+        res = self.gk.step(image, self.binning, box_sensor_px=box, score=score_f,
+                           tilt_prev_rad=self.tilt_hint_rad)
+        self.last_gk = res
+        return self._result(res, box, score_f, net_time)
+
+    def _bad_frame(self, image: object, reason: str) -> PairResult:
+        """An unusable frame: the network does not run; GK coasts on its prediction."""
+        assert self.binning is not None
+        res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
+        self.last_gk = res
+        out = self._result(res, None, float("nan"), 0.0)
+        return out if reason in out.reason else _add_reason(out, f"frame unusable: {reason}")
+
+
+def _add_reason(res: PairResult, reason: str) -> PairResult:
+    return replace(res, reason="; ".join(r for r in (reason, res.reason) if r))

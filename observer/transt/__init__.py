@@ -1,0 +1,44 @@
+"""TransT (Chen et al., "Transformer Tracking", CVPR 2021) in plain torch: the network, its
+loss, training on analytic renders, and the tracker (seed 000 §3.1 builds GK-TransT on it).
+
+* ``network``: ``TransTNet`` in two configurations, ``TRANST50`` (the published layout, loads the
+  official checkpoint with ``load_official_state_dict``) and ``SMALL`` (trained here, shipped).
+* ``tracker``: ``TransTTracker`` with ``init(frame, box)`` / ``track(frame,
+  search_centre_image_px=None) -> (box, score)``; ``TransTTracker.small()`` loads the shipped
+  weights.
+* ``losses``, ``data``, ``train``: TransT's loss, the cached crop pairs, the training script.
+* ``weights``: SHA-256-checked weight files.
+
+See docs/transt.md.
+"""
+
+from observer.transt.network import (
+    CONFIGS,
+    SMALL,
+    TRANST50,
+    LoadReport,
+    TransTConfig,
+    TransTNet,
+    build_transt,
+    count_parameters,
+    load_official_state_dict,
+)
+from observer.transt.tracker import TrackResult, TransTTracker
+from observer.transt.weights import SMALL_WEIGHTS, WeightsError, load_weights
+
+__all__ = [
+    "CONFIGS",
+    "SMALL",
+    "SMALL_WEIGHTS",
+    "TRANST50",
+    "LoadReport",
+    "TrackResult",
+    "TransTConfig",
+    "TransTNet",
+    "TransTTracker",
+    "WeightsError",
+    "build_transt",
+    "count_parameters",
+    "load_official_state_dict",
+    "load_weights",
+]

@@ -1,0 +1,77 @@
+"""ONNX export of TransT's per-frame step and an ONNX Runtime session for it (optional backend).
+
+The exported graph is ``TransTNet.track_features`` with the template's position encoding baked
+in: inputs ``search`` (1, 3, Sx, Sx) float32 (ImageNet-normalised crop) and ``z`` (1, Lz, d)
+float32 (the template tokens from ``TransTNet.template_features``, computed once at ``init``);
+outputs ``logits`` (1, L, 2) and ``boxes`` (1, L, 4). Needs the optional packages ``onnx`` (and
+``onnxscript``) for the export and ``onnxruntime`` to run it; neither is a project dependency,
+so this module imports them lazily and says what is missing.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import warnings
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from observer.transt.network import TransTNet
+
+
+class _TrackStep(nn.Module):
+    """``track_features`` with the template position encoding as a constant buffer."""
+
+    def __init__(self, net: TransTNet) -> None:
+        super().__init__()
+        self.net = net
+        fz = net.config.template_feature_size
+        pos = net.backbone[1].encode(fz, fz).flatten(2).transpose(1, 2).contiguous()
+        self.register_buffer("pos_z", pos)
+
+    def forward(self, search: Tensor, z: Tensor) -> tuple[Tensor, Tensor]:
+        return self.net.track_features(search, z, self.pos_z)
+
+
+def export_onnx(net: TransTNet, path: str | Path | None = None) -> bytes:
+    """Export the per-frame step of ``net`` (eval mode) to ONNX; returns the model bytes and
+    writes them to ``path`` when given."""
+    c = net.config
+    step = _TrackStep(net.eval()).eval()
+    search = torch.zeros(1, 3, c.search_size, c.search_size)
+    z = torch.zeros(1, c.template_feature_size**2, c.d_model)
+    buf = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            step,
+            (search, z),
+            buf,
+            input_names=["search", "z"],
+            output_names=["logits", "boxes"],
+            dynamo=False,
+            opset_version=17,
+        )
+    data = buf.getvalue()
+    if path is not None:
+        Path(path).write_bytes(data)
+    return data
+
+
+def onnx_session(net: TransTNet, num_threads: int | None = None):  # -> onnxruntime session
+    """An ONNX Runtime ``InferenceSession`` of ``net``'s per-frame step (CPU, ``num_threads``
+    intra-op threads, default the machine's core count)."""
+    try:
+        import onnxruntime as ort
+    except ImportError as exc:  # optional dependency
+        raise ImportError(
+            "the 'onnx' backend needs onnxruntime (pip install onnxruntime onnx); "
+            "use backend='eager' otherwise"
+        ) from exc
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(num_threads or os.cpu_count() or 1)
+    opts.inter_op_num_threads = 1
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(export_onnx(net), opts, providers=["CPUExecutionProvider"])

@@ -1,0 +1,324 @@
+"""TransT tracking as the published tracker does it, behind the tracker seam of DESIGN.md.
+
+``TransTTracker.init(frame_rgb, box_image_px)`` crops the template (context factor 2, the
+frame's mean colour outside it), ImageNet-normalises it and caches its backbone tokens.
+``track(frame_rgb, search_centre_image_px=None) -> (box_image_px, score)`` then, per frame
+(Chen et al., "Transformer Tracking", CVPR 2021, §3.4 "Tracking with TransT"):
+
+1. crops the search region (context factor 4 of the current box size) around the previous box
+   centre, or around ``search_centre_image_px`` when given (GK-TransT places it at the pixel
+   Kalman prediction, seed 000 §3.2.1);
+2. runs the network: a target probability and a box for each of the H x W search-feature cells;
+3. adds a Hanning window to the probabilities, ``p' = (1 - w) p + w hann``, with TransT's window
+   influence w = 0.49, and takes the box of the cell with the largest p';
+4. maps that box from crop fractions to image pixels and makes it the new state (TransT replaces
+   the size outright, learning rate 1), clipped to the frame.
+
+The returned score is the network's target probability at the chosen cell (in [0, 1], before
+the window). ``compute_time_s`` is the wall-clock time of the whole ``track`` call
+(``time.perf_counter``: checks, crop, network, decoding), and ``last`` holds the full
+``TrackResult`` of the last call.
+
+Frames are RGB uint8 (H, W, 3) as the renderers produce them; boxes are (x, y, w, h) in image
+pixels of that frame (pixel-centre convention, centre = (x + w/2, y + h/2), see
+``observer.transt.crop``). Bad input never raises in ``track``: an unusable frame, search centre
+or network output gives a NaN box, score 0.0 and ``last.status`` saying why, and the tracker
+state stays as it was, so the next good frame continues the track. ``init`` raises
+``ValueError`` for a frame or box it cannot start from.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+from observer.transt.crop import context_side, crop_square, crop_to_box, normalise
+from observer.transt.network import TransTConfig, TransTNet, build_transt
+from observer.transt.weights import SMALL_WEIGHTS, load_weights
+
+Backend = Literal["eager", "compile", "onnx"]
+
+#: Our choice: the smallest box side the tracker keeps, image px (TransT clips at 10 px of
+#: full-resolution video; our binned frames show the 8 mm marker at about 48 px).
+MIN_BOX_PX = 4.0
+#: Our choice: a search region (the part of the frame under the search crop) whose pixel values
+#: span at most this many DN holds no target (an all-black or blank frame); track() then reports
+#: a failure without running the network. The same test refuses a blank template in init().
+UNIFORM_PTP_DN = 2
+
+#: Backend preference of ``TransTTracker.small()`` when none is given: ONNX Runtime was the
+#: fastest here (benchmarks/bench_transt.py: track-step median 6.1 ms against 9.6 ms with
+#: torch.compile and 12.5 ms eager, see docs/transt.md); without the optional onnxruntime / onnx
+#: packages, or if the export fails, eager PyTorch.
+DEFAULT_BACKEND: Backend = "onnx"
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One ``track`` result.
+
+    Attributes
+    ----------
+    box_image_px : (4,) box (x, y, w, h), image px; NaN when ``ok`` is False.
+    score : target probability of the chosen cell in [0, 1]; 0.0 when ``ok`` is False.
+    compute_time_s : wall-clock time of the ``track`` call, s.
+    ok : False when the frame, the search centre or the network output was unusable.
+    status : "ok" or why the result is a failure.
+    search_centre_image_px : (2,) centre of the search crop used, image px.
+    search_side_px : side of the search crop, image px.
+    """
+
+    box_image_px: NDArray[np.float64]
+    score: float
+    compute_time_s: float
+    ok: bool
+    status: str
+    search_centre_image_px: NDArray[np.float64]
+    search_side_px: float
+
+
+def hanning_window(n: int) -> NDArray[np.float32]:
+    """TransT's cosine window over an n x n score map, flattened row-major (np.hanning outer)."""
+    h = np.hanning(n)
+    return np.outer(h, h).astype(np.float32).reshape(-1)
+
+
+def check_frame(frame: object) -> str | None:
+    """None if ``frame`` is a usable RGB uint8 image (H, W, 3), else why not."""
+    if not isinstance(frame, np.ndarray):
+        return f"frame is a {type(frame).__name__}, not a numpy array"
+    if frame.dtype != np.uint8:
+        return f"frame dtype is {frame.dtype}, expected uint8 RGB"
+    if frame.ndim != 3 or frame.shape[2] != 3:
+        return f"frame shape is {frame.shape}, expected (H, W, 3) RGB"
+    if frame.shape[0] < 2 or frame.shape[1] < 2:
+        return f"frame is empty or degenerate: shape {frame.shape}"
+    return None
+
+
+class _Runner:
+    """Runs the per-frame part of the network: search crop -> (logits (L, 2), boxes (L, 4))."""
+
+    def __init__(self, net: TransTNet, backend: Backend) -> None:
+        self.net = net
+        self.backend = backend
+        self._z: torch.Tensor | None = None
+        self._pos_z: torch.Tensor | None = None
+        self._compiled = None
+        self._ort = None
+        if backend == "compile":
+            self._compiled = torch.compile(net.track_features, dynamic=False)
+        elif backend == "onnx":
+            from observer.transt.export import onnx_session
+
+            self._ort = onnx_session(net)
+        elif backend != "eager":
+            raise ValueError(f"backend must be 'eager', 'compile' or 'onnx', got {backend!r}")
+
+    def set_template(self, template: NDArray[np.float32]) -> None:
+        with torch.inference_mode():
+            z, pos = self.net.template_features(torch.from_numpy(template))
+        self._z, self._pos_z = z.contiguous(), pos
+
+    def __call__(self, search: NDArray[np.float32]) -> tuple[np.ndarray, np.ndarray]:
+        assert self._z is not None and self._pos_z is not None
+        if self._ort is not None:
+            logits, boxes = self._ort.run(None, {"search": search, "z": self._z.numpy()})
+            return logits[0], boxes[0]
+        fn = self._compiled if self._compiled is not None else self.net.track_features
+        with torch.inference_mode():
+            logits, boxes = fn(torch.from_numpy(search), self._z, self._pos_z)
+        return logits[0].numpy(), boxes[0].numpy()
+
+
+class TransTTracker:
+    """Single-object TransT tracker (Chen et al., CVPR 2021) on RGB frames.
+
+    Parameters
+    ----------
+    net : the network; put in eval mode here.
+    backend : "eager" (PyTorch), "compile" (``torch.compile``) or "onnx" (ONNX Runtime; needs
+        the optional ``onnxruntime`` and ``onnx`` packages).
+    window_influence : weight of the Hanning window (default: the configuration's, 0.49 as in
+        TransT).
+    min_box_px : smallest box side kept, image px (our choice, ``MIN_BOX_PX``).
+
+    Attributes
+    ----------
+    compute_time_s : wall-clock time of the last ``init`` or ``track`` call, s.
+    last : the ``TrackResult`` of the last ``track`` call (None before).
+    centre_image_px, size_image_px : the current state (box centre and size), image px.
+    """
+
+    def __init__(
+        self,
+        net: TransTNet,
+        backend: Backend = "eager",
+        window_influence: float | None = None,
+        min_box_px: float = MIN_BOX_PX,
+    ) -> None:
+        self.net = net.eval()
+        self.config: TransTConfig = net.config
+        self.backend = backend
+        self.window_influence = (
+            self.config.window_influence if window_influence is None else float(window_influence)
+        )
+        if not 0.0 <= self.window_influence <= 1.0:
+            raise ValueError(f"window_influence must be in [0, 1], got {self.window_influence}")
+        self.min_box_px = float(min_box_px)
+        self._runner = _Runner(self.net, backend)
+        self._window = hanning_window(self.config.search_feature_size)
+        self.centre_image_px: NDArray[np.float64] | None = None
+        self.size_image_px: NDArray[np.float64] | None = None
+        self._pad: NDArray[np.float64] | None = None
+        self.compute_time_s = 0.0
+        self.last: TrackResult | None = None
+
+    # --- constructors ---------------------------------------------------------------------------
+    @classmethod
+    def small(
+        cls,
+        weights: str | Path = SMALL_WEIGHTS,
+        backend: Backend | None = None,
+        expected_sha256: str | None = None,
+    ) -> TransTTracker:
+        """The shipped ``small`` network (``weights/transt_small.pt``), SHA-256 checked.
+
+        ``backend=None`` takes ``DEFAULT_BACKEND`` (ONNX Runtime) and falls back to eager
+        PyTorch when that is unavailable; ``tracker.backend`` says which one runs.
+
+        Raises ``observer.transt.weights.WeightsError`` (naming the file and the command that
+        rebuilds it) when the file is missing or corrupt.
+        """
+        net, _ = load_weights(weights, expected_sha256)
+        if backend is not None:
+            return cls(net, backend=backend)
+        try:
+            return cls(net, backend=DEFAULT_BACKEND)
+        except Exception:  # optional ONNX packages missing or export failed: eager works always
+            return cls(net, backend="eager")
+
+    @classmethod
+    def from_config(
+        cls, config: TransTConfig | str, seed: int = 0, backend: Backend = "eager"
+    ) -> TransTTracker:
+        """A tracker with randomly initialised weights (seeded), e.g. to time ``transt50``."""
+        torch.manual_seed(seed)
+        return cls(build_transt(config), backend=backend)
+
+    # --- the seam ---------------------------------------------------------------------------------
+    @property
+    def initialised(self) -> bool:
+        return self.centre_image_px is not None
+
+    def init(self, frame_rgb: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
+        """Start tracking the target in ``box_image_px`` (x, y, w, h), image px, of
+        ``frame_rgb`` (RGB uint8, (H, W, 3)).
+
+        Raises ``ValueError`` for an unusable frame (wrong type, dtype or shape, empty), a box
+        that is not finite with w, h > 0, a box whose centre lies outside the frame, or a
+        uniform template region (an all-black frame).
+        """
+        t0 = time.perf_counter()
+        why = check_frame(frame_rgb)
+        if why is not None:
+            raise ValueError(f"TransTTracker.init: {why}")
+        box = np.asarray(box_image_px, dtype=float)
+        if box.shape != (4,) or not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
+            raise ValueError(
+                f"TransTTracker.init: box_image_px must be a finite (x, y, w, h) with w, h > 0, "
+                f"got {box_image_px!r}"
+            )
+        h_img, w_img = frame_rgb.shape[:2]
+        centre = box[:2] + box[2:] / 2.0
+        if not (-0.5 <= centre[0] <= w_img - 0.5 and -0.5 <= centre[1] <= h_img - 0.5):
+            raise ValueError(
+                f"TransTTracker.init: the box centre {centre.tolist()} lies outside the "
+                f"{w_img} x {h_img} frame"
+            )
+        pad = frame_rgb.reshape(-1, 3).mean(axis=0)
+        side = context_side(box[2:], self.config.template_factor)
+        crop = crop_square(frame_rgb, centre, side, self.config.template_size, pad)
+        if int(crop.max()) - int(crop.min()) <= UNIFORM_PTP_DN:
+            raise ValueError(
+                "TransTTracker.init: the template region is uniform (an all-black or blank "
+                "frame?); nothing to track"
+            )
+        self._runner.set_template(normalise(crop[None]))
+        self._pad = pad
+        self.centre_image_px = centre
+        self.size_image_px = box[2:].copy()
+        self.last = None
+        self.compute_time_s = time.perf_counter() - t0
+
+    def track(
+        self,
+        frame_rgb: NDArray[np.uint8],
+        search_centre_image_px: ArrayLike | None = None,
+    ) -> tuple[NDArray[np.float64], float]:
+        """Box (x, y, w, h), image px, and score of the target in the next frame.
+
+        ``search_centre_image_px`` (2,), image px, places the search crop there instead of at
+        the previous box centre. A failure (bad frame or centre, uniform search region,
+        non-finite network output, not initialised) returns a NaN box and score 0.0 and leaves
+        the state unchanged; ``last.status`` says why.
+        """
+        t0 = time.perf_counter()
+        res = self._track(frame_rgb, search_centre_image_px, t0)
+        self.compute_time_s = time.perf_counter() - t0
+        self.last = TrackResult(
+            res[0], res[1], self.compute_time_s, res[2] == "ok", res[2], res[3], res[4]
+        )
+        return self.last.box_image_px.copy(), self.last.score
+
+    def _track(
+        self, frame: object, search_centre: ArrayLike | None, t0: float
+    ) -> tuple[NDArray[np.float64], float, str, NDArray[np.float64], float]:
+        nan_box = np.full(4, np.nan)
+        if self.centre_image_px is None or self.size_image_px is None:
+            return nan_box, 0.0, "not initialised: call init first", np.full(2, np.nan), 0.0
+        side = context_side(self.size_image_px, self.config.search_factor)
+        centre = self.centre_image_px
+        why = check_frame(frame)
+        if why is None and search_centre is not None:
+            try:
+                sc = np.asarray(search_centre, dtype=float).reshape(2)
+            except (TypeError, ValueError):
+                sc = np.full(2, np.nan)
+            if not np.all(np.isfinite(sc)):
+                why = f"search_centre_image_px is not a finite (2,) point: {search_centre!r}"
+            else:
+                centre = sc
+        if why is not None:
+            return nan_box, 0.0, why, centre.copy(), side
+        assert isinstance(frame, np.ndarray)
+        h_img, w_img = frame.shape[:2]
+        x0, y0 = (max(int(np.floor(v - side / 2.0)), 0) for v in centre)
+        x1 = min(int(np.ceil(centre[0] + side / 2.0)) + 1, w_img)
+        y1 = min(int(np.ceil(centre[1] + side / 2.0)) + 1, h_img)
+        if x1 <= x0 or y1 <= y0:
+            return nan_box, 0.0, "search region outside the frame", centre.copy(), side
+        region = frame[y0:y1, x0:x1]
+        if int(region.max()) - int(region.min()) <= UNIFORM_PTP_DN:
+            return nan_box, 0.0, "uniform search region (blank frame)", centre.copy(), side
+        crop = crop_square(frame, centre, side, self.config.search_size, self._pad)
+        logits, boxes = self._runner(normalise(crop[None]))
+        if not (np.all(np.isfinite(logits)) and np.all(np.isfinite(boxes))):
+            return nan_box, 0.0, "network output not finite", centre.copy(), side
+        z = logits - logits.max(axis=1, keepdims=True)
+        e = np.exp(z)
+        prob = e[:, 0] / e.sum(axis=1)
+        w = self.window_influence
+        best = int(np.argmax(prob * (1.0 - w) + self._window * w))
+        box = crop_to_box(boxes[best], centre, side)
+        c = box[:2] + box[2:] / 2.0
+        c = np.clip(c, [-0.5, -0.5], [w_img - 0.5, h_img - 0.5])
+        size = np.clip(box[2:], self.min_box_px, [w_img, h_img])
+        self.centre_image_px, self.size_image_px = c, size
+        return np.r_[c - size / 2.0, size], float(prob[best]), "ok", centre.copy(), side

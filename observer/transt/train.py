@@ -1,0 +1,440 @@
+"""Train the ``small`` TransT on cached analytic-render crop pairs (CPU, resumable).
+
+Recipe (DESIGN.md "Facts about the dependencies": a 1.9 M-parameter TransT-shaped model with
+TransT's loss weights, AdamW 5e-4 and batch 32 reached 0.1 marker diameters median error in 300
+steps here): TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
+weight 0.0625), AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32,
+a 30-step linear warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1
+(our choice), dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched
+here).
+
+Data: ``observer.transt.data``, a training cache (seed 1) and a validation cache (seed 2) that is
+never trained on; both are rendered first if missing. Every ``--eval-every`` steps the script
+measures the validation centre error; at the end it also tracks three rendered validation
+sequences (seeds 1001-1003) with ``TransTTracker``.
+
+Checkpoints (``--out``, default ``runs/transt_train/``): ``last.pt`` every ``--ckpt-every`` steps
+(model, optimiser, step, wall time, RNG state); rerunning the same command resumes from it
+(``--fresh`` starts over). ``history.jsonl`` logs the losses and validation metrics, and
+``metrics.json`` the final numbers. With ``--export`` the final weights go to that file with
+their SHA-256 (``observer.transt.weights``) and ``MODEL_CARD.md`` is written beside them.
+
+The shipped weights come from two runs (``observer.transt.weights.REBUILD_COMMAND``): 1000 steps
+on red targets from scratch, then 300 steps (``--init-from`` the first, lr 2e-4) on a cache in
+which half the scenes have the yellow marker as the target (``--yellow-fraction 0.5``), so that
+the network follows its template (the dual-TransT baseline tracks the yellow marker with it).
+Set ``OMP_WAIT_POLICY=PASSIVE`` on a shared machine: with spinning OpenMP threads a step took
+ten times longer whenever another process held a core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from observer.transt.data import (
+    CropPairs,
+    PairSpec,
+    generate_cache,
+    marker_box_image,
+    validation_sequence,
+)
+from observer.transt.losses import TransTLoss, cxcywh_to_xyxy, giou
+from observer.transt.network import CONFIGS, TransTNet, build_transt, count_parameters
+from observer.transt.tracker import TransTTracker, hanning_window
+from observer.transt.weights import load_weights, save_weights
+
+#: Seeds of the validation tracking sequences (never used for training data).
+VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
+VALIDATION_SEQUENCE_FRAMES = 150
+
+
+def lr_factor(step: int, total: int, warmup: int = 30, floor: float = 0.1) -> float:
+    """Learning-rate multiplier: linear warm-up, then cosine decay to ``floor``."""
+    if step < warmup:
+        return (step + 1) / warmup
+    t = min(1.0, (step - warmup) / max(1, total - warmup))
+    return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+@torch.no_grad()
+def evaluate_pairs(
+    net: TransTNet, pairs: CropPairs, window_influence: float, batch: int = 64
+) -> dict[str, float]:
+    """Centre error and IoU on crop pairs, decoded as the tracker does (Hanning window).
+
+    Errors are distances between the predicted box centre and the true red centre
+    (``Frame.marker_px[0]``) in full-sensor px, also in marker diameters. ``*_nowin`` decodes
+    without the window (plain argmax of the target probability).
+    """
+    net.eval()
+    fs = net.config.search_feature_size
+    win = torch.from_numpy(hanning_window(fs))
+    errs, errs_nw, dias, ious = [], [], [], []
+    for start in range(0, len(pairs), batch):
+        b = pairs.batch(np.arange(start, min(start + batch, len(pairs))))
+        logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
+        prob = logits.softmax(-1)[..., 0]
+        for use_win, out in ((True, errs), (False, errs_nw)):
+            score = prob * (1 - window_influence) + win * window_influence if use_win else prob
+            best = score.argmax(dim=1)
+            pred = boxes[torch.arange(len(best)), best]
+            d = (pred[:, :2].numpy() - b["centre"]) * b["scale"][:, None]
+            out.append(np.hypot(d[:, 0], d[:, 1]))
+            if use_win:
+                iou, _ = giou(cxcywh_to_xyxy(pred), cxcywh_to_xyxy(torch.from_numpy(b["box"])))
+                ious.append(iou.numpy())
+        dias.append(b["diameter"])
+    e, e_nw, dia = np.concatenate(errs), np.concatenate(errs_nw), np.concatenate(dias)
+    return {
+        "val_pairs": float(len(e)),
+        "val_centre_err_median_px": float(np.median(e)),
+        "val_centre_err_p90_px": float(np.percentile(e, 90)),
+        "val_centre_err_median_diam": float(np.median(e / dia)),
+        "val_within_20px": float(np.mean(e < 20.0)),
+        "val_centre_err_median_px_nowin": float(np.median(e_nw)),
+        "val_iou_mean": float(np.mean(np.concatenate(ious))),
+    }
+
+
+def evaluate_sequences(
+    net: TransTNet,
+    seeds: tuple[int, ...] = VALIDATION_SEQUENCE_SEEDS,
+    n_frames: int = VALIDATION_SEQUENCE_FRAMES,
+    marker: int = 0,
+) -> dict[str, float]:
+    """Track rendered validation sequences from the true first box of marker 0 (red; keys
+    ``seq_*``) or 1 (yellow; keys ``seq_yellow_*``); centre error (sensor px) of the box centre
+    against ``Frame.marker_px[marker]`` and the per-frame track time."""
+    errs, times = [], []
+    for seed in seeds:
+        frames = validation_sequence(seed, n_frames)
+        trk = TransTTracker(net.eval())
+        trk.init(frames[0].image, marker_box_image(frames[0], marker))
+        for f in frames[1:]:
+            box, _ = trk.track(f.image)
+            times.append(trk.compute_time_s)
+            c = (box[:2] + box[2:] / 2 + 0.5) * f.binning - 0.5  # image -> sensor px
+            errs.append(float(np.hypot(*(c - f.marker_px[marker]))))
+    e = np.asarray(errs)
+    e = np.where(np.isfinite(e), e, np.inf)
+    p = "seq" if marker == 0 else "seq_yellow"
+    out = {
+        f"{p}_frames": float(len(e)),
+        f"{p}_centre_err_median_px": float(np.median(e)),
+        f"{p}_centre_err_p95_px": float(np.percentile(e, 95)),
+        f"{p}_centre_err_max_px": float(np.max(e)),
+        f"{p}_precision_20px": float(np.mean(e < 20.0)),
+    }
+    if marker == 0:
+        out["seq_track_time_median_s"] = float(np.median(times))
+    return out
+
+
+def _save_ckpt(path: Path, net, opt, step: int, wall: float, rng: np.random.Generator) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(
+        {
+            "net": net.state_dict(),
+            "opt": opt.state_dict(),
+            "step": step,
+            "wall_s": wall,
+            "rng": rng.bit_generator.state,
+            "torch_rng": torch.get_rng_state(),
+            "config": net.config.model_dump(),
+        },
+        tmp,
+    )
+    tmp.replace(path)
+
+
+def _stage_lines(meta: dict) -> list[str]:
+    """Model-card lines describing one training run."""
+    y = float(meta.get("yellow_fraction", 0.0) or 0.0)
+    target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
+    return [
+        f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target}).",
+        f"- {meta['steps']} steps of batch {meta['batch']} (AdamW, lr {meta['lr']}, weight decay "
+        f"{meta['weight_decay']}, warm-up + cosine to 10 %), TransT's loss weights "
+        "(8.334, 5, 2); final training loss (mean of the last 50 steps) "
+        f"{meta['final_loss']:.3f}.",
+        f"- Wall time: {meta['wall_s'] / 60:.1f} min of training on {meta['threads']} CPU "
+        f"threads ({meta['machine']}, shared with other jobs), plus "
+        f"{meta['cache_s'] / 60:.1f} min rendering its caches.",
+        f"- Command: `{meta['command']}`",
+    ]
+
+
+def write_model_card(path: Path, meta: dict) -> None:
+    """MODEL_CARD.md beside the exported weights, from the run's metadata (and, for a run
+    started with ``--init-from``, the metadata of the run it continued)."""
+    m = meta["metrics"]
+    cfg = meta["config"]
+    stages = [meta]
+    init = meta.get("init_meta") or {}
+    if init:
+        stages = [init, meta]
+    lines = [
+        "# Model card: TransT `small` (observer/transt/weights/transt_small.pt)",
+        "",
+        "Written by `observer.transt.train` at export; numbers are from the runs below.",
+        "",
+        "## Model",
+        "",
+        f"- Architecture: TransT (Chen et al., CVPR 2021) as in `observer/transt/network.py`, "
+        f"configuration `{cfg['name']}`: bottleneck ResNet (stem width "
+        f"{cfg['backbone_inplanes']}, blocks {tuple(cfg['backbone_blocks'])}, layer3 dilation "
+        f"{cfg['layer3_dilation']}, output stride 8), d = {cfg['d_model']}, {cfg['nhead']} heads, "
+        f"FFN {cfg['dim_feedforward']}, {cfg['num_fusion_layers']} fusion layers, template "
+        f"{cfg['template_size']} px, search {cfg['search_size']} px, context factors "
+        f"{cfg['template_factor']:g} / {cfg['search_factor']:g}, window influence "
+        f"{cfg['window_influence']}. Trained from scratch (no ImageNet weights).",
+        f"- Parameters: {meta['parameters']:,}.",
+        "- Input: RGB uint8 frames (ImageNet-normalised crops inside the tracker). Target: the "
+        "marker in the template box, trained on the red main marker (seed 000 §3.2)"
+        + (" and the yellow auxiliary marker." if init or meta.get("yellow_fraction") else "."),
+        "- File SHA-256: see `transt_small.pt.sha256` (checked at every load).",
+        "",
+        "## Training data",
+        "",
+        "Crop pairs rendered by `plant.render_analytic` (generator version "
+        f"{meta['generator_version']}, `observer/transt/data.py`): random workspace attitudes "
+        "(tilt 0-15°, free spin and yaw), a short motion between template and search frame, "
+        "motion blur up to about 1.2 marker diameters, partial occlusion (25 %), highlights and "
+        "colour stickers as distractors, illumination 0.5-1.6x, read noise 0-5 DN, TransT's "
+        "centre jitter (factor 3) and scale jitter (0.25), joint dihedral flips at load time.",
+        "",
+        f"Validation (never trained on): {meta['val_pairs']} red-target pairs from seed "
+        f"{meta['val_seed']}, and {len(VALIDATION_SEQUENCE_SEEDS)} tracking sequences of "
+        f"{VALIDATION_SEQUENCE_FRAMES} frames (seeds {VALIDATION_SEQUENCE_SEEDS}, "
+        "`data.validation_sequence`), tracked from the true first box.",
+        "",
+        "## Training",
+        "",
+    ]
+    for i, st in enumerate(stages, start=1):
+        if len(stages) > 1:
+            lines += [f"Stage {i}{' (continued from stage 1)' if i > 1 else ''}:", ""]
+        lines += _stage_lines(st) + [""]
+    total_min = sum(st["wall_s"] + st["cache_s"] for st in stages) / 60
+    lines += [f"Total: {sum(st['steps'] for st in stages)} steps, {total_min:.1f} min "
+              "including cache rendering.", ""]
+    lines += [
+        "## Validation metrics",
+        "",
+        "Centre errors are in full-sensor pixels (2448 x 2048 sensor; frames are 4x binned) "
+        "against the true marker centre `Frame.marker_px`; a marker diameter is about 190 "
+        "sensor px. `val_*`: crop pairs decoded as the tracker does (`_nowin`: without the "
+        "Hanning window); `seq_*`: the red marker tracked through the sequences, "
+        "`seq_yellow_*`: the yellow one.",
+        "",
+        "| metric | value |" + (" stage 1 |" if init else ""),
+        "|---|---|" + ("---|" if init else ""),
+    ]
+    for k, v in m.items():
+        extra = ""
+        if init:
+            v1 = init.get("metrics", {}).get(k)
+            extra = f" {v1:.4g} |" if v1 is not None else " - |"
+        lines.append(f"| {k} | {v:.4g} |{extra}")
+    lines += [
+        "",
+        "## Reproduce",
+        "",
+        "```",
+        *[f"OMP_WAIT_POLICY=PASSIVE {st['command']}" for st in stages],
+        "```",
+        "",
+        "(renders the caches into `runs/transt_cache/` if missing, trains into `--out` "
+        "(default `runs/transt_train/`), resumable, and exports the weights with their SHA-256 "
+        "and this card. Stage 1 exported to the weights folder and that file was kept as "
+        "`runs/transt_train/transt_small_red.pt` for stage 2's `--init-from`. CPU timings vary "
+        "with the machine's load; the numbers depend on the thread count only through "
+        "floating-point summation order.)",
+        "",
+    ]
+    path.write_text("\n".join(lines))
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description="Train the small TransT on analytic renders.")
+    ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
+    ap.add_argument("--cache", default="runs/transt_cache", help="folder of the pair caches")
+    ap.add_argument("--train-pairs", type=int, default=12000)
+    ap.add_argument("--val-pairs", type=int, default=512)
+    ap.add_argument("--train-seed", type=int, default=1)
+    ap.add_argument("--val-seed", type=int, default=2)
+    ap.add_argument("--render-workers", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--lr", type=float, default=5e-4)
+    ap.add_argument("--weight-decay", type=float, default=1e-4)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0, help="init and batch-order seed")
+    ap.add_argument("--eval-every", type=int, default=100)
+    ap.add_argument("--ckpt-every", type=int, default=25)
+    ap.add_argument("--out", default="runs/transt_train")
+    ap.add_argument("--export", default=None, help="write the final weights here")
+    ap.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint")
+    ap.add_argument(
+        "--yellow-fraction", type=float, default=0.0,
+        help="fraction of training scenes whose target is the yellow marker",
+    )
+    ap.add_argument(
+        "--init-from", default=None,
+        help="start from these weights (a file written by --export, SHA-256 checked)",
+    )
+    ap.add_argument("--warmup", type=int, default=30, help="learning-rate warm-up steps")
+    a = ap.parse_args(argv)
+
+    from tqdm import tqdm
+
+    torch.set_num_threads(a.threads)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = CONFIGS[a.config]
+    spec = PairSpec.for_config(config, a.yellow_fraction)
+    t_cache = time.perf_counter()
+    tag = f"_y{a.yellow_fraction:g}" if a.yellow_fraction > 0 else ""
+    train_dir = generate_cache(
+        Path(a.cache) / f"train_s{a.train_seed}{tag}", a.train_pairs, a.train_seed, spec,
+        workers=a.render_workers,
+    )
+    val_dir = generate_cache(
+        Path(a.cache) / f"val_s{a.val_seed}", a.val_pairs, a.val_seed,
+        PairSpec.for_config(config), workers=a.render_workers,
+    )
+    train, val = CropPairs(train_dir), CropPairs(val_dir)
+    cache_s = float(train.meta.get("seconds", 0.0)) + float(val.meta.get("seconds", 0.0))
+    print(f"caches ready in {time.perf_counter() - t_cache:.0f} s: {len(train)} train, "
+          f"{len(val)} validation pairs", flush=True)
+
+    torch.manual_seed(a.seed)
+    net = build_transt(config)
+    init_meta: dict = {}
+    if a.init_from:
+        start, init_meta = load_weights(a.init_from)
+        if start.config != config:
+            raise SystemExit(f"--init-from {a.init_from} holds a {start.config.name} network")
+        net.load_state_dict(start.state_dict())
+        print(f"initialised from {a.init_from} ({init_meta.get('steps')} steps)", flush=True)
+    loss_fn = TransTLoss()
+    opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=a.weight_decay)
+    rng = np.random.default_rng(a.seed)
+    step, wall = 0, 0.0
+    ckpt = out / "last.pt"
+    if ckpt.is_file() and not a.fresh:
+        st = torch.load(ckpt, map_location="cpu", weights_only=False)
+        net.load_state_dict(st["net"])
+        opt.load_state_dict(st["opt"])
+        step, wall = int(st["step"]), float(st["wall_s"])
+        rng.bit_generator.state = st["rng"]
+        torch.set_rng_state(st["torch_rng"])
+        print(f"resumed from {ckpt} at step {step} ({wall / 60:.1f} min)", flush=True)
+        hist_path = out / "history.jsonl"
+        if hist_path.is_file():  # drop records of steps after the checkpoint
+            keep = [ln for ln in hist_path.read_text().splitlines()
+                    if ln.strip() and json.loads(ln)["step"] <= step]
+            hist_path.write_text("".join(ln + "\n" for ln in keep))
+    elif a.fresh:
+        (out / "history.jsonl").unlink(missing_ok=True)
+
+    hist = (out / "history.jsonl").open("a")
+    recent: list[float] = []
+    bar = tqdm(total=a.steps, initial=step, desc="training", unit="step")
+    while step < a.steps:
+        t0 = time.perf_counter()
+        net.train()
+        for g in opt.param_groups:
+            g["lr"] = a.lr * lr_factor(step, a.steps, a.warmup)
+        b = train.batch(rng.choice(len(train), a.batch, replace=False), rng)
+        logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
+        loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        step += 1
+        wall += time.perf_counter() - t0
+        recent = (recent + [parts["loss"]])[-50:]
+        rec = {"step": step, "wall_s": round(wall, 2), "lr": opt.param_groups[0]["lr"], **parts}
+        if step % a.eval_every == 0 or step == a.steps:
+            rec.update(evaluate_pairs(net, val, config.window_influence))
+            bar.write(
+                f"step {step}: val median centre error "
+                f"{rec['val_centre_err_median_px']:.1f} sensor px "
+                f"({rec['val_centre_err_median_diam']:.3f} diameters), "
+                f"within 20 px {rec['val_within_20px']:.3f}, IoU {rec['val_iou_mean']:.3f}"
+            )
+        hist.write(json.dumps(rec) + "\n")
+        hist.flush()
+        bar.set_postfix(loss=f"{np.mean(recent):.3f}", iou=f"{parts['iou']:.2f}")
+        bar.update(1)
+        if step % a.ckpt_every == 0 or step == a.steps:
+            _save_ckpt(ckpt, net, opt, step, wall, rng)
+    bar.close()
+    hist.close()
+
+    net.eval()
+    metrics = evaluate_pairs(net, val, config.window_influence)
+    metrics.update(evaluate_sequences(net))
+    metrics.update(evaluate_sequences(net, marker=1))
+    final_loss = float(np.mean(recent)) if recent else float("nan")
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    print(json.dumps(metrics, indent=2))
+    if a.export:
+        meta = {
+            "config": config.model_dump(),
+            "parameters": count_parameters(net),
+            "steps": step,
+            "batch": a.batch,
+            "lr": a.lr,
+            "weight_decay": a.weight_decay,
+            "threads": a.threads,
+            "seed": a.seed,
+            "wall_s": round(wall, 1),
+            "cache_s": round(cache_s, 1),
+            "final_loss": final_loss,
+            "train_pairs": len(train),
+            "train_seed": a.train_seed,
+            "val_pairs": len(val),
+            "val_seed": a.val_seed,
+            "yellow_fraction": a.yellow_fraction,
+            "init_from": a.init_from,
+            "init_meta": init_meta,
+            "generator_version": int(train.meta["generator_version"]),
+            "machine": _machine(),
+            "metrics": metrics,
+            "command": "python -m observer.transt.train " + " ".join(sys.argv[1:]),
+        }
+        export = Path(a.export)
+        digest = save_weights(net, export, meta)
+        write_model_card(export.parent / "MODEL_CARD.md", meta)
+        print(f"exported {export} (SHA-256 {digest})")
+
+
+def _machine() -> str:
+    """CPU model and core count of this machine."""
+    import os
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores"
+
+
+if __name__ == "__main__":
+    main()
