@@ -78,7 +78,7 @@ from typing import Literal
 import casadi as ca
 import numpy as np
 import scipy.linalg
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.base import Reference
@@ -476,6 +476,25 @@ class MPCController:
         finally:
             self.last_command_time_s = time.perf_counter() - t_call
             self.command_times_s.append(self.last_command_time_s)
+
+    def first_torque(
+        self, x0: ArrayLike, reference: Reference, t0: float = 0.0
+    ) -> NDArray[np.float64]:
+        """The optimal first torque (stator frame, N·m) from state ``x0`` = (q, omega) at ``t0``
+        (s): one cold-started solve with no delay compensation, leaving the command history,
+        the warm start and the timing statistics untouched. For analysis, e.g. the linearised
+        feedback law of ``latency.mpc_law``."""
+        x0 = np.asarray(x0, dtype=float).reshape(7)
+        x0 = np.r_[attitude.normalize(x0[:4], "x0[:4]"), attitude.check_finite("x0[4:]", x0[4:])]
+        lbw, ubw = self._lbw.copy(), self._ubw.copy()
+        lbw[:7] = x0
+        ubw[:7] = x0
+        sol = self.solver(lbx=lbw, ubx=ubw, lbg=self._lbg, ubg=self._ubg,
+                          p=self._parameters(reference, t0, x0[:4]),
+                          x0=self._pack(np.tile(x0, (self.N + 1, 1)), np.zeros((self.N, 3)),
+                                        np.zeros(self.N)))
+        _, U, _ = self._unpack(np.asarray(sol["x"]).ravel())
+        return U[0].copy()
 
     def record_command(self, t_apply: float, torque: NDArray[np.float64]) -> None:
         """Note that the stator torque ``torque`` (N·m) acts from ``t_apply`` (s) on, for the

@@ -52,7 +52,31 @@ def key_sweep(sweep: pd.DataFrame) -> pd.DataFrame:
     return g
 
 
-def write_report(out: Path, cfg, findings, margins, sweep, ts: dict, measured_ms: float) -> None:
+def _mpc_section(mpc_margins) -> list[str]:
+    """The MPC's margins (its linearised law), or nothing when they were not computed."""
+    if mpc_margins is None:
+        return []
+    rows = mpc_margins[mpc_margins.delay_aware]
+    return [
+        "### PID against MPC",
+        "",
+        "The MPC's margins come from its linearised feedback law (`latency.mpc_law`): the gain "
+        "of the real solver at rest by central differences, the backward-difference rate and the "
+        "delay compensation with the commands already sent, analysed like the PID's exact "
+        "discrete law. Coulomb friction is left out of this analysis (for both controllers).",
+        "",
+        "![PID vs MPC](pm_pid_vs_mpc.png)",
+        "",
+        md_table(key_margins(rows.drop(columns="delay_aware").assign(jitter_margin_s=np.nan))),
+        "",
+        "Full table: `mpc_margins.parquet` (also without the delay compensation).",
+        "",
+    ]
+
+
+def write_report(
+    out: Path, cfg, findings, margins, sweep, ts: dict, measured_ms: float, mpc_margins=None
+) -> None:
     """Write ``report.md`` and ``report.html`` into ``out``."""
     md = [
         "# What vision delay does to the PMSpM attitude loop",
@@ -77,6 +101,7 @@ def write_report(out: Path, cfg, findings, margins, sweep, ts: dict, measured_ms
         "",
         "Full table: `margins.parquet`.",
         "",
+        *_mpc_section(mpc_margins),
         "## 2. Closed-loop sweep (measurement-model loop)",
         "",
         f"Sequential observer at 36 frames/s, pixel noise {cfg.sigma_px} px, tracker search window "

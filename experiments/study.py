@@ -36,12 +36,14 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from pydantic import BaseModel, ConfigDict, Field  # noqa: E402
 
+from controller.mpc import MPCConfig  # noqa: E402
 from controller.pid import PIDConfig, PIDController  # noqa: E402
 from experiments.report import write_report  # noqa: E402
 from experiments.scenario import MPCSpec, PIDSpec, Scenario, run  # noqa: E402
 from experiments.sweep import run_sweep  # noqa: E402
 from latency.margins import attitude_margins, attitude_plant, sampled_margins  # noqa: E402
 from latency.models import SEED_LATENCY_S  # noqa: E402
+from latency.mpc_law import mpc_discrete_law, mpc_state_gain  # noqa: E402
 from latency.profile import measure_locator_latency  # noqa: E402
 from observer.frame_observer import MarkerLocator  # noqa: E402
 from plant.params import PlantParams  # noqa: E402
@@ -112,6 +114,74 @@ def margins_table(params: PlantParams, cfg: StudyConfig) -> pd.DataFrame:
                 }
             )
     return pd.DataFrame(rows).sort_values(["observer", "vision_delay_ms"]).reset_index(drop=True)
+
+
+def mpc_margins_table(
+    params: PlantParams, cfg: StudyConfig, mpc: MPCConfig | None = None
+) -> pd.DataFrame:
+    """Per-axis margins of the MPC's linearised law (``latency.mpc_law``) against the vision
+    delay (ms), sequential and pipelined observer, delay-aware (the MPC knows its latency) and,
+    for comparison, without the delay compensation. Same columns as :func:`margins_table` plus
+    ``delay_aware``; the MPC's compute time is not part of the delay here."""
+    K = mpc_state_gain(mpc, params)
+    J, b = float(PIDController(None, params).J[1]), params.rotor.viscous_Nms_per_rad
+    plant = attitude_plant(J, b)
+    T_f = 1.0 / params.camera.frame_rate_hz
+    half_exp = 0.5 * params.camera.exposure_s
+    rows = []
+    for d_ms in np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]:
+        d = d_ms / 1e3
+        for mode in ("sequential", "pipelined"):
+            m = max(1, math.ceil(d / T_f - 1e-9)) if mode == "sequential" else 1
+            T = m * T_f
+            for aware in (True, False):
+                law = mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J,
+                                       damping_Nms_per_rad=b, period_s=T,
+                                       delay_s=half_exp + d, delay_aware=aware)
+                mg = sampled_margins(plant, law, delay_s=half_exp + d)
+                rows.append({
+                    "vision_delay_ms": d_ms, "observer": mode, "delay_aware": aware,
+                    "update_period_s": T, "stable": bool(mg.stable),
+                    "phase_margin_deg": mg.phase_margin_deg if mg.stable else np.nan,
+                    "crossover_rad_s": mg.crossover_rad_s if mg.stable else np.nan,
+                    "delay_margin_s": mg.delay_margin_s if mg.stable else np.nan,
+                })
+    return (pd.DataFrame(rows).sort_values(["observer", "delay_aware", "vision_delay_ms"])
+            .reset_index(drop=True))
+
+
+def plot_pm_pid_vs_mpc(
+    pid: pd.DataFrame, mpc: pd.DataFrame, marks: dict[str, float], path: Path
+) -> None:
+    """Phase and delay margin against vision delay for the PID and the MPC's linearised law."""
+    fig, ax = plt.subplots(2, 1, figsize=(8.5, 7), sharex=True)
+    grid = np.linspace(0, 60, 61).round(6)
+    for mode, style in (("sequential", "-"), ("pipelined", "--")):
+        g = pid[(pid.observer == mode) & pid.vision_delay_ms.round(6).isin(grid)]
+        ax[0].plot(g.vision_delay_ms, g.phase_margin_deg, style, color="C0", label=f"PID, {mode}")
+        ax[1].plot(g.vision_delay_ms, 1e3 * g.delay_margin_s, style, color="C0")
+        for aware, colour in ((True, "C1"), (False, "C2")):
+            h = mpc[(mpc.observer == mode) & (mpc.delay_aware == aware)
+                    & mpc.vision_delay_ms.round(6).isin(grid)]
+            tag = "MPC" if aware else "MPC without delay compensation"
+            ax[0].plot(h.vision_delay_ms, h.phase_margin_deg, style, color=colour,
+                       label=f"{tag}, {mode}")
+            ax[1].plot(h.vision_delay_ms, 1e3 * h.delay_margin_s, style, color=colour)
+    for a in ax:
+        for name, ms in marks.items():
+            a.axvline(ms, color="k", lw=0.8, ls=":")
+            a.text(ms, 0.02, f" {name}", rotation=90, fontsize=8, va="bottom",
+                   transform=a.get_xaxis_transform())
+        a.grid(alpha=0.3)
+        a.axhline(0, color="grey", lw=0.5)
+    ax[0].set_ylabel("phase margin (deg)")
+    ax[1].set_ylabel("delay margin (ms)")
+    ax[1].set_xlabel("vision delay (ms); curves stop where the loop is unstable")
+    ax[0].legend(loc="upper right", fontsize=7)
+    fig.suptitle("PID and MPC (linearised law): margins against vision delay")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def plot_margins(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
@@ -373,6 +443,9 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     margins = margins_table(params, cfg)
     margins.to_parquet(out / "margins.parquet")
     plot_margins(margins, marks, out / "margins_vs_delay.png")
+    mpc_margins = mpc_margins_table(params, cfg)
+    mpc_margins.to_parquet(out / "mpc_margins.parquet")
+    plot_pm_pid_vs_mpc(margins, mpc_margins, marks, out / "pm_pid_vs_mpc.png")
 
     raw = run_sweep(
         "experiments.study:study_run",
@@ -391,5 +464,5 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
 
     findings = summary_text(margins, sweep, ts, measured_ms, cfg)
     (out / "study_config.json").write_text(json.dumps(cfg.model_dump(), indent=1))
-    write_report(out, cfg, findings, margins, sweep, ts, measured_ms)
+    write_report(out, cfg, findings, margins, sweep, ts, measured_ms, mpc_margins)
     return out
