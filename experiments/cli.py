@@ -203,6 +203,8 @@ def _expand(base: dict, grid: dict) -> list[dict]:
     return out
 
 
+# Help texts are rich markup: "[" before a letter opens a style tag and is swallowed unless
+# escaped as "\\[" (as in the sweep example below).
 @app.command()
 def sweep(
     spec: Annotated[Path, typer.Argument(help="Sweep YAML: 'base' scenario + 'grid' of lists.")],
@@ -215,8 +217,11 @@ def sweep(
     """A grid of scenarios, resumable (finished runs are skipped), local or on Dask.
 
     The YAML has a 'base' scenario and a 'grid' mapping dotted field paths to lists, e.g.
-    grid: {"pipeline.observer.value_s": [0.01633, 0.03123], "controller.kind": [pid, mpc],
-    "seed": [0, 1]}.
+
+    grid:
+      pipeline.observer.value_s: [0.01633, 0.03123]
+      controller.kind: \\[pid, mpc]
+      seed: [0, 1]
 
     Example: pmspm sweep examples/sweep.yaml --out runs/sweep --scheduler tcp://host:8786
     """
@@ -242,32 +247,141 @@ def sweep(
 
 @app.command("measure-latency")
 def measure_latency(
-    tracker: Annotated[str, typer.Option(help="kcf or csrt (GK assistance on top).")] = "kcf",
+    tracker: Annotated[
+        str,
+        typer.Option(
+            help="kcf or csrt (GK assistance on top), or orb (the textured rotor's ORB-AEKF)."
+        ),
+    ] = "kcf",
     frames: Annotated[int, typer.Option(help="Frames to time.")] = 200,
     out: Annotated[Path, typer.Option(help="Profile JSON to write.")] = Path("latency.json"),
 ) -> None:
     """Measure the observer's per-frame latency on a rendered sequence; writes an empirical
-    latency profile that a scenario can load.
+    latency profile that a scenario can load (as pipeline.observer).
 
     Example: pmspm measure-latency --tracker csrt --frames 200 --out csrt.json
     """
     import numpy as np
 
-    from latency.profile import measure_locator_latency
+    from latency.profile import measure_locator_latency, measure_orb_latency
     from observer.frame_observer import MarkerLocator
     from observer.opencv_trackers import OpenCVTracker
     from plant.params import PlantParams
 
-    if tracker not in ("kcf", "csrt") or frames < 1:
-        _config_error(ValueError("tracker must be kcf or csrt and frames >= 1"), "options")
+    if tracker not in ("kcf", "csrt", "orb") or frames < 1:
+        _config_error(ValueError("tracker must be kcf, csrt or orb and frames >= 1"), "options")
     p = PlantParams()
-    prof = measure_locator_latency(
-        p, MarkerLocator(p, OpenCVTracker(tracker)), n_frames=frames, progress=True
-    )
+    if tracker == "orb":
+        prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
+        label = "ORB-AEKF"
+    else:
+        locator = MarkerLocator(p, OpenCVTracker(tracker))
+        prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
+        label = f"{tracker}+GK"
     prof.save(out)
     s = np.asarray(prof.samples_s) * 1e3
-    typer.echo(f"{tracker}+GK: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
+    typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
     typer.echo(f"profile: {out}")
+
+
+def _names(values: list[str] | None) -> list[str] | None:
+    """Option values given repeated or comma-separated (``--cases clean,blur``)."""
+    if not values:
+        return None
+    return [v.strip() for value in values for v in value.split(",") if v.strip()]
+
+
+@app.command("bench-trackers")
+def bench_trackers(
+    seeds: Annotated[int, typer.Option(help="Validation seeds (7,000,000 + i), >= 1.")] = 2,
+    frames: Annotated[
+        int,
+        typer.Option(help="Frames per sequence; clean >= 2, occlusion >= 116, blur >= 161."),
+    ] = 300,
+    cases: Annotated[
+        list[str] | None,
+        typer.Option(help="clean, occlusion, blur (repeat or comma-separate; default all)."),
+    ] = None,
+    trackers: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="gk_transt, gk_transt_norefine, dual_transt, kcf, csrt, kcf_numpy, k2cf "
+            "(repeat or comma-separate; default all)."
+        ),
+    ] = None,
+    stand_in: Annotated[
+        bool,
+        typer.Option(
+            "--stand-in",
+            help="numpy KCF in place of the TransT network: a quick plumbing run "
+            "(rows gk_standin, dual_standin; not TransT numbers).",
+        ),
+    ] = False,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Output folder (default: a new runs/<timestamp>-bench-trackers/)."),
+    ] = None,
+    torch_threads: Annotated[int, typer.Option(help="torch intra-op threads.")] = 1,
+) -> None:
+    """The tracking benchmark of seed 000 §4 (GK-TransT, dual TransT, KCF, CSRT, K²CF) on the
+    validation sequences, clean and with the seed's occlusion and blur cases.
+
+    Writes tracking_metrics.csv (one row per run), precision and error plots per case and
+    report.md (Table 1 beside the seed's, precision at 20 px, success AUC, issue 4's targets).
+    The same code path as benchmarks/bench_tracking.py.
+
+    Example: pmspm bench-trackers --seeds 1 --cases clean --trackers gk_transt,kcf --stand-in
+    """
+    import datetime as dt
+
+    # Before torch loads its OpenMP runtime: idle threads sleep instead of spinning
+    # (docs/tracking.md; as benchmarks/bench_tracking.py).
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from tqdm import tqdm
+
+    from experiments import tracking_bench as tb
+    from experiments.sequences import CASES
+
+    case_list = _names(cases) or list(CASES)
+    tracker_list = _names(trackers) or list(tb.DEFAULT_TRACKERS)
+    if not stand_in and any(t.startswith(("gk_transt", "dual_transt")) for t in tracker_list):
+        try:
+            import torch
+
+            torch.set_num_threads(max(1, torch_threads))
+        except ImportError:
+            pass
+    if out is None:
+        stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        out = Path("runs") / f"{stamp}-bench-trackers"
+        out.mkdir(parents=True, exist_ok=False)  # a new folder, never a previous run's
+    bar = tqdm(total=seeds * len(case_list) * max(frames - 1, 0), desc="bench-trackers",
+               unit="frame")
+    try:
+        report = tb.run_tracking_benchmark(
+            out, seeds=seeds, frames=frames, cases=case_list, trackers=tracker_list,
+            stand_in=stand_in, progress=lambda msg: bar.set_postfix_str(msg, refresh=True),
+            on_step=lambda: bar.update(1),
+        )
+    except ValueError as exc:
+        bar.close()
+        _config_error(exc, "options")
+    bar.close()
+    title = "# Tracking benchmark (seed 000 §4)"
+    if stand_in:
+        title += " [numpy-KCF stand-in for the TransT network]"
+    command = "pmspm bench-trackers " + " ".join(
+        [f"--seeds {seeds}", f"--frames {frames}", f"--cases {','.join(case_list)}",
+         f"--trackers {','.join(tracker_list)}"] + (["--stand-in"] if stand_in else [])
+    )
+    (out / "report.md").write_text(f"{title}\n\n`{command}`\n\n{report.notes}\n")
+    typer.echo(tb.markdown_table(report.table1[["algorithm", "fps", "latency_median_ms",
+                                                "seed_latency_ms"]], ".2f"))
+    typer.echo(tb.markdown_table(report.summary[["tracker", "case", "main_precision_20px",
+                                                 "aux_precision_20px"]]))
+    for line in report.checks:
+        typer.echo(f"- {line}")
+    typer.echo(f"results: {out}")
 
 
 @app.command("tune-kalman")

@@ -7,7 +7,12 @@ the duration and the seed. ``build_loop`` turns it into a ``latency.loop.ClosedL
 runner's run function).
 
 Wrong fields or values fail at load time with a message that names the field and the allowed
-range (pydantic).
+range (pydantic), and so do combinations that cannot run (an ORB observer without rendered
+frames, marker observers on the textured rotor, a measured latency without compute).
+
+Defaults that depend on other fields are resolved at validation, so that a dumped scenario shows
+what ran: the MPC's compute latency (its median call time measured here, ``MPC_CALL_MEDIAN_S``),
+the textured rotor and the measured observer latency for the ORB observers (issue 8).
 """
 
 from __future__ import annotations
@@ -17,12 +22,26 @@ from typing import Annotated, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from controller.mpc import MPCConfig, MPCController
 from controller.pid import PIDConfig, PIDController
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
-from latency.frontends import ImageFrontEnd, MeasurementConfig, MeasurementFrontEnd
+from latency.frontends import (
+    ImageFrontEnd,
+    MeasurementConfig,
+    MeasurementFrontEnd,
+    OrbFrontEnd,
+    orb_reference,
+)
 from latency.loop import ClosedLoop, LoopConfig, LoopResult
 from latency.models import Constant, LatencyModel
 from latency.pipeline import PipelineConfig
@@ -30,8 +49,11 @@ from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.gk.pixel_kalman import PixelKalmanConfig
+from observer.orb import OrbConfig
+from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
 from plant.params import PlantParams
+from plant.texture import TextureParams
 
 
 class _Model(BaseModel):
@@ -51,20 +73,68 @@ class MPCSpec(_Model):
 ControllerSpec = Annotated[PIDSpec | MPCSpec, Field(discriminator="kind")]
 
 
-class ObserverSpec(_Model):
-    """The attitude back end: ``aekf``/``ekf`` (quaternion filter, optionally predicting across
-    the latency), ``solver`` (per-frame least squares), or ``pixel_kalman`` (the seed's pixel
-    Kalman filter on each marker, then the solver)."""
+#: Observer kinds of the textured rotor (issue 8, ``observer.orb_observer.OrbObserver``): ORB
+#: alone (a direct solve per frame), ORB-EKF and ORB-AEKF (seed 001 Table 2).
+ORB_KINDS = {"orb": "orb", "orb_ekf": "ekf", "orb_aekf": "aekf"}
 
-    kind: Literal["aekf", "ekf", "solver", "pixel_kalman"] = "aekf"
-    compensate_delay: bool = Field(True, description="aekf/ekf: predict to the release time.")
-    aekf: AEKFConfig = AEKFConfig()
+
+def _kind(value) -> str | None:
+    """The ``kind`` of a spec given as a model or a mapping (None if there is none)."""
+    if isinstance(value, BaseModel | dict):
+        kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
+        return kind if isinstance(kind, str) else None
+    return None
+
+
+class ObserverSpec(_Model):
+    """The attitude back end.
+
+    Marker rotor: ``aekf``/``ekf`` (quaternion filter, optionally predicting across the
+    latency), ``solver`` (per-frame least squares), or ``pixel_kalman`` (the seed's pixel Kalman
+    filter on each marker, then the solver).
+
+    Textured rotor (issue 8, image mode only): ``orb`` (ORB alone, a direct solve per frame),
+    ``orb_ekf`` and ``orb_aekf`` (the quaternion EKF/AEKF on the matched points, seed 001); the
+    front end is ``latency.frontends.OrbFrontEnd`` with the ORB settings ``orb``.
+    """
+
+    kind: Literal["aekf", "ekf", "solver", "pixel_kalman", "orb", "orb_ekf", "orb_aekf"] = "aekf"
+    compensate_delay: bool = Field(
+        True, description="aekf/ekf/orb_ekf/orb_aekf: predict to the release time."
+    )
+    aekf: AEKFConfig = Field(
+        default_factory=AEKFConfig,
+        description="Filter settings (its ``adaptive`` is set by the kind); default "
+        "AEKFConfig(), or orb_filter_config() for the ORB kinds.",
+    )
     pixel_q_scale: float = Field(
         0.01, gt=0.0, description="pixel_kalman: Q = q·I4; seed 000 §3.2.1: 0.01."
     )
     pixel_r_scale: float = Field(
         0.1, gt=0.0, description="pixel_kalman: R = r·I2; seed 000 §3.2.1: 0.1."
     )
+    orb: OrbConfig = Field(
+        default_factory=OrbConfig, description="ORB kinds: keypoints, matching, RANSAC."
+    )
+    orb_max_coast_s: float = Field(
+        0.5,
+        gt=0.0,
+        description="ORB kinds: the estimate is invalid after this long without an accepted "
+        "measurement, s (our choice, OrbObserver's default).",
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _orb_filter_default(cls, data):
+        """The ORB filters default to ``orb_filter_config`` (seed 001's ϑ = 0.8, window
+        N = 10; each point's σ from the front end)."""
+        if isinstance(data, dict) and "aekf" not in data and data.get("kind") in ORB_KINDS:
+            data = {**data, "aekf": orb_filter_config()}
+        return data
+
+    @property
+    def is_orb(self) -> bool:
+        return self.kind in ORB_KINDS
 
 
 class TiltStepSpec(_Model):
@@ -94,9 +164,50 @@ class RefSpec(_Model):
 ReferenceSpec = Annotated[TiltStepSpec | RefSpec, Field(discriminator="kind")]
 
 
+#: Median whole-call time of the MPC (``MPCController.command``: prediction, parameters and
+#: solve), s, measured on this 2-core machine by ``python benchmarks/bench_controllers.py``
+#: (benchmarks/results/bench_controllers.json, ``mpc_<solver>_command_median_s``, 2026-11-22;
+#: N = 15 steps of 10 ms, 400 solves per variant): our measured default for the MPC's
+#: controller latency, per (solver, hessian). A constant keeps sweeps reproducible; use
+#: ``controller_latency: measured`` for the wall-clock time of each call instead.
+MPC_CALL_MEDIAN_S: dict[tuple[str, str], float] = {
+    ("sqp_hpipm", "gauss_newton"): 0.0039982,  # the default solver: 4.00 ms
+    ("sqp_qpoases", "gauss_newton"): 0.0092908,
+    ("sqp_qrqp", "gauss_newton"): 0.0057612,
+    ("sqp_osqp", "gauss_newton"): 0.0063489,
+    ("ipopt", "gauss_newton"): 0.0112397,
+    ("ipopt", "exact"): 0.0213719,
+}
+_UNMEASURED = "unmeasured MPC settings"
+
+
+def _mpc_latency_default(controller) -> LatencyModel | str | None:
+    """The MPC's default controller latency: a constant, its measured median call time for the
+    solver (``MPC_CALL_MEDIAN_S``); None if ``controller`` is not a valid MPC spec (the field
+    then keeps its default and validation reports what is wrong)."""
+    if _kind(controller) != "mpc":
+        return None
+    try:
+        spec = MPCSpec.model_validate(controller)
+    except ValidationError:
+        return None
+    key = (spec.config.solver, spec.config.hessian)
+    if key not in MPC_CALL_MEDIAN_S:
+        return _UNMEASURED  # rejected by the field's validator, with the reason
+    return Constant(value_s=MPC_CALL_MEDIAN_S[key])
+
+
 class Scenario(_Model):
     """A closed-loop scenario. Defaults: GK-TransT's seed latency, measurement model, AEKF with
-    delay compensation, PID, a 5° tilt step."""
+    delay compensation, PID, a 5° tilt step.
+
+    The ORB observer kinds (``observer.kind``: ``orb``, ``orb_ekf``, ``orb_aekf``) need
+    ``mode: image``; they put the printed pattern ``texture`` on the rotor in place of the
+    markers (default ``TextureParams()``, seed 0) and take the ORB front end's measured
+    per-frame time as the observer latency (``observer_latency: measured``; set ``model`` to
+    use ``pipeline.observer`` instead, e.g. a profile from
+    ``latency.profile.measure_orb_latency``, for reproducible runs).
+    """
 
     name: str = "scenario"
     duration_s: float = Field(2.0, gt=0.0, le=3600.0)
@@ -107,13 +218,98 @@ class Scenario(_Model):
     pipeline: PipelineConfig = PipelineConfig()
     measurement: MeasurementConfig = MeasurementConfig()
     observer: ObserverSpec = ObserverSpec()
+    texture: TextureParams | None = Field(
+        None,
+        description="Issue 8: the rotor's printed pattern (seed and shapes) instead of the two "
+        "markers; default on for the ORB observer kinds, off otherwise.",
+    )
+    observer_latency: Literal["model", "measured"] = Field(
+        "model",
+        description="Observer latency from pipeline.observer ('model', reproducible) or the "
+        "front end's measured compute time per frame ('measured', image mode); default "
+        "'measured' for the ORB kinds, 'model' otherwise.",
+    )
     controller: ControllerSpec = PIDSpec()
     reference: ReferenceSpec = TiltStepSpec()
     on_invalid: Literal["zero", "hold"] = "hold"
     controller_latency: LatencyModel | Literal["measured"] = Field(
         default_factory=lambda: Constant(value_s=0.0),
-        description="Controller compute latency in the loop; 'measured' uses the wall clock.",
+        description="Controller compute latency in the loop: a model, or 'measured' (the "
+        "wall-clock time of each command() call). Default: 0 for PID (its call takes 0.2 ms, "
+        "bench_controllers.json; our choice to neglect it); for MPC a constant, its median "
+        "call time measured here (MPC_CALL_MEDIAN_S, 4.0 ms for SQP + HPIPM).",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _dependent_defaults(cls, data):
+        """Fill in the defaults that depend on other fields (when those are valid): the MPC's
+        measured controller latency; the print and the measured latency of the ORB kinds."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        if "controller_latency" not in data:
+            latency = _mpc_latency_default(data.get("controller"))
+            if latency is not None:
+                data["controller_latency"] = latency
+        if _kind(data.get("observer")) in ORB_KINDS:
+            data.setdefault("texture", TextureParams())
+            data.setdefault("observer_latency", "measured")
+        return data
+
+    @field_validator("observer")
+    @classmethod
+    def _observer_fits_the_mode(cls, v: ObserverSpec, info: ValidationInfo) -> ObserverSpec:
+        mode = info.data.get("mode")
+        if v.is_orb and mode != "image":
+            raise ValueError(
+                f"kind {v.kind!r} (ORB on the textured rotor) needs mode: image, got mode: "
+                f"{mode!r}; the measurement model has no ORB matches"
+            )
+        return v
+
+    @field_validator("texture")
+    @classmethod
+    def _texture_fits_the_observer(
+        cls, v: TextureParams | None, info: ValidationInfo
+    ) -> TextureParams | None:
+        obs = info.data.get("observer")
+        if isinstance(obs, ObserverSpec):
+            if v is not None and not obs.is_orb:
+                raise ValueError(
+                    f"the textured rotor has no markers for observer.kind {obs.kind!r}; use an "
+                    f"ORB kind ({', '.join(ORB_KINDS)}) or remove texture"
+                )
+            if v is None and obs.is_orb:
+                raise ValueError(
+                    f"observer.kind {obs.kind!r} needs the textured rotor: set texture (e.g. "
+                    "{seed: 0}) or leave it out for the default print"
+                )
+        return v
+
+    @field_validator("observer_latency")
+    @classmethod
+    def _measured_needs_images(cls, v: str, info: ValidationInfo) -> str:
+        # (An observer that failed validation has its own error: an ORB kind without images.)
+        valid_observer = "observer" in info.data
+        if v == "measured" and info.data.get("mode") == "measurement" and valid_observer:
+            raise ValueError(
+                "'measured' needs mode: image; the measurement model computes nothing (its "
+                "compute time is 0), use 'model' with pipeline.observer"
+            )
+        return v
+
+    @field_validator("controller_latency", mode="before")
+    @classmethod
+    def _known_mpc_time(cls, v, info: ValidationInfo):
+        if isinstance(v, str) and v == _UNMEASURED:
+            c = info.data["controller"].config
+            measured = ", ".join(f"{a}/{b}" for a, b in MPC_CALL_MEDIAN_S)
+            raise ValueError(
+                f"no measured MPC call time for solver {c.solver!r} with hessian {c.hessian!r} "
+                f"(measured: {measured}); set controller_latency to a model or 'measured'"
+            )
+        return v
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> Scenario:
@@ -122,35 +318,50 @@ class Scenario(_Model):
             return cls.model_validate(yaml.safe_load(fh) or {})
 
 
+def _renderer(s: Scenario):
+    """The scenario's renderer, with the textured rotor when ``s.texture`` is set."""
+    if s.renderer == "analytic":
+        from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
+
+        options = AnalyticRenderOptions(texture=s.texture)
+        return AnalyticRenderer(s.plant, options=options, seed=s.seed)
+    from plant.render_mujoco import MujocoRenderer
+
+    return MujocoRenderer(s.plant, texture=s.texture)
+
+
 def build_loop(s: Scenario) -> ClosedLoop:
     """The closed loop of a scenario."""
     p = s.plant
     rng = np.random.default_rng([s.seed, 1])
-    if s.mode == "measurement":
-        front = MeasurementFrontEnd(p, s.measurement, rng)
-    else:
-        if s.renderer == "analytic":
-            from plant.render_analytic import AnalyticRenderer
-
-            renderer = AnalyticRenderer(p, seed=s.seed)
-        else:
-            from plant.render_mujoco import MujocoRenderer
-
-            renderer = MujocoRenderer(p)
-        front = ImageFrontEnd(p, renderer)
     o = s.observer
-    if o.kind in ("aekf", "ekf"):
-        cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
-        observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)
+    if o.is_orb:  # the textured rotor: rendered frames matched to a reference view
+        renderer = _renderer(s)
+        observer = OrbObserver(
+            p,
+            orb_reference(p, renderer, s.texture, config=o.orb),
+            method=ORB_KINDS[o.kind],
+            orb_config=o.orb,
+            filter_config=o.aekf,
+            compensate_delay=o.compensate_delay,
+            max_coast_s=o.orb_max_coast_s,
+        )
+        front = OrbFrontEnd(renderer, observer)
     else:
-        solver = CorSolver(CorModel.nominal(p))
-        if o.kind == "solver":
-            observer = SolverObserver(solver)
+        if s.mode == "measurement":
+            front = MeasurementFrontEnd(p, s.measurement, rng)
+        else:
+            front = ImageFrontEnd(p, _renderer(s))
+        if o.kind in ("aekf", "ekf"):
+            cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
+            observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)
+        elif o.kind == "solver":
+            observer = SolverObserver(CorSolver(CorModel.nominal(p)))
         else:
             pk = PixelKalmanConfig(
                 Q=(o.pixel_q_scale * np.eye(4)).tolist(), R=(o.pixel_r_scale * np.eye(2)).tolist()
             )
-            observer = PixelKalmanObserver(solver, pk)
+            observer = PixelKalmanObserver(CorSolver(CorModel.nominal(p)), pk)
     if isinstance(s.controller, PIDSpec):
         controller = PIDController(s.controller.config, p)
     else:
@@ -165,6 +376,7 @@ def build_loop(s: Scenario) -> ClosedLoop:
         seed=s.seed,
         on_invalid=s.on_invalid,
         controller_latency=s.controller_latency,
+        observer_latency=s.observer_latency,
     )
     return ClosedLoop(p, controller, s.reference.build(), front, observer, config)
 

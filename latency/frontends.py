@@ -8,6 +8,8 @@
 * ``OrbFrontEnd`` (image-in-the-loop, rotor without markers, issue 8): a rendered frame of the
   textured rotor and the ORB matches of ``observer.orb``; its ``Capture.marker_px`` carries the
   ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
+  ``orb_reference`` renders the reference view it matches against. A scenario selects it with
+  an ORB observer kind (``experiments.scenario``: ``observer.kind: orb_aekf``, image mode).
 
 Both return a ``Capture`` in full-sensor pixels, with the truth beside the measurement so that the
 loop can flag tracking loss by the seed's 20 px criterion (seed 000 §4.2).
@@ -23,9 +25,11 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from observer.frame_observer import MarkerLocator
+from observer.orb import OrbConfig, OrbReference
 from plant import attitude
 from plant.camera import marker_pixels
 from plant.params import PlantParams
+from plant.texture import TextureParams
 
 
 @dataclass(frozen=True)
@@ -208,3 +212,22 @@ class OrbFrontEnd:
         m = self.observer.measure(frame)
         return Capture(m, np.full((2, 2), np.nan), not m.valid, m.reason, m.compute_time_s)
 
+
+
+def orb_reference(
+    params: PlantParams,
+    renderer,
+    texture: TextureParams,
+    q_ref=(1.0, 0.0, 0.0, 0.0),
+    config: OrbConfig | None = None,
+) -> OrbReference:
+    """The ORB reference view of the textured rotor: one frame rendered by ``renderer`` (built
+    with ``texture``) at the known attitude ``q_ref``, at rest, captured by
+    ``OrbReference.capture`` with the print's size from ``texture`` (m inside; ``size_mm`` at
+    the edge, default the VFC plate's 50 mm)."""
+    size_mm = texture.size_mm if texture.size_mm is not None else params.vfc.plate_size_mm
+    frame = renderer.render(q_ref)
+    return OrbReference.capture(
+        frame.image, frame.binning, params, q_ref, print_half_size_m=size_mm / 2000.0,
+        config=config,
+    )

@@ -1,9 +1,17 @@
 """Measure an observer's latency profile on a rendered sequence: one call, one ``Empirical``.
 
 The sequence is rendered with the analytic renderer from a seed (a slow cone in the workspace,
-with motion blur), the locator (tracker + GK assistance) is started on the first frame's true
-box, and the wall-clock time of each ``locate`` call is recorded. The first ``warmup`` frames are
-not recorded (caches, lazy initialisation). Rendering is not timed.
+with motion blur) and the wall-clock time of each frame's processing is recorded. The first
+``warmup`` frames are not recorded (caches, lazy initialisation). Rendering is not timed.
+
+* ``measure_locator_latency``: the marker rotor; a locator (tracker + GK assistance) started on
+  the first frame's true box, timed per ``locate`` call.
+* ``measure_orb_latency``: the textured rotor (issue 8); an ``OrbObserver`` (ORB alone, ORB-EKF
+  or ORB-AEKF) on a reference view at rest, timed per frame over its front end (ORB, matching,
+  RANSAC, refinement) and back end (solve or filter update), as ``OrbObserver.update`` reports.
+
+A profile saved with ``.save(path)`` goes into a scenario as ``pipeline.observer`` (with
+``observer_latency: model``): a reproducible stand-in for the latency measured in the loop.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from latency.models import Empirical
 from observer.frame_observer import MarkerLocator
 from plant import attitude
 from plant.params import PlantParams
+from plant.texture import TextureParams
 
 
 def cone_attitude(t: float, tilt_rad: float = np.deg2rad(8.0), rate_rad_s: float = 1.5):
@@ -60,3 +69,43 @@ def measure_locator_latency(
             times.append(located.compute_time_s)
     name = source or f"{type(locator.tracker).__name__} + GK assistance"
     return Empirical.from_measurements(times, source=f"{name}, {n_frames} analytic frames")
+
+
+def measure_orb_latency(
+    params: PlantParams,
+    method: str = "aekf",
+    texture: TextureParams | None = None,
+    n_frames: int = 200,
+    warmup: int = 5,
+    seed: int = 0,
+    progress: bool = False,
+) -> Empirical:
+    """Per-frame compute time (s) of the ORB observer (``"orb"``, ``"ekf"`` or ``"aekf"``,
+    ``observer.orb_observer.OrbObserver``) on ``n_frames`` rendered frames of the textured
+    rotor (``texture``, default ``TextureParams()``), matched against a reference view rendered
+    at rest. Each frame's time is the observer's own measurement (``Estimate.compute_time_s``:
+    front end + back end). Frames it cannot use still count. Returns an ``Empirical``
+    profile."""
+    names = {"orb": "ORB alone", "ekf": "ORB-EKF", "aekf": "ORB-AEKF"}
+    if method not in names:
+        raise ValueError(f"method must be 'orb', 'ekf' or 'aekf', got {method!r}")
+    if n_frames < 1 or warmup < 0:
+        raise ValueError(f"need n_frames >= 1 and warmup >= 0, got {n_frames}, {warmup}")
+    from latency.frontends import orb_reference
+    from observer.orb_observer import OrbObserver
+    from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
+
+    tex = texture or TextureParams()
+    renderer = AnalyticRenderer(params, options=AnalyticRenderOptions(texture=tex), seed=seed)
+    observer = OrbObserver(params, orb_reference(params, renderer, tex), method=method)
+    period = 1.0 / params.camera.frame_rate_hz
+    times = []
+    for k in tqdm(range(n_frames + warmup), disable=not progress, desc="latency", unit="frame"):
+        t = k * period
+        q, omega = cone_attitude(t)
+        estimate = observer.update(renderer.render(q, t_exposure=t, omega=omega), t)
+        if k >= warmup:
+            times.append(estimate.compute_time_s)
+    return Empirical.from_measurements(
+        times, source=f"{names[method]} (texture seed {tex.seed}), {n_frames} analytic frames"
+    )

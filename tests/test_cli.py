@@ -79,6 +79,52 @@ def test_margins_command_writes_plots(tmp_path):
 
 
 def test_every_command_has_an_example_in_its_help():
-    for cmd in ("study", "simulate", "margins", "sweep", "measure-latency", "demo", "tune-kalman"):
+    commands = ("study", "simulate", "margins", "sweep", "measure-latency", "demo", "tune-kalman",
+                "bench-trackers")
+    for cmd in commands:
         result = RUNNER.invoke(app, [cmd, "--help"])
         assert result.exit_code == 0 and "Example" in result.output, cmd
+    assert set(commands) == {c.name or c.callback.__name__ for c in app.registered_commands}
+
+
+def test_sweep_help_shows_the_brackets_of_its_example():
+    # Rich markup swallowed "[pid, mpc]" as a style tag.
+    result = RUNNER.invoke(app, ["sweep", "--help"], env={"COLUMNS": "120"})
+    assert result.exit_code == 0
+    assert "controller.kind: [pid, mpc]" in result.output
+    assert "[0.01633, 0.03123]" in result.output and "\\[" not in result.output
+
+
+def test_bench_trackers_writes_metrics_plots_and_a_table(tmp_path):
+    out = tmp_path / "bench"
+    args = ["bench-trackers", "--seeds", "1", "--cases", "clean", "--frames", "20",
+            "--trackers", "gk_transt,kcf_numpy", "--stand-in", "--out", str(out)]
+    result = RUNNER.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    metrics = pd.read_csv(out / "tracking_metrics.csv")
+    assert list(metrics.tracker) == ["gk_standin", "kcf_numpy"]
+    assert (metrics.case == "clean").all() and (metrics.frames == 19).all()
+    assert metrics.main_precision_20px.between(0, 1).all()
+    for png in ("tracking_precision_clean.png", "tracking_errors_clean.png"):
+        assert (out / png).stat().st_size > 10_000
+    report = (out / "report.md").read_text()
+    assert "| algorithm |" in report and "gk_standin" in report and "--stand-in" in report
+    assert "results: " in result.output
+    # The seed's disturbance cases need their frames; a wrong option exits 2 naming it.
+    result = RUNNER.invoke(app, ["bench-trackers", "--cases", "blur", "--frames", "100",
+                                 "--stand-in", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "frames must be >= 161" in result.output
+    result = RUNNER.invoke(app, ["bench-trackers", "--trackers", "sift", "--stand-in",
+                                 "--out", str(tmp_path / "y")])
+    assert result.exit_code == 2 and "unknown trackers ['sift']" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_bench_trackers_default_folder_is_new_and_timestamped(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    args = ["bench-trackers", "--seeds", "1", "--cases", "clean", "--frames", "3",
+            "--trackers", "kcf_numpy"]
+    assert RUNNER.invoke(app, args).exit_code == 0
+    (folder,) = (tmp_path / "runs").iterdir()
+    assert re.fullmatch(r"\d{8}-\d{6}-bench-trackers", folder.name)
+    assert (folder / "tracking_metrics.csv").exists()

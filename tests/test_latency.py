@@ -119,3 +119,30 @@ def test_measuring_a_profile_is_one_call(tmp_path):
     prof.save(tmp_path / "kcf.json")
     cfg = PipelineConfig(observer=Empirical.load(tmp_path / "kcf.json"))
     assert cfg.observer.mean_s == pytest.approx(prof.mean_s)
+
+
+def test_measuring_the_orb_observer_profile_is_one_call(tmp_path):
+    """The textured rotor's ORB-AEKF (issue 8): one call gives its per-frame compute time as a
+    profile, which a scenario with an ORB observer then takes as its (reproducible) latency."""
+    from experiments.scenario import Scenario, build_loop
+    from latency.profile import measure_orb_latency
+    from plant.params import PlantParams
+    from plant.texture import TextureParams
+
+    p = PlantParams()
+    prof = measure_orb_latency(p, "aekf", TextureParams(seed=2), n_frames=8, warmup=2)
+    assert len(prof.samples_s) == 8
+    assert all(0.002 < s < 1.0 for s in prof.samples_s)  # ORB on 612 x 512 px: not free
+    assert "ORB-AEKF" in prof.source and "seed 2" in prof.source
+    prof.save(tmp_path / "orb.json")
+    s = Scenario.model_validate(
+        {
+            "mode": "image",
+            "observer": {"kind": "orb_aekf"},
+            "observer_latency": "model",
+            "pipeline": {"observer": Empirical.load(tmp_path / "orb.json").model_dump()},
+        }
+    )
+    assert build_loop(s).config.pipeline.observer.mean_s == pytest.approx(prof.mean_s)
+    with pytest.raises(ValueError, match="method"):
+        measure_orb_latency(p, "sift", n_frames=1)

@@ -1,0 +1,91 @@
+"""Scenario defaults that depend on the controller: the MPC's compute time counts as latency
+(issue 5), by default as its median call time measured here, or measured per call."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, Scenario, build_loop
+from latency.models import Constant
+
+RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+
+
+class Spy:
+    """Wraps the loop's observer and records when each command takes effect
+    (``ClosedLoop._on_command`` reports every applied torque to ``record_torque``)."""
+
+    def __init__(self, observer) -> None:
+        self.observer = observer
+        self.command_times: list[float] = []
+
+    def record_torque(self, t, torque) -> None:
+        self.command_times.append(t)
+        self.observer.record_torque(t, torque)
+
+    def __getattr__(self, name):
+        return getattr(self.observer, name)
+
+
+def run_with_spy(s: Scenario):
+    loop = build_loop(s)
+    loop.observer = spy = Spy(loop.observer)
+    r = loop.run()
+    released = r.frames[~r.frames.dropped & r.frames.latency_s.notna()]
+    assert len(spy.command_times) == len(released) > 10  # one command per released estimate
+    delay = np.asarray(spy.command_times) - released.t_release_s.to_numpy()
+    return loop, released, delay
+
+
+MPC_SCENARIO = {
+    "duration_s": 0.5,
+    "observer": {"kind": "solver"},
+    "controller": {"kind": "mpc"},
+    "reference": {"kind": "tilt_step", "tilt_deg": 3.0},
+}
+
+
+def test_mpc_latency_defaults_to_its_measured_median_call_time():
+    figures = json.loads((RESULTS / "bench_controllers.json").read_text())
+    for (solver, hessian), value in MPC_CALL_MEDIAN_S.items():
+        name = solver if hessian == "gauss_newton" else f"{solver}_exact_hessian"
+        assert value == pytest.approx(figures[f"mpc_{name}_command_median_s"], rel=1e-4)
+    s = Scenario.model_validate(MPC_SCENARIO)
+    default = MPC_CALL_MEDIAN_S[("sqp_hpipm", "gauss_newton")]  # 4.0 ms
+    assert s.controller_latency == Constant(value_s=default)
+    assert Scenario(controller=MPCSpec()).controller_latency == s.controller_latency
+    assert Scenario().controller_latency == Constant(value_s=0.0)  # PID
+    ipopt = Scenario.model_validate({"controller": {"kind": "mpc", "config": {"solver": "ipopt"}}})
+    assert ipopt.controller_latency.value_s == MPC_CALL_MEDIAN_S[("ipopt", "gauss_newton")]
+    # An explicit value wins; the dump carries the resolved default (reproducible sweeps).
+    zero = Scenario.model_validate({**MPC_SCENARIO, "controller_latency": {"kind": "constant",
+                                                                         "value_s": 0.0}})
+    assert zero.controller_latency.value_s == 0.0
+    assert Scenario.model_validate(s.model_dump(mode="json")) == s
+    # Settings without a measured figure must say what they want.
+    with pytest.raises(ValidationError) as err:
+        Scenario.model_validate({"controller": {"kind": "mpc", "config": {"hessian": "exact"}}})
+    (e,) = err.value.errors()
+    assert e["loc"] == ("controller_latency",) and "no measured MPC call time" in e["msg"]
+    # The loop applies it, deterministically, and the MPC's prediction assumes it.
+    loop, _, delay = run_with_spy(s)
+    assert np.allclose(delay, s.controller_latency.value_s, rtol=0, atol=1e-12)
+    assert loop.controller.config.compute_latency_s == s.controller_latency.value_s
+
+
+def test_measured_controller_latency_is_the_compute_time_of_each_command():
+    s = Scenario.model_validate({**MPC_SCENARIO, "controller_latency": "measured"})
+    loop, released, delay = run_with_spy(s)
+    mpc = loop.controller
+    assert mpc.config.compute_latency_s is None  # predicts with its own measured times
+    loop_times = released.controller_compute_s.to_numpy()
+    # Each command takes effect after exactly the compute time the loop measured for it ...
+    assert np.allclose(delay, loop_times, rtol=0, atol=1e-9)
+    # ... which is the MPC's own per-call measurement (the loop's timer wraps the same call).
+    own = np.asarray(mpc.command_times_s)
+    assert len(own) == len(loop_times)
+    assert np.all(loop_times >= own) and np.all(loop_times - own < 5e-4)
+    assert np.all(loop_times > 0) and np.ptp(loop_times) > 0  # wall clock, not a constant
