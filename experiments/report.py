@@ -63,7 +63,8 @@ def _mpc_section(mpc_margins) -> list[str]:
         "The MPC's margins come from its linearised feedback law (`latency.mpc_law`): the gain "
         "of the real solver at rest by central differences, the backward-difference rate and the "
         "delay compensation with the commands already sent, analysed like the PID's exact "
-        "discrete law. Coulomb friction is left out of this analysis (for both controllers).",
+        "discrete law; the delay includes the MPC's measured compute time. Coulomb friction is "
+        "left out of this analysis (for both controllers).",
         "",
         "![PID vs MPC](pm_pid_vs_mpc.png)",
         "",

@@ -39,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field  # noqa: E402
 from controller.mpc import MPCConfig  # noqa: E402
 from controller.pid import PIDConfig, PIDController  # noqa: E402
 from experiments.report import write_report  # noqa: E402
-from experiments.scenario import MPCSpec, PIDSpec, Scenario, run  # noqa: E402
+from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, PIDSpec, Scenario, run  # noqa: E402
 from experiments.sweep import run_sweep  # noqa: E402
 from latency.margins import attitude_margins, attitude_plant, sampled_margins  # noqa: E402
 from latency.models import SEED_LATENCY_S  # noqa: E402
@@ -122,7 +122,10 @@ def mpc_margins_table(
     """Per-axis margins of the MPC's linearised law (``latency.mpc_law``) against the vision
     delay (ms), sequential and pipelined observer, delay-aware (the MPC knows its latency) and,
     for comparison, without the delay compensation. Same columns as :func:`margins_table` plus
-    ``delay_aware``; the MPC's compute time is not part of the delay here."""
+    ``delay_aware``. The loop's delay adds the MPC's own compute time, as the scenarios do
+    (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here), and the MPC predicts across it."""
+    mpc = mpc or MPCConfig()
+    compute_s = MPC_CALL_MEDIAN_S[(mpc.solver, mpc.hessian)]
     K = mpc_state_gain(mpc, params)
     J, b = float(PIDController(None, params).J[1]), params.rotor.viscous_Nms_per_rad
     plant = attitude_plant(J, b)
@@ -135,10 +138,11 @@ def mpc_margins_table(
             m = max(1, math.ceil(d / T_f - 1e-9)) if mode == "sequential" else 1
             T = m * T_f
             for aware in (True, False):
+                tau = half_exp + d + compute_s
                 law = mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J,
-                                       damping_Nms_per_rad=b, period_s=T,
-                                       delay_s=half_exp + d, delay_aware=aware)
-                mg = sampled_margins(plant, law, delay_s=half_exp + d)
+                                       damping_Nms_per_rad=b, period_s=T, delay_s=tau,
+                                       delay_aware=aware)
+                mg = sampled_margins(plant, law, delay_s=tau)
                 rows.append({
                     "vision_delay_ms": d_ms, "observer": mode, "delay_aware": aware,
                     "update_period_s": T, "stable": bool(mg.stable),

@@ -51,7 +51,7 @@ def test_stationary_cost_matches_the_simulated_loop():
     assert analysis.mean_square_stable
 
     runs = []
-    for seed in range(5):
+    for seed in range(20):  # 20 runs: SE about 5 % of the cost (5 runs gave 10-20 %)
         cfg = LoopConfig(
             duration_s=14.0,
             seed=seed,
@@ -70,5 +70,5 @@ def test_stationary_cost_matches_the_simulated_loop():
         runs.append((st.t_s.to_numpy(), x, st[["torque_delivered_y_Nm"]].to_numpy()))
     cmp = compare_with_simulation(analysis, runs, Q1, Q2, t_start_s=2.0)
     print(cmp)
-    assert cmp.standard_error < 0.2 * cmp.analytic  # the comparison has teeth
+    assert cmp.standard_error < 0.08 * cmp.analytic  # the comparison has teeth
     assert cmp.agrees(z_max=3.0)
