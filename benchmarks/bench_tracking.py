@@ -9,7 +9,8 @@ with the true boxes; frames 1-299 are scored (``experiments.tracking_bench``): p
 0-50 px (full-sensor px), precision at 20 px, IoU success AUC, median/p95 latency, FPS = 1/mean
 latency, re-acquisition frames after the occlusion. Trackers: GK-TransT with the shipped ``small``
 network (sub-pixel centres on, the GK default; ``gk_transt_norefine`` without them, the seed's
-algorithm), dual TransT (two ``small`` networks, box centres), OpenCV KCF and CSRT (one per
+algorithm), dual TransT (two ``small`` networks, box centres; ``dual_transt_refine`` with the
+circle fit, for a like-for-like latency ratio with GK-TransT), OpenCV KCF and CSRT (one per
 marker, box centres), the numpy KCF and K²CF (one per marker).
 
 Writes ``benchmarks/results/tracking_*.png`` (precision curves per case like seed Figures 11,
@@ -56,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--trackers", nargs="+", default=list(tb.DEFAULT_TRACKERS),
                     help="names of observer.trackers.make_pair_tracker, plus gk_transt_norefine "
-                    "(GK-TransT without the sub-pixel circle fit: the seed's algorithm)")
+                    "(GK-TransT without the sub-pixel circle fit: the seed's algorithm) and "
+                    "dual_transt_refine (dual TransT with it)")
     ap.add_argument("--stand-in", action="store_true",
                     help="numpy KCF in place of the TransT network (plumbing check)")
     ap.add_argument("--no-record", action="store_true", help="do not append to RESULTS.md")

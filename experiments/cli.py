@@ -305,8 +305,8 @@ def bench_trackers(
     trackers: Annotated[
         list[str] | None,
         typer.Option(
-            help="gk_transt, gk_transt_norefine, dual_transt, kcf, csrt, kcf_numpy, k2cf "
-            "(repeat or comma-separate; default all)."
+            help="gk_transt, gk_transt_norefine, dual_transt, dual_transt_refine, kcf, csrt, "
+            "kcf_numpy, k2cf (repeat or comma-separate; default all)."
         ),
     ] = None,
     stand_in: Annotated[

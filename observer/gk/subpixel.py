@@ -150,10 +150,10 @@ def fit_circle_algebraic(points: ArrayLike) -> tuple[NDArray[np.float64], float]
     q = p - m
     A = np.column_stack([q, np.ones(len(q))])
     rhs = (q * q).sum(axis=1)
-    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    sol, _, rank, _ = np.linalg.lstsq(A, rhs, rcond=None)
     c = 0.5 * sol[:2]
     r2 = sol[2] + c @ c
-    if not np.all(np.isfinite(sol)) or r2 <= 0.0 or np.linalg.matrix_rank(A) < 3:
+    if not np.all(np.isfinite(sol)) or r2 <= 0.0 or rank < 3:
         return np.full(2, np.nan), math.nan
     return c + m, float(math.sqrt(r2))
 
@@ -227,13 +227,11 @@ def _arc_coverage(points: NDArray[np.float64], centre: NDArray[np.float64]) -> f
 
 
 def _median_rgb(image: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """Per-channel median (3,) of the 8-bit pixels under ``mask``, from 256-bin histograms."""
-    out = np.empty(3, np.float32)
-    for ch in range(3):
-        hist = cv2.calcHist([image], [ch], mask, [256], [0, 256]).ravel()
-        cum = np.cumsum(hist)
-        out[ch] = float(np.searchsorted(cum, 0.5 * cum[-1]))
-    return out
+    """Per-channel lower median (3,) of the 8-bit pixels under ``mask`` (the value at rank
+    ceil(n/2), as a 256-bin histogram would give it)."""
+    px = image[mask.astype(bool)]
+    k = (len(px) - 1) // 2
+    return np.partition(px, k, axis=0)[k].astype(np.float32)
 
 
 # --- the stage ---------------------------------------------------------------------------------
