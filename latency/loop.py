@@ -93,6 +93,14 @@ class LoopConfig(BaseModel):
         (0.0, 0.0, 0.0), description="Body-frame white disturbance torque intensity per axis, "
         "(N·m)²·s (E w(t) w(s) = q δ(t - s)); 0 = none. Drawn per physics step as N(0, q/h)."
     )
+    mujoco_sensor_delay_s: float | None = Field(
+        None,
+        ge=0.0,
+        description="Cross-check: give the plant MuJoCo's native delayed ballquat sensor with "
+        "this delay (s); the steps table then has its reading (mj_delayed_q*), which describes "
+        "the attitude at t - physics step - delay (MuJoCo evaluates sensors before it "
+        "integrates).",
+    )
     seed: int = 0
     q0: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     omega0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -182,7 +190,8 @@ class ClosedLoop:
         rng_pipe, rng_ctrl, rng_dist = (
             np.random.default_rng(s) for s in rng.integers(2**32, size=3)
         )
-        plant = MujocoPlant(p, c.q0, c.omega0_rad_s)
+        plant = MujocoPlant(p, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s)
+        native = c.mujoco_sensor_delay_s is not None
         psd = np.asarray(c.disturbance_psd_Nm2s)
         if np.any(psd > 0):
             plant.disturbance = lambda h: rng_dist.normal(size=3) * np.sqrt(psd / h)
@@ -234,6 +243,7 @@ class ClosedLoop:
                 est.q if est is not None else None,
                 state["saturated"],
                 state["stop"],
+                plant.delayed_q() if native else None,
             )
 
         record(0.0)
@@ -275,7 +285,7 @@ class ClosedLoop:
                 self._control(t, est, None, push, frames, events, state, rng_ctrl)
         bar.close()
 
-        steps = log.frame(k_log + 1)
+        steps = log.frame(k_log + 1, native)
         frames_df = pd.DataFrame(frames)
         events_df = pd.DataFrame(events, columns=["t_s", "kind", "detail"])
         summary = summarize(steps, frames_df, events_df, c.duration_s, stopped)
@@ -433,7 +443,8 @@ class _StepLog:
     def __init__(self, n: int) -> None:
         self.a = np.full((n, 48), np.nan)
 
-    def write(self, k, t, q, w, q_ref, T_cmd, T_del, currents, q_est, sat, stop) -> None:
+    def write(self, k, t, q, w, q_ref, T_cmd, T_del, currents, q_est, sat, stop,
+              q_native=None) -> None:
         row = self.a[k]
         row[0] = t
         row[1:5] = q
@@ -446,8 +457,10 @@ class _StepLog:
             row[34:38] = q_est
         row[38] = sat
         row[39] = stop
+        if q_native is not None:
+            row[40:44] = q_native
 
-    def frame(self, n: int) -> pd.DataFrame:
+    def frame(self, n: int, native: bool = False) -> pd.DataFrame:
         a = self.a[:n]
         cols = (
             ["t_s", "qw", "qx", "qy", "qz", "omega_x_rad_s", "omega_y_rad_s", "omega_z_rad_s"]
@@ -456,6 +469,8 @@ class _StepLog:
             + [f"torque_delivered_{c}_Nm" for c in "xyz"]
             + [f"current_{i:02d}_A" for i in range(N_COILS)]
             + ["est_qw", "est_qx", "est_qy", "est_qz", "saturated", "tilt_stop"]
+            + (["mj_delayed_qw", "mj_delayed_qx", "mj_delayed_qy", "mj_delayed_qz"]
+               if native else [])
         )
         df = pd.DataFrame(a[:, : len(cols)], columns=cols)
         df["saturated"] = df["saturated"].astype(bool)
