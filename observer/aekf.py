@@ -47,6 +47,17 @@ from plant.params import PlantParams
 from plant.twin import CasadiTwin, quat_to_matrix
 
 
+def _check_time(name: str, t: object) -> float:
+    """``t`` as a float time (s), or ``ValueError`` naming ``name`` if it is not a finite
+    real number (NaN would otherwise surface as "cannot convert float NaN to integer")."""
+    if not (np.ndim(t) == 0 and np.asarray(t).dtype.kind in "iuf"):  # not bool, str, None
+        raise ValueError(f"{name} must be a finite time in s, got {t!r}")
+    value = float(t)
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be a finite time in s, got {value}")
+    return value
+
+
 class AEKFConfig(BaseModel):
     """Noise and adaptation settings. Intensities are per second of predicted time."""
 
@@ -262,8 +273,10 @@ class QuaternionAEKF:
         """Fuse marker pixels (N, 2), sensor px, taken at mid-exposure ``t_exposure`` (s).
 
         Rows with NaN are missing markers. Returns whether the measurement was used and why
-        not; a rejected measurement leaves the filter predicting.
+        not; a rejected measurement leaves the filter predicting. A ``t_exposure`` that is not
+        a finite number is a caller error and raises ``ValueError``.
         """
+        t_exposure = _check_time("t_exposure", t_exposure)
         z = np.asarray(marker_px, dtype=float).reshape(-1, 2)
         if t_exposure < self.t - 1e-12:
             return UpdateResult(False, f"stale measurement: exposure {t_exposure} s is before "
@@ -370,8 +383,10 @@ class QuaternionAEKF:
            which is when covariance matching has to act (measured, docs/orb.md).
 
         Fewer than ``min_points`` usable points, a stale time or a gated frame leave the
-        filter unchanged (it keeps predicting) and say why.
+        filter unchanged (it keeps predicting) and say why; a non-finite ``t_exposure`` raises
+        ``ValueError``.
         """
+        t_exposure = _check_time("t_exposure", t_exposure)
         P_r = np.asarray(points_rotor_m, dtype=float).reshape(-1, 3)
         z = np.asarray(pixels_px, dtype=float).reshape(-1, 2)
         if len(P_r) != len(z):

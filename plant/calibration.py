@@ -24,17 +24,29 @@ from plant.params import PlantParams
 from plant.render_analytic import polygon_coverage
 from plant.scene import check_binning
 
-#: Inner corners (columns, rows) of the board: our choice, OpenCV's classic 9 x 6.
-PATTERN = (9, 6)
-#: Side of one square, mm: our choice (the 10 x 7 squares span 50 x 35 mm, about half the
-#: field of view at h_c = 0.30 m).
+#: Inner corners (columns, rows) of the board: our choice. The 13 x 10 squares span 65 x 50 mm
+#: (75 x 60 mm with the white border), about three quarters of the 101 x 85 mm field of view at
+#: h_c = 0.30 m. A board that reaches into the image corners, where the radial distortion is
+#: largest, pins the distortion centre (= the principal point) much better than a small one.
+#: With k1 = -0.3, OpenCV's classic 9 x 6 board and 30 views (the earlier default) left cx, cy
+#: off by up to 1.9 % over 20 seeds; ``benchmarks/bench_plant.py`` measures both that and the
+#: defaults here (``calib_*`` in ``benchmarks/RESULTS.md``; docs/plant.md quotes them).
+PATTERN = (12, 9)
+#: Side of one square, mm: our choice (about 30 image px at the default 4x binning).
 SQUARE_MM = 5.0
 #: Board tilts (rad) drawn uniformly from this range: our choice; tilted views make the focal
 #: length observable.
 TILT_RANGE_RAD = (np.deg2rad(15.0), np.deg2rad(40.0))
+#: Default number of views: our choice. The principal point of this narrow lens (19° x 16°) is
+#: weakly determined, and with a distorted lens its error from the detector's corner noise
+#: (a few hundredths of a pixel) falls only slowly with the number of views: 80 views keep
+#: cx, cy within 1 % with margin over seeds (``bench_plant``), as a motorised board would
+#: collect.
+N_VIEWS = 80
 #: ``cv2.calibrateCamera`` flags: estimate fx, fy, cx, cy, k1 and k2 (our choice). With this
-#: narrow lens (19° x 16° field of view) k3 and the tangential terms are not identifiable: they
-#: trade against the principal point, which then wanders by 1-2 % with 0.05 px corner noise.
+#: narrow lens k3 and the tangential terms are poorly identifiable (they trade against the
+#: principal point), so they are fixed at zero; pass ``flags=0`` to fit all five terms
+#: (``bench_plant`` reports that case too).
 DEFAULT_FLAGS = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 #: Grey levels (0-255) of the background, the board's white squares and border, the black squares.
 _BACKGROUND, _WHITE, _BLACK = 90.0, 230.0, 25.0
@@ -250,7 +262,7 @@ def detect_corners(
 
 def calibrate_from_renders(
     params: PlantParams | None = None,
-    n_views: int = 30,
+    n_views: int = N_VIEWS,
     seed: int | np.random.Generator = 0,
     binning: int | None = None,
     pattern: tuple[int, int] = PATTERN,
@@ -264,8 +276,7 @@ def calibrate_from_renders(
     params : PlantParams, optional
         Camera model to render with (default ``PlantParams()``).
     n_views : int
-        Number of board views (at least 3). Our default of 30 keeps the principal point
-        within 0.6 % of the truth over seeds (12 views: within about 1 %).
+        Number of board views (at least 3); default ``N_VIEWS`` (80, our choice: see there).
     seed : int or numpy.random.Generator
         Source of the board poses.
     binning : int, optional

@@ -32,6 +32,24 @@ def coulomb_torque(omega: NDArray[np.float64], tau_c: float, omega_s: float) -> 
     return -tau_c * omega / np.sqrt(omega @ omega + omega_s * omega_s)
 
 
+def _is_real_scalar(x: object) -> bool:
+    """A real number (Python or numpy scalar, or a 0-d array), not a bool or a string."""
+    return np.ndim(x) == 0 and np.asarray(x).dtype.kind in "iuf"
+
+
+def _check_dt(dt: object, h: float) -> float:
+    """``dt`` (s) as a float, or ``ValueError`` naming it unless it is a finite positive
+    multiple of the physics step ``h`` (s)."""
+    if not _is_real_scalar(dt):
+        raise ValueError(f"dt must be a positive multiple of physics_dt_s = {h} s, "
+                         f"got {dt!r}")
+    value = float(dt)
+    if not np.isfinite(value):
+        raise ValueError(f"dt must be a finite positive multiple of physics_dt_s = {h} s, "
+                         f"got {value}")
+    return value
+
+
 class MujocoPlant:
     """The PMSpM rotor simulated by MuJoCo.
 
@@ -92,11 +110,39 @@ class MujocoPlant:
         return float(self.data.time)
 
     # --- electromagnetics --------------------------------------------------------------------
-    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation:
-        """Currents for a stator-frame torque (N·m) at attitude ``q`` (default: the current
-        one), within the motor's current limit. See ``plant.torque.allocate``."""
+    def allocate(
+        self, torque: ArrayLike, q: ArrayLike | None = None, i_max: float | None = None
+    ) -> Allocation:
+        """Coil currents for a stator-frame torque, the issue's ``allocate(torque, q, i_max)``.
+
+        Parameters
+        ----------
+        torque : array_like (3,)
+            Requested torque on the rotor, stator frame, N·m.
+        q : array_like (4,), optional
+            Attitude (w, x, y, z) at which K(q) is evaluated; default the plant's current one.
+        i_max : float, optional
+            Per-coil current limit, A; default the motor's ``params.motor.i_max_A``. A smaller
+            value (a derated drive, a thermal limit) binds earlier; a larger one is refused,
+            since ``step`` would reject the currents.
+
+        Returns
+        -------
+        Allocation
+            ``(currents (16,) A, saturated, delivered (3,) N·m)``: least-norm currents within
+            ``±i_max``, or, when the limit binds, the largest part of the request in the same
+            direction (``plant.torque.allocate``).
+        """
+        limit = self.params.motor.i_max_A
+        if i_max is None:
+            i_max = limit
+        elif isinstance(i_max, bool) or not (
+            isinstance(i_max, (int, float, np.integer, np.floating)) and 0.0 < i_max <= limit
+        ):  # NaN fails the comparison too
+            raise ValueError(f"i_max must be a current in (0, {limit}] A (the motor's limit), "
+                             f"got {i_max!r}")
         K = self.torque_map(self.q if q is None else q)
-        return allocate(torque, K, self.params.motor.i_max_A)
+        return allocate(torque, K, float(i_max))
 
     def applied_torque(self) -> NDArray[np.float64]:
         """Body-frame torque (N·m) held over the next physics step: electromagnetic K(q) I plus
@@ -112,10 +158,11 @@ class MujocoPlant:
 
         Commands beyond ``±i_max`` are a caller error (use ``allocate``) and raise
         ``ValueError``, as do non-finite values and a ``dt`` that is not a positive multiple of
-        the physics step.
+        the physics step (NaN and infinity included).
         """
         cmd = self._check_currents(currents)
         h = self.params.physics_dt_s
+        dt = _check_dt(dt, h)
         n = round(dt / h)
         if n < 1 or abs(n * h - dt) > 1e-9 * max(1.0, dt):
             raise ValueError(f"dt = {dt} s must be a positive multiple of physics_dt_s = {h} s")
@@ -125,8 +172,11 @@ class MujocoPlant:
         """Like ``step`` but for any ``dt`` > 0 (s): whole physics steps, then one shorter
         step for the remainder, so that events of a timed loop fall on their exact times."""
         cmd = self._check_currents(currents)
-        if not dt >= 0:
-            raise ValueError(f"dt must be >= 0, got {dt}")
+        if not _is_real_scalar(dt):
+            raise ValueError(f"dt must be a finite time >= 0 in s, got {dt!r}")
+        dt = float(dt)
+        if not (np.isfinite(dt) and dt >= 0):
+            raise ValueError(f"dt must be a finite time >= 0 in s, got {dt}")
         h = self.params.physics_dt_s
         n = int(np.floor(dt / h + 1e-9))
         rest = dt - n * h

@@ -47,7 +47,8 @@ class MotorParams(_Strict):
         0.15,
         gt=0.0,
         description="Our choice: scale of one coil-magnet pair's f(phi). With "
-        "i_max = 2 A the motor delivers 0.32–0.52 N·m depending on direction (docs/plant.md).",
+        "i_max = 2 A the motor delivers 0.28–0.53 N·m depending on direction "
+        "(docs/plant.md, measured).",
     )
     i_max_A: float = Field(2.0, gt=0.0, description="Our choice: per-coil current limit.")
     coil_time_constant_s: float = Field(

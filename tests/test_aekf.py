@@ -96,7 +96,10 @@ def test_adaptive_filter_inflates_R_when_the_noise_is_underestimated(truth):
     err_ekf, _, res_ekf = run(truth, AEKFConfig(adaptive=False, **cfg), 0.02, 4.0)
     err_aekf, _, res_aekf = run(truth, AEKFConfig(adaptive=True, **cfg), 0.02, 4.0)
     lam = np.array([r.lam for r in res_aekf[20:]])
-    assert np.median(lam) > 1.5  # true variance is 16x the assumed one
+    # True variance 16x the assumed one; λ matches the innovation covariance tr(H P Hᵀ + R),
+    # so it inflates less than 16x. Median 2.69 with this seed (2.7-3.1 over seeds 1-3), the
+    # figure quoted in docs/observer.md.
+    assert 2.2 < np.median(lam) < 3.5
     assert all(r.lam == 1.0 for r in res_ekf)
     assert rms(err_aekf) < rms(err_ekf)
     # With the right noise level the two agree closely.
@@ -134,6 +137,18 @@ def test_missing_stale_and_outlying_measurements_are_flagged():
     r = f.update(z + 500.0, 0.09)
     assert not r.accepted and "gate" in r.reason
     assert A.geodesic_angle(f.q, [1.0, 0, 0, 0]) < np.deg2rad(0.5)
+
+
+@pytest.mark.parametrize("t", [np.nan, np.inf, "soon"])
+def test_non_finite_exposure_time_raises_a_value_error_naming_it(t):
+    f = QuaternionAEKF(P, AEKFConfig())
+    z = marker_pixels(P, [1.0, 0, 0, 0])
+    with pytest.raises(ValueError, match="^t_exposure must be a finite time") as info:
+        f.update(z, t)
+    assert "cannot convert" not in str(info.value)
+    with pytest.raises(ValueError, match="^t_exposure"):
+        f.update_points(np.zeros((3, 3)), np.zeros((3, 2)), t)
+    assert f.t == 0.0 and f.update(z, 0.03).accepted  # the filter is untouched and still works
 
 
 def test_configuration_errors_name_the_field():

@@ -21,21 +21,39 @@ def run_mujoco(params, q0, w0, U):
     return np.array(qs), np.array(ws)
 
 
+def balanced_currents(rng, amp_A, n_patterns=10, block_steps=25):
+    """Random 16-coil patterns u, uniform in ±``amp_A`` (A), each applied as +u, −u, −u, +u for
+    ``block_steps`` physics steps apiece: the net impulse of each pattern and its first moment
+    cancel, so large currents shake the rotor without walking it into the tilt stop."""
+    B = rng.uniform(-amp_A, amp_A, (n_patterns, 16))
+    return np.repeat(np.stack([B, -B, -B, B], axis=1).reshape(-1, 16), block_steps, axis=0)
+
+
 @pytest.mark.parametrize("com", [(0.0, 0.0, 0.0), (3e-4, -2e-4, -2e-3)])
 def test_twin_and_mujoco_agree_over_one_second(com):
+    """Issue 2: same state, same 1 s current sequence, agreement within 1e-4 rad away from the
+    stop, at a realistic current level (±0.3 A = 15 % of i_max, new currents every 25 ms)."""
     p = PlantParams(rotor=RotorParams(com_offset_m=com))
     rng = np.random.default_rng(0)
     q0 = A.from_zyz(0.3, np.deg2rad(5), 1.0)
     w0 = np.array([0.1, -0.1, 4.0])
-    U = np.repeat(rng.uniform(-0.05, 0.05, (10, 16)), 100, axis=0)  # 1 s, new currents each 0.1 s
+    U = balanced_currents(rng, 0.3)
+    assert U.shape == (1000, 16) and len(U) * p.physics_dt_s == pytest.approx(1.0)
+    assert np.abs(U).max() > 0.29
     Qm, Wm = run_mujoco(p, q0, w0, U)
     Qt, Wt = CasadiTwin(p).simulate(q0, w0, U)
     tilts = [A.tilt(q) for q in Qm]
     assert max(tilts) < np.deg2rad(14)  # away from the stop
     assert max(A.tilt(q) for q in Qt) < np.deg2rad(14)
     assert max(A.geodesic_angle(a, b) for a, b in zip(Qm, Qt, strict=True)) < 1e-4
-    # and the motion is not trivial
+    assert np.abs(Wm - Wt).max() < 1e-4  # rad/s
+    # and the motion is not trivial: a large turn, and torques of the motor's order
     assert A.geodesic_angle(Qm[0], Qm[-1]) > 0.5
+    tm = MujocoPlant(p).torque_map
+    torques = np.array([np.linalg.norm(tm(q) @ u) for q, u in zip(Qm[:-1], U, strict=True)])
+    assert torques.max() > 0.02  # N·m; the capacity at i_max is 0.28-0.53 N·m (bench_plant)
+    # the tilt really moves under these currents (not only the free spin)
+    assert np.ptp(tilts) > np.deg2rad(3)
 
 
 def test_torque_free_rotor_conserves_energy_and_momentum():
@@ -160,3 +178,51 @@ def test_impossible_config_is_rejected_with_the_field_name():
         PlantParams.model_validate({"motor": {"i_max_A": -1}})
     with pytest.raises(ValueError, match="bogus"):
         PlantParams.model_validate({"rotor": {"bogus": 1}})
+
+
+@pytest.mark.parametrize("dt", [np.nan, np.inf, -np.inf, "0.001", None])
+def test_non_finite_dt_raises_a_value_error_naming_dt(dt):
+    plant = MujocoPlant()
+    for method in (plant.step, plant.advance):
+        with pytest.raises(ValueError, match=r"^dt must be") as info:
+            method(np.zeros(16), dt)
+        assert "cannot convert" not in str(info.value)
+    assert plant.time == 0.0  # nothing was integrated
+
+
+def test_allocate_takes_an_optional_current_limit():
+    """Issue 2's ``allocate(torque, q, i_max)``: a smaller limit binds where the motor's does
+    not; the delivered torque keeps the requested direction and is the largest such torque
+    within the smaller limit (an independent LP over the bounded currents)."""
+    from scipy.optimize import linprog
+
+    plant = MujocoPlant()
+    q = A.from_zyz(0.4, np.deg2rad(8.0), 1.1)
+    K = plant.torque_map(q)
+    d = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    T = 0.1 * d  # N·m: within the 2 A capacity (0.28 N·m at the least, bench_plant)
+    full = plant.allocate(T, q)
+    assert not full.saturated and np.allclose(full.delivered, T, atol=1e-9)
+    assert np.allclose(plant.allocate(T, q, i_max=plant.params.motor.i_max_A).currents,
+                       full.currents)
+    i_small = 0.25  # A
+    assert np.abs(full.currents).max() > i_small  # the request needs more than 0.25 A
+    small = plant.allocate(T, q, i_max=i_small)
+    assert small.saturated
+    assert np.abs(small.currents).max() <= i_small + 1e-9
+    assert np.allclose(K @ small.currents, small.delivered, atol=1e-12)
+    delivered = np.linalg.norm(small.delivered)
+    assert small.delivered @ d / delivered > 1 - 1e-6  # same direction, only scaled down
+    lp = linprog(np.r_[np.zeros(16), -1.0], A_eq=np.hstack([K, -d[:, None]]), b_eq=np.zeros(3),
+                 bounds=[(-i_small, i_small)] * 16 + [(0, None)])
+    assert delivered == pytest.approx(lp.x[-1], rel=1e-4)
+    assert delivered < np.linalg.norm(T)
+    # The default q is the plant's own attitude.
+    plant.reset(q)
+    assert np.allclose(plant.allocate(T, i_max=i_small).currents, small.currents)
+
+
+@pytest.mark.parametrize("i_max", [0.0, -1.0, np.nan, 2.5, True])
+def test_allocate_rejects_a_bad_current_limit(i_max):
+    with pytest.raises(ValueError, match="i_max"):
+        MujocoPlant().allocate([0.0, 0.0, 0.01], i_max=i_max)

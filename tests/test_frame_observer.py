@@ -1,10 +1,13 @@
 """The DESIGN observer, update(frame, t_exposure) -> Estimate, on rendered frames."""
 
 import numpy as np
+import pytest
 
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.frame_observer import FrameObserver, MarkerLocator
+from observer.gk.hsv_gate import box_sensor_to_image
+from observer.opencv_trackers import OpenCVTracker
 from observer.pixel_observer import FilterObserver, SolverObserver
 from plant import attitude as A
 from plant.params import PlantParams
@@ -75,3 +78,110 @@ def test_locator_predicts_through_blank_frames_and_reacquires():
         res = loc.locate(f.image, f.binning)
     assert not res.lost and res.gk.red_source == "measurement"
     assert np.linalg.norm(res.marker_px - f.marker_px, axis=1).max() < 3.0
+
+
+# --- bad frames (DESIGN.md: a flagged estimate with a reason, never a crash mid-loop) ----------
+
+def _bad_frames(image):
+    """Name -> (bad image, words its reason must contain)."""
+    nan_float = np.full(image.shape, np.nan)
+    return {
+        "empty": (np.zeros((0, 0, 3), np.uint8), "empty"),
+        "float": (image.astype(np.float64) / 255.0, "uint8"),
+        "nan_float": (nan_float, "float64"),
+        "grey_2d": (image[..., 0].copy(), "(H, W, 3)"),
+        "four_channels": (np.dstack([image, image[..., :1]]), "(H, W, 3)"),
+        "wrong_size": (np.ascontiguousarray(image[:100, :120]), "does not match the sensor"),
+        "not_an_array": (None, "not a numpy array"),
+    }
+
+
+class _Frame:
+    def __init__(self, image, binning):
+        self.image, self.binning = image, binning
+
+
+def _started_observer(backend, seed=5):
+    renderer = AnalyticRenderer(P, seed=seed)
+    obs = FrameObserver(MarkerLocator(P), backend)
+    obs.reset(cone(0.0), 0.0)
+    first = renderer.render(cone(0.0), t_exposure=0.0)
+    obs.start(first.image, first.binning, first.boxes_px[0])
+    assert obs.update(first, 0.0).valid
+    return obs, renderer, first
+
+
+def test_bad_frames_give_an_invalid_estimate_with_a_reason():
+    dt = 1.0 / P.camera.frame_rate_hz
+    for make_backend in (lambda: SolverObserver(CorSolver(CorModel.nominal(P))),
+                         lambda: FilterObserver(P, compensate_delay=False)):
+        obs, renderer, first = _started_observer(make_backend())
+        for k, (name, (img, words)) in enumerate(_bad_frames(first.image).items(), start=1):
+            est = obs.update(_Frame(img, first.binning), k * dt)  # must not raise
+            assert not est.valid, name
+            assert est.lost, name
+            assert est.reason.startswith("bad frame: "), (name, est.reason)
+            assert words in est.reason, (name, est.reason)
+
+
+def test_bad_binning_is_flagged_not_raised():
+    obs, _, first = _started_observer(SolverObserver(CorSolver(CorModel.nominal(P))))
+    est = obs.update(_Frame(first.image, 3), 1.0 / P.camera.frame_rate_hz)
+    assert not est.valid and est.lost and "binning" in est.reason
+
+
+def test_observer_recovers_after_bad_frames():
+    """Three bad frames, then good ones: the track resumes and the attitude is right again."""
+    obs, renderer, first = _started_observer(SolverObserver(CorSolver(CorModel.nominal(P))))
+    dt = 1.0 / P.camera.frame_rate_hz
+    bad = list(_bad_frames(first.image).values())
+    k = 1
+    for k in range(1, 4):
+        assert not obs.update(_Frame(bad[k][0], first.binning), k * dt).valid
+    for k in range(4, 10):
+        t = k * dt
+        est = obs.update(renderer.render(cone(t), t_exposure=t), t)
+    assert est.valid and not est.lost and est.reason == ""
+    assert np.degrees(A.geodesic_angle(est.q, cone(est.state_time))) < 0.15
+
+
+def test_locator_flags_a_bad_frame_without_showing_it_to_the_tracker():
+    renderer = AnalyticRenderer(P, seed=6)
+    calls = []
+
+    class Spy(OpenCVTracker):
+        def track(self, frame):
+            calls.append(frame.shape)
+            return super().track(frame)
+
+    loc = MarkerLocator(P, tracker=Spy("kcf"))
+    f = renderer.render(cone(0.0))
+    loc.start(f.image, f.binning, f.boxes_px[0])
+    loc.locate(f.image, f.binning)
+    res = loc.locate(f.image.astype(np.float32), f.binning)
+    assert calls == [f.image.shape]
+    assert res.lost and "float32" in res.bad_frame and res.reason.startswith("bad frame: ")
+    assert res.reason.count("float32") == 1  # said once, not repeated by the GK stage
+
+
+def test_opencv_tracker_rejects_bad_frames_with_a_reason():
+    renderer = AnalyticRenderer(P, seed=7)
+    f = renderer.render(cone(0.0))
+    box = box_sensor_to_image(f.boxes_px[0], f.binning)
+    for kind in ("kcf", "csrt"):
+        tr = OpenCVTracker(kind)
+        b, s = tr.track(f.image)
+        assert np.all(np.isnan(b)) and s == 0.0 and "not initialised" in tr.reason
+        with pytest.raises(ValueError, match="uint8"):
+            tr.init(f.image.astype(float), box)
+        tr.init(f.image, box)
+        for name, (img, words) in _bad_frames(f.image).items():
+            b, s = tr.track(img)  # must not raise (it raised cv2.error before)
+            assert np.all(np.isnan(b)) and s == 0.0, (kind, name)
+            # The tracker knows only its init frame, not the sensor.
+            words = "differs from the init frame" if name == "wrong_size" else words
+            assert words in tr.reason, (kind, name, tr.reason)
+        b, s = tr.track(f.image)  # a good frame still tracks after the bad ones
+        assert s == 1.0 and tr.reason == ""
+        c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
+        assert np.linalg.norm(c - f.marker_px[0]) < 3.0

@@ -220,6 +220,40 @@ def test_closed_form_error_over_the_workspace() -> None:
     assert small[:, 1].max() < 0.35 and small[:, 4].max() < 0.05  # errors grow with tilt
 
 
+def test_literal_closed_form_error_over_the_workspace() -> None:
+    """The seed's steps *as printed* (``spin_mode="as_written"``, ``literal_yaw_mirror=True``)
+    on noise-free pixels, tilt 5°, 10°, 15°, spin and yaw every 15°: the figures quoted in
+    docs/solvers.md. Independent prediction: the mirror turns the yaw γ into −γ and the
+    as-written spin keeps the image spin α + γ, so the estimate is close to
+    ``from_zyz(α + γ, β, −γ)``. Only the small-tilt model errors separate the two: per angle
+    (``test_closed_form_error_over_the_workspace``) yaw < 0.30°, tilt < 0.16° and image spin
+    α_seed − (α + γ) < 1.8° + 0.30°, so by the triangle inequality less than 2.56°."""
+    literal = SeedClosedForm(P0, spin_mode="as_written", literal_yaw_mirror=True)
+    mirror_only = SeedClosedForm(P0, literal_yaw_mirror=True)
+    grid = np.deg2rad(np.arange(0.0, 360.0, 15.0))
+    for beta_deg, median_lo, median_hi in ((5.0, 89.0, 92.0), (10.0, 90.0, 93.0),
+                                           (15.0, 92.0, 96.0)):
+        beta = np.deg2rad(beta_deg)
+        geo, geo_mirror = [], []
+        for alpha in grid:
+            for gamma in grid:
+                q = attitude.from_zyz(alpha, beta, gamma)
+                uv = marker_pixels(P0, q)
+                r, rm = literal.solve(uv), mirror_only.solve(uv)
+                assert r.valid and rm.valid
+                geo.append(attitude.geodesic_angle(r.q, q))
+                geo_mirror.append(attitude.geodesic_angle(rm.q, q))
+                predicted = attitude.geodesic_angle(
+                    attitude.from_zyz(alpha + gamma, beta, -gamma), q)
+                assert abs(geo[-1] - predicted) < 2.56 * DEG
+        geo, geo_mirror = np.rad2deg(geo), np.rad2deg(geo_mirror)
+        # Literal: a convention error, not a small-tilt one: up to 180°, typically ~90°.
+        assert geo.max() > 179.0
+        assert median_lo < np.median(geo) < median_hi
+        # The mirror alone points the shaft toward -γ instead of γ: up to 2β at γ = 90°.
+        assert abs(geo_mirror.max() - 2 * beta_deg) < 1.5
+
+
 def test_closed_form_flags_bad_input() -> None:
     cf = SeedClosedForm(P0)
     uv = marker_pixels(P0, attitude.from_zyz(0.3, 0.1, 1.0))
