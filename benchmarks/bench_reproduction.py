@@ -225,8 +225,11 @@ def write_page(results: dict[str, rp.StepTestResult], cfg: rp.ReproductionConfig
         "- Attitude back ends on the same tracked pixels: the seed's closed form "
         "(`observer.closed_form`, §2.3–2.5), the CoR-constrained least squares "
         "(`observer.cor_solver`), and the least squares on the seed's constant-velocity pixel "
-        "Kalman filter (§3.2.1, Q = 0.01·I4, R = 0.1·I2). Each frame's estimate is used as "
-        "released, no zeroing.",
+        "Kalman filter (§3.2.1, Q = 0.01·I4, R = 0.1·I2), and the quaternion AEKF on the "
+        "marker pixels (`observer.pixel_observer.FilterObserver`, seed 001 App. C covariance "
+        "matching; the table's torque is unknown to it, so it predicts with zero torque and its "
+        "process noise covers the motion). Each frame's estimate is used as released, no "
+        "zeroing.",
         "- MEMS: `observer.mems` with its defaults (ICM42605 datasheet noise densities, "
         "turn-on bias, bias instability and rate random walk of our choice, 16-bit "
         "quantisation; see [mems.md](mems.md)), sampled at 200 Hz on the same truth; the "

@@ -74,7 +74,7 @@ from observer import mems
 from observer.closed_form import SeedClosedForm
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.pixel_observer import PixelKalmanObserver, SolverObserver
+from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
 from plant import attitude
 from plant.params import PlantParams
 
@@ -98,6 +98,10 @@ CAMERA_BACKENDS: dict[str, tuple[str, str]] = {
     "camera_least_squares": ("Camera, CoR least squares", "camera"),
     "camera_least_squares_kalman": (
         "Camera, least squares on the seed's pixel Kalman (§3.2.1)",
+        "camera",
+    ),
+    "camera_aekf": (
+        "Camera, quaternion AEKF on the marker pixels (seed 001 App. C; no torque input)",
         "camera",
     ),
 }
@@ -697,6 +701,9 @@ def camera_backends(params: PlantParams) -> dict[str, object]:
         "camera_closed_form": SolverObserver(SeedClosedForm(params)),
         "camera_least_squares": SolverObserver(CorSolver(model)),
         "camera_least_squares_kalman": PixelKalmanObserver(CorSolver(model)),
+        # The table's torque is unknown to the filter: it predicts with zero torque and its
+        # process noise covers the table's motion; the estimate is that of the exposure time.
+        "camera_aekf": FilterObserver(params, compensate_delay=False),
     }
 
 

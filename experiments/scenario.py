@@ -48,7 +48,9 @@ from latency.pipeline import PipelineConfig
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
+from observer.frame_observer import MarkerLocator
 from observer.gk.pixel_kalman import PixelKalmanConfig
+from observer.opencv_trackers import OpenCVTracker
 from observer.orb import OrbConfig
 from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
@@ -214,6 +216,12 @@ class Scenario(_Model):
     seed: int = 0
     mode: Literal["measurement", "image"] = "measurement"
     renderer: Literal["analytic", "mujoco"] = "analytic"
+    tracker: Literal["kcf", "csrt", "transt"] = Field(
+        "kcf",
+        description="Image mode, marker observers: the red marker's tracker inside the GK "
+        "assistance (observer.frame_observer.MarkerLocator): OpenCV KCF or CSRT, or the "
+        "shipped TransT network ('transt': GK-TransT, seed 000 §3.2).",
+    )
     plant: PlantParams = PlantParams()
     pipeline: PipelineConfig = PipelineConfig()
     measurement: MeasurementConfig = MeasurementConfig()
@@ -271,6 +279,15 @@ class Scenario(_Model):
                 f"{mode!r}; the measurement model has no ORB matches"
             )
         return v
+
+    @model_validator(mode="after")
+    def _tracker_fits(self) -> Scenario:
+        if self.tracker != "kcf" and (self.mode != "image" or self.observer.is_orb):
+            raise ValueError(
+                f"tracker {self.tracker!r} needs mode: image with a marker observer (aekf, ekf, "
+                f"solver, pixel_kalman); got mode {self.mode!r}, observer {self.observer.kind!r}"
+            )
+        return self
 
     @field_validator("texture")
     @classmethod
@@ -334,6 +351,15 @@ def _renderer(s: Scenario):
     return MujocoRenderer(s.plant, texture=s.texture)
 
 
+def _tracker(kind: str):
+    """The red marker's single-object tracker for the image-mode locator."""
+    if kind == "transt":
+        from observer.transt.tracker import TransTTracker
+
+        return TransTTracker.small()
+    return OpenCVTracker(kind)
+
+
 def build_loop(s: Scenario) -> ClosedLoop:
     """The closed loop of a scenario."""
     p = s.plant
@@ -355,7 +381,7 @@ def build_loop(s: Scenario) -> ClosedLoop:
         if s.mode == "measurement":
             front = MeasurementFrontEnd(p, s.measurement, rng)
         else:
-            front = ImageFrontEnd(p, _renderer(s))
+            front = ImageFrontEnd(p, _renderer(s), MarkerLocator(p, _tracker(s.tracker)))
         if o.kind in ("aekf", "ekf"):
             cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
             observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)

@@ -9,6 +9,7 @@ of a motion-blurred frame, and the checks on binning and exposure arguments.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,8 +67,8 @@ class Frame:
 
 def allowed_binnings(p: PlantParams) -> list[int]:
     """The binnings (1, 2, ...) that divide both sensor sides exactly."""
-    w, h = p.camera.sensor_width_px, p.camera.sensor_height_px
-    return [b for b in range(1, min(w, h) + 1) if w % b == 0 and h % b == 0]
+    g = math.gcd(p.camera.sensor_width_px, p.camera.sensor_height_px)
+    return [b for b in range(1, g + 1) if g % b == 0]  # the divisors of both = those of the gcd
 
 
 def check_binning(p: PlantParams, binning: int | None) -> int:

@@ -455,11 +455,13 @@ def test_distractor_outside_the_search_radius_is_ignored(params: PlantParams) ->
 def test_visible_marker_wins_over_a_distractor_inside_the_radius(params: PlantParams) -> None:
     """A yellow sticker inside the search radius at a distance that passes E < 0.3: with the
     marker visible the locator sees both candidates and takes the marker (nearest to
-    P_red + V_rel once V_rel is known, smallest E before)."""
+    P_red + V_rel once V_rel is known, smallest E before). The full search (no predicted
+    window, which would not look at the sticker once V_rel is known)."""
     r = AnalyticRenderer(params, options=AnalyticRenderOptions(colour_distractor="yellow"),
                          seed=11)
     S = scale_from_camera(params.camera)
-    loc = AuxLocator(params.vfc.L_m, params.vfc.marker_diameter_mm / 1000.0)
+    loc = AuxLocator(params.vfc.L_m, params.vfc.marker_diameter_mm / 1000.0,
+                     AuxLocatorConfig(window_marker_radii=0.0))
     for k in range(3):
         q = pure_tilt(5.0, 1.0, 0.3 + 0.01 * k)
         f = r.render(q)
@@ -657,3 +659,43 @@ def test_tracker_score_threshold(renderer: AnalyticRenderer) -> None:
     assert not res.confident and res.red_source == "prediction" and "score" in res.reason
     with pytest.raises(ValueError, match="Q"):
         GKConfig(kalman={"Q": -np.eye(4)})
+
+
+@pytest.mark.parametrize("case", ["occlusion", "blur"])
+def test_predicted_window_gives_the_full_search_result(
+    case: str, params: PlantParams, monkeypatch
+) -> None:
+    """The auxiliary locator's predicted window (a speed-up) returns exactly what the full search
+    returns, frame by frame, through an occlusion or a blur and with a yellow distractor sticker
+    on the rotor; and the window is really used on most frames."""
+    from experiments.sequences import render_sequence, validation_suite
+
+    spec = validation_suite(1, (case,), 170)[0]
+    seq = render_sequence(spec)
+    renderer = AnalyticRenderer(params, options=AnalyticRenderOptions(colour_distractor="yellow"),
+                                seed=3)
+    qs = [attitude.from_zyz(0.1 * k, math.radians(3 + 0.05 * k), 0.02 * k) for k in range(60)]
+    frames = [im for im in seq.images] + [renderer.render(q, 0.0).image for q in qs]
+    boxes = list(seq.boxes_px[:, 0]) + [renderer.render(q, 0.0).boxes_px[0] for q in qs]
+    used = []
+    real = AuxLocator._candidates
+
+    def spy(self, *args, whole_only=False, **kw):
+        out = real(self, *args, whole_only=whole_only, **kw)
+        if whole_only:
+            used.append(out is not None)
+        return out
+
+    monkeypatch.setattr(AuxLocator, "_candidates", spy)
+    cfg = GKConfig()
+    full = GKAssist(params, cfg.model_copy(update={"aux": cfg.aux.model_copy(
+        update={"window_marker_radii": 0.0})}))
+    fast = GKAssist(params, cfg)
+    for k, (im, box) in enumerate(zip(frames, boxes, strict=True)):
+        if k in (0, len(seq.images)):
+            full.reset(), fast.reset()
+        a = full.step(im, seq.binning, box_sensor_px=box, score=0.9)
+        b = fast.step(im, seq.binning, box_sensor_px=box, score=0.9)
+        np.testing.assert_array_equal(a.yellow_px, b.yellow_px)
+        assert a.yellow_source == b.yellow_source
+    assert np.mean(used) > 0.5

@@ -89,3 +89,18 @@ def test_measured_controller_latency_is_the_compute_time_of_each_command():
     assert len(own) == len(loop_times)
     assert np.all(loop_times >= own) and np.all(loop_times - own < 5e-4)
     assert np.all(loop_times > 0) and np.ptp(loop_times) > 0  # wall clock, not a constant
+
+
+def test_image_mode_takes_the_transt_tracker_and_rejects_it_elsewhere():
+    """``tracker: transt`` runs GK-TransT (the shipped network in the GK assistance) on the
+    rendered frames; a tracker other than the default outside image mode names the field."""
+    from observer.transt.tracker import TransTTracker
+
+    sc = Scenario.model_validate({"duration_s": 0.4, "mode": "image", "tracker": "transt"})
+    loop = build_loop(sc)
+    assert isinstance(loop.front_end.locator.tracker, TransTTracker)
+    r = loop.run()
+    assert r.summary["lost_frame_fraction"] == 0.0
+    assert r.frames.centre_error_px.max() < 5.0  # sensor px, against the renderer's truth
+    with pytest.raises(ValidationError, match="tracker"):
+        Scenario.model_validate({"tracker": "csrt"})

@@ -20,6 +20,17 @@ the check, the one nearest to P_red + V_rel is taken (the smallest E while there
 yet). Its centre is then refined by the sub-pixel circle fit (``observer.gk.subpixel``, seed 004
 §4), falling back to the region's centroid when the fit is invalid.
 
+**Predicted window (our speed-up, same answer).** The search square is most of the frame
+(2.6 L·S wide), and segmenting it costs more than the rest of the GK assistance. With V_rel
+known, the candidates are first segmented in a small square around P_red + V_rel (half-width
+``window_marker_radii`` marker radii), with the same search disc drawn into it. The window's
+answer is used only when it must equal the full search's: the yellow mask has no pixel within
+the morphology kernels' reach of the window's border (so every region seen is whole and is
+cleaned as in the full crop, and every region outside lies wholly outside), and the chosen
+candidate is no farther from P_red + V_rel than the half-width (so no region outside can be
+nearer). Otherwise the full search runs. ``n_candidates`` counts the regions of the search
+actually used; ``tests/test_gk.py`` checks the two give the same result.
+
 Units: marker positions in and out are *full-sensor* pixels; the frame is RGB and binned by
 ``binning`` (image px internally). S in sensor px/m, L and the marker diameter in m, β in rad.
 """
@@ -64,6 +75,10 @@ class AuxLocatorConfig(BaseModel):
     min_area_fraction: float = Field(
         0.2, gt=0.0, le=1.0, description="Our choice: smallest candidate region as a fraction "
         "of the expected marker disc area π·(S·d/2)²."
+    )
+    window_marker_radii: float = Field(
+        3.0, ge=0.0, description="Our choice: half-width of the predicted window around "
+        "P_red + V_rel, marker radii (0: always the full search; module docstring)."
     )
     refine: bool = Field(True, description="Our choice: refine the centre by the circle fit.")
     roi_margin_fraction: float = Field(
@@ -140,6 +155,64 @@ class AuxLocator:
         return (1.0 + c.E_max) * self.L_m * S_px_per_m + \
             c.radius_margin_marker_radii * 0.5 * self.d_m * S_px_per_m
 
+    def _candidates(self, image_rgb, centre_img, half, red_img, r_search, r_marker,
+                    whole_only: bool = False):
+        """Yellow regions in the square of half-width ``half`` (image px) around
+        ``centre_img``, inside the search disc of radius ``r_search`` around ``red_img``:
+        (centroids, bounding rects, crop column, crop row), crop coordinates; None if the square
+        is outside the frame or, with ``whole_only``, if the cleaned mask comes within the
+        kernels' reach of a border of the square that is not the frame's."""
+        cfg = self.config
+        H, W = image_rgb.shape[:2]
+        c0 = max(int(math.floor(centre_img[0] - half)), 0)
+        r0 = max(int(math.floor(centre_img[1] - half)), 0)
+        c1 = min(int(math.ceil(centre_img[0] + half)) + 1, W)
+        r1 = min(int(math.ceil(centre_img[1] + half)) + 1, H)
+        if c1 - c0 < 2 or r1 - r0 < 2:
+            return None
+        crop = np.ascontiguousarray(image_rgb[r0:r1, c0:c1])
+        mask = colour_mask(crop, cfg.yellow)
+        disc = np.zeros_like(mask)
+        shift = 4
+        centre_fx = tuple(int(round(v * (1 << shift))) for v in (red_img[0] - c0, red_img[1] - r0))
+        cv2.circle(disc, centre_fx, int(round(r_search * (1 << shift))), 255, -1, cv2.LINE_8,
+                   shift)
+        mask &= disc
+        if whole_only:
+            # No yellow pixel within reach of a cut border: then every region of the full
+            # search either lies inside this square, beyond the morphology's reach of its
+            # border (cleaned identically), or wholly outside it (the kernels cannot bridge
+            # the empty band).
+            m = cfg.open_kernel_px + cfg.close_kernel_px + 1
+            edges = [mask[:m] if r0 > 0 else None, mask[-m:] if r1 < H else None,
+                     mask[:, :m] if c0 > 0 else None, mask[:, -m:] if c1 < W else None]
+            if any(e is not None and e.any() for e in edges):
+                return None
+        for op, ksz in ((cv2.MORPH_OPEN, cfg.open_kernel_px), (cv2.MORPH_CLOSE,
+                                                               cfg.close_kernel_px)):
+            if ksz > 0:
+                kern = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (ksz, ksz))
+                mask = cv2.morphologyEx(mask, op, kern)
+        # Candidates: outer contours of the cleaned mask (much cheaper than labelling the whole
+        # search square); area and centroid from the contour polygon's moments.
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        min_area = cfg.min_area_fraction * math.pi * r_marker * r_marker
+        cents, rects = [], []
+        for cnt in contours:
+            mom = cv2.moments(cnt)
+            if mom["m00"] >= min_area:
+                cents.append((mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]))
+                rects.append(cv2.boundingRect(cnt))
+        return cents, rects, c0, r0
+
+    def _passing(self, cents, c0, r0, b, red, D_exp) -> list[int]:
+        """Indices of the candidates that pass the distance check E < E_max."""
+        if not cents:
+            return []
+        c_sensor = image_to_sensor(np.asarray(cents) + [c0, r0], b)
+        E = np.abs(np.hypot(*(c_sensor - red).T) - D_exp) / D_exp
+        return [int(i) for i in np.flatnonzero(E < self.config.E_max)]
+
     def fallback(self, red_sensor_px: ArrayLike, reason: str) -> AuxResult:
         """P_yellow = P_red + V_rel (seed 000 §3.2.2), or ``source="none"`` without V_rel."""
         red = np.asarray(red_sensor_px, dtype=float).reshape(-1)
@@ -193,35 +266,24 @@ class AuxLocator:
         red_img = sensor_to_image(red, b)
 
         H, W = image_rgb.shape[:2]
-        c0 = max(int(math.floor(red_img[0] - r_search)), 0)
-        r0 = max(int(math.floor(red_img[1] - r_search)), 0)
-        c1 = min(int(math.ceil(red_img[0] + r_search)) + 1, W)
-        r1 = min(int(math.ceil(red_img[1] + r_search)) + 1, H)
-        if c1 - c0 < 2 or r1 - r0 < 2:
+        found = None
+        if self.V_rel is not None and cfg.window_marker_radii > 0.0:
+            pred_img = sensor_to_image(red + self.V_rel, b)
+            rho = cfg.window_marker_radii * r_marker
+            found = self._candidates(image_rgb, pred_img, rho, red_img, r_search, r_marker,
+                                     whole_only=True)
+            if found is not None:
+                cents, rects, c0, r0 = found
+                ok_w = self._passing(cents, c0, r0, b, red, D_exp)
+                pred = red + self.V_rel
+                if not ok_w or min(np.hypot(*(image_to_sensor(np.asarray(cents[i]) + [c0, r0], b)
+                                              - pred)) for i in ok_w) > rho * b:
+                    found = None
+        if found is None:
+            found = self._candidates(image_rgb, red_img, r_search, red_img, r_search, r_marker)
+        if found is None:
             return self.fallback(red, "search region outside the frame")
-        crop = np.ascontiguousarray(image_rgb[r0:r1, c0:c1])
-        mask = colour_mask(crop, cfg.yellow)
-        disc = np.zeros_like(mask)
-        shift = 4
-        centre_fx = tuple(int(round(v * (1 << shift))) for v in (red_img[0] - c0, red_img[1] - r0))
-        cv2.circle(disc, centre_fx, int(round(r_search * (1 << shift))), 255, -1, cv2.LINE_8,
-                   shift)
-        mask &= disc
-        for op, ksz in ((cv2.MORPH_OPEN, cfg.open_kernel_px), (cv2.MORPH_CLOSE,
-                                                               cfg.close_kernel_px)):
-            if ksz > 0:
-                kern = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (ksz, ksz))
-                mask = cv2.morphologyEx(mask, op, kern)
-        # Candidates: outer contours of the cleaned mask (much cheaper than labelling the whole
-        # search square); area and centroid from the contour polygon's moments.
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        min_area = cfg.min_area_fraction * math.pi * r_marker * r_marker
-        cents, rects = [], []
-        for cnt in contours:
-            mom = cv2.moments(cnt)
-            if mom["m00"] >= min_area:
-                cents.append((mom["m10"] / mom["m00"], mom["m01"] / mom["m00"]))
-                rects.append(cv2.boundingRect(cnt))
+        cents, rects, c0, r0 = found
         if not cents:
             fb = self.fallback(red, "no yellow candidate within the search radius")
             return replace(fb, D_exp_px=D_exp)

@@ -60,9 +60,18 @@ def export_onnx(net: TransTNet, path: str | Path | None = None) -> bytes:
     return data
 
 
-def onnx_session(net: TransTNet, num_threads: int | None = None):  # -> onnxruntime session
-    """An ONNX Runtime ``InferenceSession`` of ``net``'s per-frame step (CPU, ``num_threads``
-    intra-op threads, default the machine's core count)."""
+def onnx_session(
+    net: TransTNet, num_threads: int | None = None, spinning: bool | None = None
+):  # -> onnxruntime session
+    """An ONNX Runtime ``InferenceSession`` of ``net``'s per-frame step on the CPU.
+
+    ``num_threads`` intra-op threads (default: the environment variable
+    ``PMSPM_ORT_THREADS``, else 1) and ``spinning`` (default: off) of the worker threads. Our
+    default, by measurement on this 2-core machine (docs/transt.md): 2 spinning threads make the
+    bare network call faster (3.8 ms against 6.1 ms) but keep a core busy after every call, and
+    the tracker's own OpenCV work, the other marker's tracker or the renderer that run next then
+    slowed by several times (OpenCV KCF 35 ms instead of 5 ms in the interleaved benchmark).
+    """
     try:
         import onnxruntime as ort
     except ImportError as exc:  # optional dependency
@@ -71,7 +80,11 @@ def onnx_session(net: TransTNet, num_threads: int | None = None):  # -> onnxrunt
             "use backend='eager' otherwise"
         ) from exc
     opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(num_threads or os.cpu_count() or 1)
+    n = num_threads if num_threads is not None else int(os.environ.get("PMSPM_ORT_THREADS", "1"))
+    if n < 1:
+        raise ValueError(f"num_threads must be >= 1, got {n}")
+    opts.intra_op_num_threads = int(n)
     opts.inter_op_num_threads = 1
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     return ort.InferenceSession(export_onnx(net), opts, providers=["CPUExecutionProvider"])
