@@ -233,7 +233,7 @@ def test_results_table_structure(short_spin: rp.StepTestResult) -> None:
             assert f"{axis}_{col}" in df.columns
     cam = df[df.seed_row == "camera"]
     mem = df[df.seed_row == "mems"]
-    assert len(cam) == 3 and len(mem) == 2
+    assert len(cam) == len(rp.CAMERA_BACKENDS) == 4 and len(mem) == 2
     assert (cam["spin_seed_rmse_deg"] == 0.2979).all()
     assert (cam["yaw_seed_rmse_deg"] == 0.8847).all()
     assert (mem["tilt_seed_rmse_deg"] == 0.2640).all()
