@@ -100,9 +100,9 @@ def main() -> None:
         notes=f"Sequence seed {SEQ_SEED} (612 x 512, analytic renderer), {N_FRAMES} frames x 2 "
         f"passes per small backend, {N_FRAMES_50} frames for transt50 (random weights). "
         "Times: TransTTracker.compute_time_s (perf_counter around the whole track step). "
-        f"Fastest small backend in this run: {best}. small weights: {meta.get('steps')} "
-        "training steps (observer/transt/weights/MODEL_CARD.md). The machine's 2 cores are "
-        "shared with other jobs.",
+        f"Fastest small backend in this run: {best}. small weights: the last training stage "
+        f"took {meta.get('steps')} steps (1300 in all, observer/transt/weights/MODEL_CARD.md). "
+        "ONNX Runtime: one intra-op thread, no spinning (the default).",
     )
 
 

@@ -64,7 +64,9 @@ def _mpc_section(mpc_margins) -> list[str]:
         "of the real solver at rest by central differences, the backward-difference rate and the "
         "delay compensation with the commands already sent, analysed like the PID's exact "
         "discrete law; the delay includes the MPC's measured compute time. Coulomb friction is "
-        "left out of this analysis (for both controllers).",
+        "left out of this analysis (for both controllers). Where a stable loop shows a negative "
+        "phase margin it has several gain crossovers and is only conditionally stable (the "
+        "encirclements cancel); its delay margin is then the number to read.",
         "",
         "![PID vs MPC](pm_pid_vs_mpc.png)",
         "",

@@ -3,9 +3,9 @@
 The exported graph is ``TransTNet.track_features`` with the template's position encoding baked
 in: inputs ``search`` (1, 3, Sx, Sx) float32 (ImageNet-normalised crop) and ``z`` (1, Lz, d)
 float32 (the template tokens from ``TransTNet.template_features``, computed once at ``init``);
-outputs ``logits`` (1, L, 2) and ``boxes`` (1, L, 4). Needs the optional packages ``onnx`` (and
-``onnxscript``) for the export and ``onnxruntime`` to run it; neither is a project dependency,
-so this module imports them lazily and says what is missing.
+outputs ``logits`` (1, L, 2) and ``boxes`` (1, L, 4). Needs ``onnx`` for the export and
+``onnxruntime`` to run it (both project dependencies); they are imported lazily, so a checkout
+without them still runs the eager backend, and the error says what is missing.
 """
 
 from __future__ import annotations
