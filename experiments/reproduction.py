@@ -71,6 +71,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from controller.base import RefSample
 from controller.reference import SeedSteps, zyz_sample
 from observer import mems
+from observer.aekf import AEKFConfig
 from observer.closed_form import SeedClosedForm
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
@@ -701,9 +702,14 @@ def camera_backends(params: PlantParams) -> dict[str, object]:
         "camera_closed_form": SolverObserver(SeedClosedForm(params)),
         "camera_least_squares": SolverObserver(CorSolver(model)),
         "camera_least_squares_kalman": PixelKalmanObserver(CorSolver(model)),
-        # The table's torque is unknown to the filter: it predicts with zero torque and its
-        # process noise covers the table's motion; the estimate is that of the exposure time.
-        "camera_aekf": FilterObserver(params, compensate_delay=False),
+        # The table's torque is unknown to the filter: it predicts with zero torque, so its
+        # model decelerates the moving rotor by friction (τ_c/J ≈ 1.4 rad/s²) while the table
+        # also accelerates it (≈ 1 rad/s² peak for a 10° minimum-jerk move in 1 s). Our choice:
+        # a rate random walk q_ω ≈ a²·t_move with a ≈ 2.4 rad/s² over the 1 s move, rounded up
+        # to 10 rad²/s³ (the default 0.1 loses lock on the first move). Estimate at the
+        # exposure time.
+        "camera_aekf": FilterObserver(params, AEKFConfig(q_omega_rad2_per_s3=10.0),
+                                      compensate_delay=False),
     }
 
 
