@@ -86,12 +86,7 @@ def twin_gap(com_m) -> tuple[float, float, float]:
     B = rng.uniform(-0.3, 0.3, (10, 16))
     U = np.repeat(np.stack([B, -B, -B, B], axis=1).reshape(-1, 16), 25, axis=0)
     q0, w0 = attitude.from_zyz(0.3, np.deg2rad(5), 1.0), np.array([0.1, -0.1, 4.0])
-    plant = MujocoPlant(p, q0, w0)
-    Qm, Wm = [plant.q], [plant.omega]
-    for u in U:
-        plant.step(u, p.physics_dt_s)
-        Qm.append(plant.q)
-        Wm.append(plant.omega)
+    Qm, Wm = MujocoPlant(p, q0, w0).simulate(U)
     Qt, Wt = CasadiTwin(p).simulate(q0, w0, U)
     gap = max(attitude.geodesic_angle(a, b) for a, b in zip(Qm, Qt, strict=True))
     return (float(gap), float(np.abs(np.asarray(Wm) - np.asarray(Wt)).max()),

@@ -77,43 +77,59 @@ class StudyConfig(BaseModel):
 
 
 # --- 1. margins -----------------------------------------------------------------------------
-def margins_table(params: PlantParams, cfg: StudyConfig) -> pd.DataFrame:
-    """Per-axis PID margins against the vision delay (ms), sequential and pipelined observer."""
-    pid = PIDController(PIDConfig(crossover_rad_s=cfg.crossover_rad_s), params)
-    J, b = float(pid.J[1]), params.rotor.viscous_Nms_per_rad
-    plant = attitude_plant(J, b)
+def _delay_cases(params: PlantParams):
+    """(vision delay ms, observer semantics, update period T s, loop delay s) of the margin
+    tables: 0-60 ms by 1 ms and the seed's two latencies, sequential and pipelined. The loop
+    delay adds half the exposure (mid-exposure time stamps)."""
     T_f = 1.0 / params.camera.frame_rate_hz
     half_exp = 0.5 * params.camera.exposure_s
-    rows = []
     for d_ms in np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]:
         d = d_ms / 1e3
         for mode in ("sequential", "pipelined"):
             # Sequential: the observer takes every m-th frame, m = ceil(latency / frame period).
             m = max(1, math.ceil(d / T_f - 1e-9)) if mode == "sequential" else 1
-            T = m * T_f
-            sampled = sampled_margins(
-                plant, pid.discrete_transfer_function(T, axis=1), delay_s=half_exp + d
-            )
-            hybrid = attitude_margins(
-                pid.transfer_function(1),
-                inertia_kgm2=J,
-                damping_Nms_per_rad=b,
-                frame_period_s=T,
-                delay_s=half_exp + d,
-            )
-            rows.append(
-                {
-                    "vision_delay_ms": d_ms,
-                    "observer": mode,
-                    "update_period_s": T,
-                    "stable": bool(sampled.stable),
-                    "phase_margin_deg": sampled.phase_margin_deg if sampled.stable else np.nan,
-                    "crossover_rad_s": sampled.crossover_rad_s if sampled.stable else np.nan,
-                    "delay_margin_s": sampled.delay_margin_s if sampled.stable else np.nan,
-                    "jitter_margin_s": hybrid.jitter_margin_s if hybrid.stable else np.nan,
-                }
-            )
+            yield d_ms, mode, m * T_f, half_exp + d
+
+
+def margins_table(params: PlantParams, cfg: StudyConfig) -> pd.DataFrame:
+    """Per-axis PID margins against the vision delay (ms), sequential and pipelined observer."""
+    pid = PIDController(PIDConfig(crossover_rad_s=cfg.crossover_rad_s), params)
+    J, b = float(pid.J[1]), params.rotor.viscous_Nms_per_rad
+    plant = attitude_plant(J, b)
+    rows = []
+    for d_ms, mode, T, tau in _delay_cases(params):
+        sampled = sampled_margins(plant, pid.discrete_transfer_function(T, axis=1), delay_s=tau)
+        hybrid = attitude_margins(
+            pid.transfer_function(1),
+            inertia_kgm2=J,
+            damping_Nms_per_rad=b,
+            frame_period_s=T,
+            delay_s=tau,
+        )
+        rows.append(
+            {
+                "vision_delay_ms": d_ms,
+                "observer": mode,
+                "update_period_s": T,
+                "stable": bool(sampled.stable),
+                "phase_margin_deg": sampled.phase_margin_deg if sampled.stable else np.nan,
+                "crossover_rad_s": sampled.crossover_rad_s if sampled.stable else np.nan,
+                "delay_margin_s": sampled.delay_margin_s if sampled.stable else np.nan,
+                "jitter_margin_s": hybrid.jitter_margin_s if hybrid.stable else np.nan,
+            }
+        )
     return pd.DataFrame(rows).sort_values(["observer", "vision_delay_ms"]).reset_index(drop=True)
+
+
+def _mark_delays(a, marks: dict[str, float], zero_line: bool = True) -> None:
+    """Dotted, labelled vertical lines at the named delays (ms), a grid and the zero line."""
+    for name, ms in marks.items():
+        a.axvline(ms, color="k", lw=0.8, ls=":")
+        a.text(ms, 0.02, f" {name}", rotation=90, fontsize=8, va="bottom",
+               transform=a.get_xaxis_transform())
+    a.grid(alpha=0.3)
+    if zero_line:
+        a.axhline(0, color="grey", lw=0.5)
 
 
 def mpc_margins_table(
@@ -129,27 +145,21 @@ def mpc_margins_table(
     K = mpc_state_gain(mpc, params)
     J, b = float(PIDController(None, params).J[1]), params.rotor.viscous_Nms_per_rad
     plant = attitude_plant(J, b)
-    T_f = 1.0 / params.camera.frame_rate_hz
-    half_exp = 0.5 * params.camera.exposure_s
     rows = []
-    for d_ms in np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]:
-        d = d_ms / 1e3
-        for mode in ("sequential", "pipelined"):
-            m = max(1, math.ceil(d / T_f - 1e-9)) if mode == "sequential" else 1
-            T = m * T_f
-            for aware in (True, False):
-                tau = half_exp + d + compute_s
-                law = mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J,
-                                       damping_Nms_per_rad=b, period_s=T, delay_s=tau,
-                                       delay_aware=aware)
-                mg = sampled_margins(plant, law, delay_s=tau)
-                rows.append({
-                    "vision_delay_ms": d_ms, "observer": mode, "delay_aware": aware,
-                    "update_period_s": T, "stable": bool(mg.stable),
-                    "phase_margin_deg": mg.phase_margin_deg if mg.stable else np.nan,
-                    "crossover_rad_s": mg.crossover_rad_s if mg.stable else np.nan,
-                    "delay_margin_s": mg.delay_margin_s if mg.stable else np.nan,
-                })
+    for d_ms, mode, T, tau_vision in _delay_cases(params):
+        for aware in (True, False):
+            tau = tau_vision + compute_s
+            law = mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J,
+                                   damping_Nms_per_rad=b, period_s=T, delay_s=tau,
+                                   delay_aware=aware)
+            mg = sampled_margins(plant, law, delay_s=tau)
+            rows.append({
+                "vision_delay_ms": d_ms, "observer": mode, "delay_aware": aware,
+                "update_period_s": T, "stable": bool(mg.stable),
+                "phase_margin_deg": mg.phase_margin_deg if mg.stable else np.nan,
+                "crossover_rad_s": mg.crossover_rad_s if mg.stable else np.nan,
+                "delay_margin_s": mg.delay_margin_s if mg.stable else np.nan,
+            })
     return (pd.DataFrame(rows).sort_values(["observer", "delay_aware", "vision_delay_ms"])
             .reset_index(drop=True))
 
@@ -172,12 +182,7 @@ def plot_pm_pid_vs_mpc(
                        label=f"{tag}, {mode}")
             ax[1].plot(h.vision_delay_ms, 1e3 * h.delay_margin_s, style, color=colour)
     for a in ax:
-        for name, ms in marks.items():
-            a.axvline(ms, color="k", lw=0.8, ls=":")
-            a.text(ms, 0.02, f" {name}", rotation=90, fontsize=8, va="bottom",
-                   transform=a.get_xaxis_transform())
-        a.grid(alpha=0.3)
-        a.axhline(0, color="grey", lw=0.5)
+        _mark_delays(a, marks)
     ax[0].set_ylabel("phase margin (deg)")
     ax[1].set_ylabel("delay margin (ms)")
     ax[1].set_xlabel("vision delay (ms); curves stop where the loop is unstable")
@@ -197,12 +202,7 @@ def plot_margins(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
         ax[1].plot(g.vision_delay_ms, 1e3 * g.delay_margin_s, style, label=f"{mode} observer")
         ax[2].plot(g.vision_delay_ms, 1e3 * g.jitter_margin_s, style, label=f"{mode} observer")
     for a in ax:
-        for name, ms in marks.items():
-            a.axvline(ms, color="k", lw=0.8, ls=":")
-            a.text(ms, 0.02, f" {name}", rotation=90, fontsize=8, va="bottom",
-                   transform=a.get_xaxis_transform())
-        a.grid(alpha=0.3)
-        a.axhline(0, color="grey", lw=0.5)
+        _mark_delays(a, marks)
     ax[0].set_ylabel("phase margin (deg)")
     ax[1].set_ylabel("delay margin (ms)")
     ax[2].set_ylabel("jitter margin (ms)")
@@ -290,9 +290,7 @@ def plot_sweep(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
         ax[1, j].set_ylabel("lost frames (%)")
         ax[1, j].set_xlabel("vision delay (ms)")
         for a in ax[:, j]:
-            for ms in marks.values():
-                a.axvline(ms, color="k", lw=0.8, ls=":")
-            a.grid(alpha=0.3)
+            _mark_delays(a, marks, zero_line=False)
         ax[0, j].legend(fontsize=8)
     fig.suptitle("Closed loop (measurement model, sequential observer): error and tracking loss")
     fig.tight_layout()
@@ -312,9 +310,7 @@ def plot_steps(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
     ax[1].set_ylabel("2 % settling time (s)")
     for a in ax:
         a.set_xlabel("vision delay (ms)")
-        for ms in marks.values():
-            a.axvline(ms, color="k", lw=0.8, ls=":")
-        a.grid(alpha=0.3)
+        _mark_delays(a, marks, zero_line=False)
         a.legend()
     fig.suptitle("5° tilt step: the MPC's delay tolerance read from step responses")
     fig.tight_layout()

@@ -252,6 +252,24 @@ def _features(factors: Sequence[_Factor], delay_s: float, T: float | None) -> tu
     return tuple(sorted(feats)) if feats else (1.0,)
 
 
+def _common_period(factors: Sequence[_Factor], sample_period_s: float | None) -> float | None:
+    """The loop's sample-and-hold period: ``sample_period_s``, or the discrete factors' common
+    ``dt`` when it is None; ``ValueError`` for mismatched sample times or a period <= 0."""
+    dts = {f.dt for f in factors if f.dt is not None}
+    if len(dts) > 1:
+        raise ValueError(f"discrete parts have different sample times {sorted(dts)}")
+    T = sample_period_s
+    if dts:
+        (dt,) = dts
+        if T is None:
+            T = dt
+        elif not math.isclose(T, dt, rel_tol=1e-9):
+            raise ValueError(f"sample_period_s = {T} differs from the discrete parts' dt = {dt}")
+    if T is not None and (not np.isfinite(T) or T <= 0.0):
+        raise ValueError(f"sample_period_s must be > 0, got {T}")
+    return T
+
+
 def loop_model(
     plant: ct.LTI,
     controller: ct.LTI | float,
@@ -297,18 +315,7 @@ def loop_model(
     if observer is not None:
         parts.append(("observer", observer))
     factors = [_as_factor(sys, name) for name, sys in parts]
-    dts = {f.dt for f in factors if f.dt is not None}
-    if len(dts) > 1:
-        raise ValueError(f"discrete parts have different sample times {sorted(dts)}")
-    T = sample_period_s
-    if dts:
-        (dt,) = dts
-        if T is None:
-            T = dt
-        elif not math.isclose(T, dt, rel_tol=1e-9):
-            raise ValueError(f"sample_period_s = {T} differs from the discrete parts' dt = {dt}")
-    if T is not None and (not np.isfinite(T) or T <= 0.0):
-        raise ValueError(f"sample_period_s must be > 0, got {T}")
+    T = _common_period(factors, sample_period_s)
 
     rhp = 0
     origin = 0

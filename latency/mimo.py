@@ -71,6 +71,7 @@ from latency.margins import (
     Margins,
     _as_factor,
     _check_delay,
+    _common_period,
     _Factor,
     _features,
     _zoh,
@@ -266,18 +267,7 @@ def mimo_loop(
     factors = [_as_factor(c, f"controllers[{i}]") for i, c in enumerate(ctrl)]
     obs = None if observer is None else _as_factor(observer, "observer")
     parts = factors + ([obs] if obs is not None else [])
-    dts = {f.dt for f in parts if f.dt is not None}
-    if len(dts) > 1:
-        raise ValueError(f"discrete parts have different sample times {sorted(dts)}")
-    T = sample_period_s
-    if dts:
-        (dt,) = dts
-        if T is None:
-            T = dt
-        elif not math.isclose(T, dt, rel_tol=1e-9):
-            raise ValueError(f"sample_period_s = {T} differs from the discrete parts' dt = {dt}")
-    if T is not None and (not np.isfinite(T) or T <= 0.0):
-        raise ValueError(f"sample_period_s must be > 0, got {T}")
+    T = _common_period(parts, sample_period_s)
     rhp = 0
     for f in parts:
         poles = np.roots(f.den) if f.den.size > 1 else np.zeros(0)

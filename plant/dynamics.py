@@ -168,6 +168,22 @@ class MujocoPlant:
             raise ValueError(f"dt = {dt} s must be a positive multiple of physics_dt_s = {h} s")
         self._integrate(cmd, [h] * n)
 
+    def simulate(
+        self, currents: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Step once per row of ``currents`` (N, 16), A, each held for one physics step, from
+        the present state; returns the attitudes (N+1, 4) and body rates (N+1, 3), rad/s, the
+        present state first (the shape of ``CasadiTwin.simulate``, for comparisons)."""
+        U = attitude.check_finite("currents", currents)
+        if U.ndim != 2 or U.shape[1] != N_COILS:
+            raise ValueError(f"currents must have shape (N, {N_COILS}), got {U.shape}")
+        qs, ws = [self.q], [self.omega]
+        for u in U:
+            self.step(u, self.params.physics_dt_s)
+            qs.append(self.q)
+            ws.append(self.omega)
+        return np.array(qs), np.array(ws)
+
     def advance(self, currents: ArrayLike, dt: float) -> None:
         """Like ``step`` but for any ``dt`` > 0 (s): whole physics steps, then one shorter
         step for the remainder, so that events of a timed loop fall on their exact times."""

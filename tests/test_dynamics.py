@@ -12,13 +12,7 @@ FRICTIONLESS = RotorParams(viscous_Nms_per_rad=0.0, coulomb_Nm=0.0)
 
 
 def run_mujoco(params, q0, w0, U):
-    plant = MujocoPlant(params, q0, w0)
-    qs, ws = [plant.q], [plant.omega]
-    for u in U:
-        plant.step(u, params.physics_dt_s)
-        qs.append(plant.q)
-        ws.append(plant.omega)
-    return np.array(qs), np.array(ws)
+    return MujocoPlant(params, q0, w0).simulate(U)
 
 
 def balanced_currents(rng, amp_A, n_patterns=10, block_steps=25):
