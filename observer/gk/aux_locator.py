@@ -205,13 +205,18 @@ class AuxLocator:
                 rects.append(cv2.boundingRect(cnt))
         return cents, rects, c0, r0
 
-    def _passing(self, cents, c0, r0, b, red, D_exp) -> list[int]:
-        """Indices of the candidates that pass the distance check E < E_max."""
-        if not cents:
-            return []
+    def _score(self, found, b: int, red, D_exp: float):
+        """(centres sensor px (n, 2), E (n,), indices passing E < E_max, their scores): the
+        score is the distance to P_red + V_rel (sensor px), or E while there is no V_rel."""
+        cents, _, c0, r0 = found
         c_sensor = image_to_sensor(np.asarray(cents) + [c0, r0], b)
         E = np.abs(np.hypot(*(c_sensor - red).T) - D_exp) / D_exp
-        return [int(i) for i in np.flatnonzero(E < self.config.E_max)]
+        ok = np.flatnonzero(E < self.config.E_max)
+        if self.V_rel is not None:
+            score = np.hypot(*(c_sensor[ok] - (red + self.V_rel)).T)
+        else:
+            score = E[ok]
+        return c_sensor, E, ok, score
 
     def fallback(self, red_sensor_px: ArrayLike, reason: str) -> AuxResult:
         """P_yellow = P_red + V_rel (seed 000 §3.2.2), or ``source="none"`` without V_rel."""
@@ -265,20 +270,19 @@ class AuxLocator:
         r_marker = 0.5 * self.d_m * S_px_per_m / b
         red_img = sensor_to_image(red, b)
 
-        H, W = image_rgb.shape[:2]
-        found = None
+        found, scored = None, None
         if self.V_rel is not None and cfg.window_marker_radii > 0.0:
-            pred_img = sensor_to_image(red + self.V_rel, b)
             rho = cfg.window_marker_radii * r_marker
-            found = self._candidates(image_rgb, pred_img, rho, red_img, r_search, r_marker,
-                                     whole_only=True)
-            if found is not None:
-                cents, rects, c0, r0 = found
-                ok_w = self._passing(cents, c0, r0, b, red, D_exp)
-                pred = red + self.V_rel
-                if not ok_w or min(np.hypot(*(image_to_sensor(np.asarray(cents[i]) + [c0, r0], b)
-                                              - pred)) for i in ok_w) > rho * b:
-                    found = None
+            found = self._candidates(image_rgb, sensor_to_image(red + self.V_rel, b), rho,
+                                     red_img, r_search, r_marker, whole_only=True)
+            if found is not None and found[0]:
+                scored = self._score(found, b, red, D_exp)
+                ok, score = scored[2], scored[3]
+                # a nearer region outside the window would be farther than its half-width
+                if len(ok) == 0 or score.min() > rho * b:
+                    found = scored = None
+            else:
+                found = None
         if found is None:
             found = self._candidates(image_rgb, red_img, r_search, red_img, r_search, r_marker)
         if found is None:
@@ -287,19 +291,12 @@ class AuxLocator:
         if not cents:
             fb = self.fallback(red, "no yellow candidate within the search radius")
             return replace(fb, D_exp_px=D_exp)
-        c_sensor = image_to_sensor(np.asarray(cents) + [c0, r0], b)
-        D = np.hypot(*(c_sensor - red).T)
-        E = np.abs(D - D_exp) / D_exp
-        ok = np.flatnonzero(E < cfg.E_max)
+        c_sensor, E, ok, score = scored or self._score(found, b, red, D_exp)
         if len(ok) == 0:
             fb = self.fallback(
                 red, f"no candidate passes the distance check (best E = {E.min():.2f})"
             )
             return replace(fb, n_candidates=len(cents), E=float(E.min()), D_exp_px=D_exp)
-        if self.V_rel is not None:
-            score = np.hypot(*(c_sensor[ok] - (red + self.V_rel)).T)
-        else:
-            score = E[ok]
         i = int(ok[np.argmin(score)])
         yellow = c_sensor[i]
         refined, fit = False, None
