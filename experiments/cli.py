@@ -32,7 +32,7 @@ def _config_error(exc: ValidationError | ValueError, source: str) -> None:
     if isinstance(exc, ValidationError):
         for e in exc.errors():
             where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-            typer.echo(f"  {where}: {e['msg']}", err=True)
+            typer.echo(f"  {where}: {e['msg'].removeprefix('Value error, ')}", err=True)
     else:
         typer.echo(f"  {exc}", err=True)
     raise typer.Exit(code=2)

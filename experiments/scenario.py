@@ -17,11 +17,11 @@ the textured rotor and the measured observer latency for the ORB observers (issu
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -35,6 +35,7 @@ from pydantic import (
 from controller.mpc import MPCConfig, MPCController
 from controller.pid import PIDConfig, PIDController
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
+from experiments.config_files import load_mapping
 from latency.frontends import (
     ImageFrontEnd,
     MeasurementConfig,
@@ -54,6 +55,7 @@ from observer.opencv_trackers import OpenCVTracker
 from observer.orb import OrbConfig
 from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
+from plant import attitude
 from plant.params import PlantParams
 from plant.texture import TextureParams
 
@@ -160,7 +162,20 @@ class RefSpec(_Model):
 
     def build(self):
         cls = {"seed_steps": SeedSteps, "ramp": Ramp, "cone": Cone, "random": RandomSmooth}
-        return cls[self.kind](**self.args)
+        return cls[self.kind].model_validate(self.args)
+
+    @model_validator(mode="after")
+    def _args_build(self) -> RefSpec:
+        """Wrong or missing ``args`` fail here, naming the generator's field."""
+        try:
+            self.build()
+        except ValidationError as exc:
+            problems = "; ".join(
+                f"args.{'.'.join(str(p) for p in e['loc']) or '(all)'}: {e['msg']}"
+                for e in exc.errors()
+            )
+            raise ValueError(f"reference {self.kind!r}: {problems}") from None
+        return self
 
 
 ReferenceSpec = Annotated[TiltStepSpec | RefSpec, Field(discriminator="kind")]
@@ -199,6 +214,28 @@ def _mpc_latency_default(controller) -> LatencyModel | str | None:
     return Constant(value_s=MPC_CALL_MEDIAN_S[key])
 
 
+def _non_finite(value, path: str = "") -> str | None:
+    """Dotted path of the first infinite or NaN number in a raw configuration, else None."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return path or "(top level)"
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list | tuple):
+        items = enumerate(value)
+    else:
+        return None
+    for k, v in items:
+        found = _non_finite(v, f"{path}.{k}" if path else str(k))
+        if found is not None:
+            return found
+    return None
+
+
+#: Reference samples per run checked against the tilt stop at validation (our choice: fine
+#: enough for every generator's shortest feature, cheap at validation).
+_TILT_CHECK_SAMPLES = 500
+
+
 class Scenario(_Model):
     """A closed-loop scenario. Defaults: GK-TransT's seed latency, measurement model, AEKF with
     delay compensation, PID, a 5° tilt step.
@@ -211,9 +248,12 @@ class Scenario(_Model):
     ``latency.profile.measure_orb_latency``, for reproducible runs).
     """
 
-    name: str = "scenario"
+    name: str = Field(
+        "scenario",
+        description="Names the output folder: letters, digits, '_', '.', '+', '-' (no path).",
+    )
     duration_s: float = Field(2.0, gt=0.0, le=3600.0)
-    seed: int = 0
+    seed: int = Field(0, ge=0, description="Random seed (numpy needs it >= 0).")
     mode: Literal["measurement", "image"] = "measurement"
     renderer: Literal["analytic", "mujoco"] = "analytic"
     tracker: Literal["kcf", "csrt", "transt"] = Field(
@@ -251,6 +291,27 @@ class Scenario(_Model):
         "bench_controllers.json; our choice to neglect it); for MPC a constant, its median "
         "call time measured here (MPC_CALL_MEDIAN_S, 4.0 ms for SQP + HPIPM).",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _finite_numbers(cls, data):
+        """Every number is finite: an infinite gain, rate or latency cannot run (an infinite
+        controller rate never leaves its first instant)."""
+        where = _non_finite(data)
+        if where is not None:
+            raise ValueError(f"{where} must be a finite number (got inf or nan)")
+        return data
+
+    @field_validator("name")
+    @classmethod
+    def _folder_name(cls, v: str) -> str:
+        """The name becomes a folder under ``--out``: no path separators, no '..'."""
+        if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,99}", v) or ".." in v:
+            raise ValueError(
+                f"name {v!r} must be 1-100 letters, digits, '_', '.', '+' or '-', not start "
+                "with '.' or '-', and hold no '/' or '..' (it names a folder under --out)"
+            )
+        return v
 
     @model_validator(mode="before")
     @classmethod
@@ -332,11 +393,58 @@ class Scenario(_Model):
             )
         return v
 
+    @model_validator(mode="after")
+    def _runnable(self) -> Scenario:
+        """Combinations that would fail or hang only once the run has started: the loop's own
+        checks (an observer latency not shorter than the run), a frame rate whose period is
+        shorter than the exposure, a controller clock faster than the physics, a reference
+        beyond the tilt stop."""
+        try:
+            self.loop_config()
+        except ValidationError as exc:
+            raise ValueError(
+                "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())
+            ) from None
+        pipe, phys = self.pipeline, self.plant.physics_dt_s
+        if pipe.exposure_s > pipe.frame_period_s:
+            raise ValueError(
+                f"pipeline.frame_rate_hz = {pipe.frame_rate_hz:g} is more than the camera can "
+                f"reach with pipeline.exposure_s = {pipe.exposure_s:g} s (at most "
+                f"{1.0 / pipe.exposure_s:g} Hz: each frame is exposed within its period)"
+            )
+        if self.controller_rate_hz is not None and self.controller_rate_hz * phys > 1.0:
+            raise ValueError(
+                f"controller_rate_hz = {self.controller_rate_hz:g} is faster than the physics "
+                f"(1 / plant.physics_dt_s = {1.0 / phys:g} Hz)"
+            )
+        stop = self.plant.rotor.tilt_stop_deg
+        ref = self.reference.build()
+        times = np.linspace(0.0, self.duration_s, _TILT_CHECK_SAMPLES)
+        tilt_deg = max(np.degrees(attitude.tilt(ref.sample(float(t)).q)) for t in times)
+        if tilt_deg > stop + 1e-9:
+            raise ValueError(
+                f"the reference reaches {tilt_deg:.3g}° of tilt, beyond the tilt stop "
+                f"plant.rotor.tilt_stop_deg = {stop:g}°"
+            )
+        return self
+
+    def loop_config(self) -> LoopConfig:
+        """The closed loop's settings of this scenario."""
+        return LoopConfig(
+            duration_s=self.duration_s,
+            pipeline=self.pipeline,
+            seed=self.seed,
+            on_invalid=self.on_invalid,
+            controller_rate_hz=self.controller_rate_hz,
+            controller_latency=self.controller_latency,
+            observer_latency=self.observer_latency,
+        )
+
     @classmethod
     def from_yaml(cls, path: str | Path) -> Scenario:
-        """Load a scenario file; missing fields keep their defaults."""
-        with open(path) as fh:
-            return cls.model_validate(yaml.safe_load(fh) or {})
+        """Load a scenario file; missing fields keep their defaults (``ConfigFileError`` for a
+        file that is not a YAML mapping, ``experiments.config_files``)."""
+        return cls.model_validate(load_mapping(path))
 
 
 def _renderer(s: Scenario):
@@ -400,16 +508,7 @@ def build_loop(s: Scenario) -> ClosedLoop:
             # The MPC's delay compensation must assume the latency the loop applies.
             mpc = mpc.model_copy(update={"compute_latency_s": s.controller_latency.mean_s})
         controller = MPCController(mpc, p)
-    config = LoopConfig(
-        duration_s=s.duration_s,
-        pipeline=s.pipeline,
-        seed=s.seed,
-        on_invalid=s.on_invalid,
-        controller_rate_hz=s.controller_rate_hz,
-        controller_latency=s.controller_latency,
-        observer_latency=s.observer_latency,
-    )
-    return ClosedLoop(p, controller, s.reference.build(), front, observer, config)
+    return ClosedLoop(p, controller, s.reference.build(), front, observer, s.loop_config())
 
 
 def run(s: Scenario, progress: bool = False) -> LoopResult:

@@ -51,9 +51,10 @@ from plant.torque import N_COILS
 
 
 class LoopConfig(BaseModel):
-    """Settings of one closed-loop run."""
+    """Settings of one closed-loop run. Numbers must be finite (an infinite rate or latency
+    cannot run)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     duration_s: float = Field(gt=0.0)
     pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
@@ -101,7 +102,7 @@ class LoopConfig(BaseModel):
         "the attitude at t - physics step - delay (MuJoCo evaluates sensors before it "
         "integrates).",
     )
-    seed: int = 0
+    seed: int = Field(0, ge=0, description="Random seed (numpy needs it >= 0).")
     q0: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     omega0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
