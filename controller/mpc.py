@@ -99,7 +99,7 @@ Solver = Literal["sqp_hpipm", "sqp_qpoases", "sqp_qrqp", "sqp_osqp", "ipopt"]
 class MPCConfig(BaseModel):
     """MPC settings; an inconsistent configuration raises ``ValueError`` naming the field."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     horizon_steps: int = Field(15, ge=2, le=200, description="Our choice: N = 15.")
     step_s: float = Field(0.01, gt=0.0, le=0.1, description="Our choice: h = 10 ms (150 ms).")

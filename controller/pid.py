@@ -227,10 +227,10 @@ def tuning_rule(
 
 
 class PIDConfig(BaseModel):
-    """PID settings. An unstable rule (phase margin <= 0) or inconsistent limits raise
-    ``ValueError`` naming the field."""
+    """PID settings. An unstable rule (phase margin <= 0), inconsistent limits or a number
+    that is not finite raise ``ValueError`` naming the field."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     crossover_rad_s: float = Field(
         10.0,
@@ -431,6 +431,42 @@ class PIDController:
         self._pending = rate
         self.last_torque, self.last_saturated = T, saturated
         return T.copy()
+
+
+def reach_warnings(pid: PIDController, frame_rate_hz: float) -> list[str]:
+    """Reasons why the crossover of ``pid`` is far outside what the plant and the camera can
+    do (empty if none). Such a loop still runs, but its linear design (the margins) does not
+    describe it.
+
+    * Above the Nyquist frequency of the camera, ``π · frame_rate_hz`` (rad/s): a loop sampled
+      at the frame rate cannot place its crossover there.
+    * ``Kp`` times a 1° error (N·m) above the torque limit: the loop saturates on small errors.
+    * ``Kp`` times the whole tilt range (the stop, ``RotorParams.tilt_stop_deg``) below the
+      bearing's dry friction ``RotorParams.coulomb_Nm``: the proportional action cannot move
+      the rotor, only the integral does.
+    """
+    wc = pid.config.crossover_rad_s
+    rotor = pid.params.rotor
+    kp = float(np.max(pid.Kp))
+    nyquist = np.pi * frame_rate_hz
+    out = []
+    if wc > nyquist:
+        out.append(
+            f"crossover {wc:g} rad/s is above the camera's Nyquist frequency pi x {frame_rate_hz:g}"
+            f" Hz = {nyquist:.4g} rad/s: a loop sampled at the frame rate cannot cross over there"
+        )
+    if kp * np.radians(1.0) > pid.torque_limit:
+        out.append(
+            f"crossover {wc:g} rad/s asks {kp * np.radians(1.0):.3g} N·m for a 1° error, more "
+            f"than the torque limit {pid.torque_limit:.3g} N·m: the loop saturates on small errors"
+        )
+    if kp * np.radians(rotor.tilt_stop_deg) < rotor.coulomb_Nm:
+        out.append(
+            f"crossover {wc:g} rad/s asks {kp * np.radians(rotor.tilt_stop_deg):.3g} N·m for an "
+            f"error of the whole tilt range ({rotor.tilt_stop_deg:g}°), less than the bearing's "
+            f"dry friction {rotor.coulomb_Nm:g} N·m: only the integral moves the rotor"
+        )
+    return out
 
 
 def truth_estimate(

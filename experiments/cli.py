@@ -1,18 +1,30 @@
 """The ``pmspm`` command line (typer). ``pmspm --help`` lists the commands; every command's
-``--help`` shows an example. Configuration errors exit with status 2 and a message that names
-the field, without a traceback."""
+``--help`` shows an example.
+
+Every mistake on the command line (a file that is not a YAML mapping, a field out of range, a
+combination that cannot run, a non-finite or negative number, an output folder that cannot be
+written, an unknown scheduler or storage) exits with status 2 and a message that names the
+problem, without a traceback, before any expensive work starts (docs/reliability.md).
+Settings that run but are far outside what the plant can do print a warning with the reason.
+A Ctrl-C exits with status 130 and says that finished runs are kept.
+"""
 
 from __future__ import annotations
 
+import datetime as dt
 import itertools
 import json
+import math
 import os
+import re
+import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
-import yaml
 from pydantic import ValidationError
+
+from experiments.config_files import ConfigFileError, load_mapping
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
 
@@ -26,7 +38,7 @@ app = typer.Typer(
 OutOption = Annotated[Path, typer.Option(help="Folder for the results.")]
 
 
-def _config_error(exc: ValidationError | ValueError, source: str) -> None:
+def _config_error(exc: ValidationError | ValueError, source: str) -> NoReturn:
     """Print a configuration error naming the field(s) and exit with status 2."""
     typer.secho(f"invalid configuration in {source}:", fg=typer.colors.RED, err=True)
     if isinstance(exc, ValidationError):
@@ -38,16 +50,103 @@ def _config_error(exc: ValidationError | ValueError, source: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _fail(message: str) -> NoReturn:
+    """Print one error line and exit with status 2 (a usage error, as click's own)."""
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def _warn(message: str) -> None:
+    typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
+
+
 def _load_yaml(path: Path) -> dict:
-    if not path.exists():
-        typer.secho(f"no such file: {path}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2)
-    with open(path) as fh:
-        data = yaml.safe_load(fh) or {}
-    if not isinstance(data, dict):
-        typer.secho(f"{path}: expected a mapping at the top level", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2)
-    return data
+    try:
+        return load_mapping(path)
+    except ConfigFileError as exc:
+        _fail(str(exc))
+
+
+def _number(name: str, value: float | None, *, low: float = 0.0, strict: bool = False) -> None:
+    """Exit with a message unless ``value`` (an option) is finite and above ``low`` (``> low``
+    when ``strict``, else ``>= low``); None passes (the option's default)."""
+    if value is None:
+        return
+    ok = math.isfinite(value) and (value > low if strict else value >= low)
+    if not ok:
+        _fail(f"{name} must be a finite number {'>' if strict else '>='} {low:g}, got {value}")
+
+
+def _writable_folder(out: Path, option: str = "--out") -> Path:
+    """Create ``out`` (a folder) if needed and check that a file can be written in it, before
+    any work; exit with a message otherwise."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        _fail(f"{option} {out}: cannot write results there ({reason})")
+    return out
+
+
+def _new_folder(root: Path, label: str) -> Path:
+    """A new folder ``<root>/<timestamp>-<label>`` (``-2``, ``-3``... if that exists): a run
+    never writes into an earlier run's folder."""
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    for n in itertools.count(1):
+        folder = root / (f"{stamp}-{label}" if n == 1 else f"{stamp}-{label}-{n}")
+        try:
+            folder.mkdir(parents=True, exist_ok=False)
+            return folder
+        except FileExistsError:
+            continue
+    raise AssertionError("unreachable")
+
+
+#: A Dask scheduler address: [protocol://]host:port (or 'local' for a LocalCluster).
+_SCHEDULER = re.compile(r"((tcp|tls|ucx|ws|wss)://)?([A-Za-z0-9_.-]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})")
+
+
+def _check_workers_and_scheduler(workers: int | None, scheduler: str | None) -> None:
+    if workers is not None and workers < 1:
+        _fail(f"--workers must be >= 1, got {workers}")
+    if scheduler is None or scheduler == "local":
+        return
+    m = _SCHEDULER.fullmatch(scheduler)
+    if m is None or not 0 < int(m.group(4)) < 65536:
+        _fail(
+            f"--scheduler {scheduler!r} is neither 'local' nor a Dask scheduler address "
+            "[protocol://]host:port such as tcp://127.0.0.1:8786"
+        )
+
+
+def _check_storage(url: str) -> None:
+    """Exit with a message unless ``url`` is a database URL that optuna can open (a known
+    SQLAlchemy dialect whose driver is installed; for SQLite, a folder that exists)."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError, NoSuchModuleError
+
+    try:
+        parsed = make_url(url)
+        parsed.get_dialect()
+    except (ArgumentError, NoSuchModuleError, ValueError) as exc:
+        _fail(f"--storage {url!r} is not a database URL optuna can use, such as "
+              f"sqlite:///runs/optuna.db ({str(exc).splitlines()[0]})")
+    except ImportError as exc:
+        _fail(f"--storage {url!r}: the database driver is not installed ({exc})")
+    if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:"):
+        folder = Path(parsed.database).parent
+        if not folder.is_dir():
+            _fail(f"--storage {url!r}: the folder {folder} of the SQLite file does not exist")
+
+
+def _interrupted() -> NoReturn:
+    typer.secho(
+        "interrupted: the runs that finished are kept; run the same command to resume",
+        fg=typer.colors.YELLOW, err=True,
+    )
+    raise typer.Exit(code=130)
 
 
 @app.command()
@@ -67,13 +166,18 @@ def study(
     """
     from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study
 
+    _check_workers_and_scheduler(workers, scheduler)
+    _writable_folder(out)
     cfg = StudyConfig(workers=workers, scheduler=scheduler)
     if quick:
         cfg = cfg.model_copy(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
                     "latency_frames": 10}
         )
-    folder = run_study(out, cfg)
+    try:
+        folder = run_study(out, cfg)
+    except KeyboardInterrupt:
+        _interrupted()
     typer.echo(f"report: {folder / 'report.html'}")
 
 
@@ -85,7 +189,7 @@ def demo(out: OutOption = Path("runs")) -> None:
     """
     from experiments.demo import run_demo
 
-    folder = run_demo(out)
+    folder = run_demo(_writable_folder(out))
     typer.echo(f"report: {folder / 'report.md'}")
 
 
@@ -94,7 +198,8 @@ def simulate(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML (experiments.scenario).")],
     out: OutOption = Path("runs"),
 ) -> None:
-    """One closed-loop run: writes its tables (Parquet) and a plot, prints the summary.
+    """One closed-loop run: writes its tables (Parquet) and a plot into a new folder
+    <out>/<timestamp>-simulate-<name>/, prints the summary.
 
     Example: pmspm simulate examples/scenario.yaml --out runs
     """
@@ -104,8 +209,14 @@ def simulate(
         s = Scenario.model_validate(_load_yaml(scenario))
     except (ValidationError, ValueError) as exc:
         _config_error(exc, str(scenario))
-    result = run(s, progress=True)
-    folder = result.save(Path(out) / f"simulate-{s.name}")
+    for reason in s.reach_warnings():
+        _warn(reason)
+    _writable_folder(out)
+    try:
+        result = run(s, progress=True)
+    except KeyboardInterrupt:
+        _interrupted()
+    folder = result.save(_new_folder(out, f"simulate-{s.name}"))
     _plot_run(result.steps, folder / "run.png", s.name)
     for k, v in result.summary.items():
         typer.echo(f"{k:>28s}  {v:.6g}")
@@ -147,7 +258,7 @@ def margins(
     import matplotlib
 
     matplotlib.use("Agg")
-    from controller.pid import PIDConfig, PIDController
+    from controller.pid import PIDConfig, PIDController, reach_warnings
     from latency.margins import (
         attitude_delay_sweep,
         attitude_margins,
@@ -158,22 +269,26 @@ def margins(
     )
     from plant.params import PlantParams
 
-    try:
-        cfg = PIDConfig(crossover_rad_s=crossover_rad_s)
-    except ValidationError as exc:
-        _config_error(exc, "options")
-    if frame_rate_hz <= 0 or delay_ms < 0:
-        _config_error(ValueError("frame_rate_hz must be > 0 and delay_ms >= 0"), "options")
+    _number("--crossover-rad-s", crossover_rad_s, strict=True)
+    _number("--frame-rate-hz", frame_rate_hz, strict=True)
+    _number("--delay-ms", delay_ms)
     p = PlantParams()
+    if frame_rate_hz * p.camera.exposure_s > 1.0:
+        _fail(
+            f"--frame-rate-hz {frame_rate_hz:g} is more than the camera can reach with its "
+            f"{p.camera.exposure_s:g} s exposure (at most {1.0 / p.camera.exposure_s:g} Hz)"
+        )
+    cfg = PIDConfig(crossover_rad_s=crossover_rad_s)
+    folder = _writable_folder(Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms")
     pid = PIDController(cfg, p)
+    for reason in reach_warnings(pid, frame_rate_hz):
+        _warn(reason)
     J, b, T = float(pid.J[1]), p.rotor.viscous_Nms_per_rad, 1.0 / frame_rate_hz
     tau = 0.5 * p.camera.exposure_s + delay_ms / 1e3
     m = attitude_margins(
         pid.transfer_function(1), inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T,
         delay_s=tau,
     )
-    folder = Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms"
-    folder.mkdir(parents=True, exist_ok=True)
     typer.echo(m.summary())
     model = loop_model(
         attitude_plant(J, b), pid.transfer_function(1), sample_period_s=T, delay_s=tau
@@ -187,8 +302,31 @@ def margins(
     typer.echo(f"plots and table: {folder}")
 
 
+#: Most runs in one sweep file (our choice: a grid this large is a typo, and expanding it
+#: would take the memory before any run starts).
+MAX_SWEEP_RUNS = 100_000
+
+
 def _expand(base: dict, grid: dict) -> list[dict]:
-    """All combinations of ``grid`` (dotted paths -> lists of values) applied to ``base``."""
+    """All combinations of ``grid`` (dotted paths -> lists of values) applied to ``base``.
+
+    Raises ``ValueError`` naming the key for a grid that is not a mapping of non-empty lists,
+    a dotted path with an empty part or through a field that is not a mapping, or more than
+    ``MAX_SWEEP_RUNS`` runs."""
+    if not isinstance(base, dict):
+        raise ValueError(f"base must be a mapping of scenario fields, got {type(base).__name__}")
+    if not isinstance(grid, dict):
+        raise ValueError(f"grid must be a mapping of field paths to lists, got "
+                         f"{type(grid).__name__}")
+    for key, values in grid.items():
+        if not isinstance(key, str) or not all(key.split(".")):
+            raise ValueError(f"grid key {key!r} must be a dotted field path such as seed or "
+                             "pipeline.frame_rate_hz")
+        if not isinstance(values, list) or not values:
+            raise ValueError(f"grid.{key} must be a non-empty list of values, got {values!r}")
+    n_runs = math.prod(len(v) for v in grid.values())
+    if n_runs > MAX_SWEEP_RUNS:
+        raise ValueError(f"the grid has {n_runs} runs, more than {MAX_SWEEP_RUNS}")
     keys = list(grid)
     out = []
     for values in itertools.product(*(grid[k] for k in keys)):
@@ -198,6 +336,8 @@ def _expand(base: dict, grid: dict) -> list[dict]:
             *parents, leaf = key.split(".")
             for p in parents:
                 node = node.setdefault(p, {})
+                if not isinstance(node, dict):
+                    raise ValueError(f"grid key {key!r}: {p} is not a mapping in the base")
             node[leaf] = value
         out.append(cfg)
     return out
@@ -214,7 +354,9 @@ def sweep(
         str | None, typer.Option(help="Dask scheduler address, or 'local'.")
     ] = None,
 ) -> None:
-    """A grid of scenarios, resumable (finished runs are skipped), local or on Dask.
+    """A grid of scenarios, resumable (finished runs are skipped), local or on Dask. The table
+    <out>/sweep-<id>.parquet holds exactly this grid's runs (the id is the grid's content), also
+    when other grids share the folder and its finished runs.
 
     The YAML has a 'base' scenario and a 'grid' mapping dotted field paths to lists, e.g.
 
@@ -226,23 +368,36 @@ def sweep(
     Example: pmspm sweep examples/sweep.yaml --out runs/sweep --scheduler tcp://host:8786
     """
     from experiments.scenario import Scenario
-    from experiments.sweep import run_sweep
+    from experiments.sweep import run_sweep, sweep_id
 
+    _check_workers_and_scheduler(workers, scheduler)
     data = _load_yaml(spec)
     unknown = set(data) - {"base", "grid"}
     if unknown:
         _config_error(ValueError(f"unknown top-level keys {sorted(unknown)}; use base, grid"),
                       str(spec))
-    configs = _expand(data.get("base", {}), data.get("grid", {}))
-    for c in configs:
+    try:
+        configs = _expand(data.get("base") or {}, data.get("grid") or {})
+    except (ValueError, TypeError) as exc:
+        _config_error(ValueError(str(exc)), str(spec))
+    warnings: dict[str, None] = {}
+    for i, c in enumerate(configs):
         try:
-            Scenario.model_validate(c)
+            s = Scenario.model_validate(c)
         except ValidationError as exc:
-            _config_error(exc, str(spec))
-    df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
-    df.to_parquet(Path(out) / "sweep.parquet")
+            _config_error(exc, f"{spec} (run {i + 1} of {len(configs)})")
+        warnings.update(dict.fromkeys(s.reach_warnings()))
+    for reason in warnings:
+        _warn(reason)
+    _writable_folder(out)
+    try:
+        df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+    except KeyboardInterrupt:
+        _interrupted()
+    path = Path(out) / f"sweep-{sweep_id(configs)}.parquet"
+    df.to_parquet(path)
     failed = int((df.error != "").sum()) if "error" in df else 0
-    typer.echo(f"{len(df)} runs ({failed} failed): {Path(out) / 'sweep.parquet'}")
+    typer.echo(f"{len(df)} runs ({failed} failed): {path}")
 
 
 @app.command("measure-latency")
@@ -253,13 +408,14 @@ def measure_latency(
             help="kcf or csrt (GK assistance on top), or orb (the textured rotor's ORB-AEKF)."
         ),
     ] = "kcf",
-    frames: Annotated[int, typer.Option(help="Frames to time.")] = 200,
-    out: Annotated[Path, typer.Option(help="Profile JSON to write.")] = Path("latency.json"),
+    frames: Annotated[int, typer.Option(help="Frames to time (1 to 100000).")] = 200,
+    out: OutOption = Path("runs"),
 ) -> None:
     """Measure the observer's per-frame latency on a rendered sequence; writes an empirical
-    latency profile that a scenario can load (as pipeline.observer).
+    latency profile that a scenario can load (as pipeline.observer) into a new folder
+    <out>/<timestamp>-measure-latency-<tracker>/latency.json.
 
-    Example: pmspm measure-latency --tracker csrt --frames 200 --out csrt.json
+    Example: pmspm measure-latency --tracker csrt --frames 200 --out runs
     """
     import numpy as np
 
@@ -268,16 +424,23 @@ def measure_latency(
     from observer.opencv_trackers import OpenCVTracker
     from plant.params import PlantParams
 
-    if tracker not in ("kcf", "csrt", "orb") or frames < 1:
-        _config_error(ValueError("tracker must be kcf, csrt or orb and frames >= 1"), "options")
+    if tracker not in ("kcf", "csrt", "orb"):
+        _fail(f"--tracker must be kcf, csrt or orb, got {tracker!r}")
+    if not 1 <= frames <= 100_000:
+        _fail(f"--frames must be between 1 and 100000, got {frames}")
+    _writable_folder(out)
     p = PlantParams()
-    if tracker == "orb":
-        prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
-        label = "ORB-AEKF"
-    else:
-        locator = MarkerLocator(p, OpenCVTracker(tracker))
-        prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
-        label = f"{tracker}+GK"
+    try:
+        if tracker == "orb":
+            prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
+            label = "ORB-AEKF"
+        else:
+            locator = MarkerLocator(p, OpenCVTracker(tracker))
+            prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
+            label = f"{tracker}+GK"
+    except KeyboardInterrupt:
+        _interrupted()
+    out = _new_folder(out, f"measure-latency-{tracker}") / "latency.json"
     prof.save(out)
     s = np.asarray(prof.samples_s) * 1e3
     typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
@@ -332,8 +495,6 @@ def bench_trackers(
 
     Example: pmspm bench-trackers --seeds 1 --cases clean --trackers gk_transt,kcf --stand-in
     """
-    import datetime as dt
-
     # Before torch loads its OpenMP runtime: idle threads sleep instead of spinning
     # (docs/tracking.md; as benchmarks/bench_tracking.py).
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -344,17 +505,18 @@ def bench_trackers(
 
     case_list = _names(cases) or list(CASES)
     tracker_list = _names(trackers) or list(tb.DEFAULT_TRACKERS)
+    if torch_threads < 1:
+        _fail(f"--torch-threads must be >= 1, got {torch_threads}")
+    new_folder = out is None
+    out = _new_folder(_writable_folder(Path("runs")), "bench-trackers") if new_folder else (
+        _writable_folder(out))
     if not stand_in and any(t.startswith(("gk_transt", "dual_transt")) for t in tracker_list):
         try:
             import torch
 
-            torch.set_num_threads(max(1, torch_threads))
+            torch.set_num_threads(torch_threads)
         except ImportError:
             pass
-    if out is None:
-        stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-        out = Path("runs") / f"{stamp}-bench-trackers"
-        out.mkdir(parents=True, exist_ok=False)  # a new folder, never a previous run's
     bar = tqdm(total=seeds * len(case_list) * max(frames - 1, 0), desc="bench-trackers",
                unit="frame")
     try:
@@ -363,9 +525,14 @@ def bench_trackers(
             stand_in=stand_in, progress=lambda msg: bar.set_postfix_str(msg, refresh=True),
             on_step=lambda: bar.update(1),
         )
-    except ValueError as exc:
+    except ValueError as exc:  # the options, checked before any sequence is rendered
         bar.close()
+        if new_folder:
+            out.rmdir()
         _config_error(exc, "options")
+    except KeyboardInterrupt:
+        bar.close()
+        _interrupted()
     bar.close()
     title = "# Tracking benchmark (seed 000 §4)"
     if stand_in:
@@ -409,21 +576,32 @@ def tune_kalman_cmd(
     """
     from experiments.tuning import tune_kalman
 
-    if grid_points < 2 or trials < 0 or duration_s <= 0:
-        _config_error(
-            ValueError("need grid_points >= 2, trials >= 0 and duration_s > 0"), "options"
-        )
+    if grid_points < 2 or trials < 0:
+        _fail(f"need --grid-points >= 2 and --trials >= 0, got {grid_points} and {trials}")
+    _number("--duration-s", duration_s, strict=True)
+    for d in delays_ms or []:
+        _number("--delays-ms", d)
+        if d / 1e3 >= duration_s:
+            _fail(f"--delays-ms {d:g} is not shorter than --duration-s {duration_s:g} s: no "
+                  "estimate would arrive")
+    _check_workers_and_scheduler(workers, scheduler)
+    _writable_folder(out)
+    if storage is not None:
+        _check_storage(storage)
     delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
-    result = tune_kalman(
-        out,
-        delays_s=delays,
-        grid_points=grid_points,
-        n_trials=trials,
-        duration_s=duration_s,
-        scheduler=scheduler,
-        workers=workers,
-        storage=storage,
-    )
+    try:
+        result = tune_kalman(
+            out,
+            delays_s=delays,
+            grid_points=grid_points,
+            n_trials=trials,
+            duration_s=duration_s,
+            scheduler=scheduler,
+            workers=workers,
+            storage=storage,
+        )
+    except KeyboardInterrupt:
+        _interrupted()
     typer.echo("\n".join(result.summary_lines()))
     typer.echo(f"results: {out}")
 

@@ -34,6 +34,7 @@ from pydantic import (
 
 from controller.mpc import MPCConfig, MPCController
 from controller.pid import PIDConfig, PIDController
+from controller.pid import reach_warnings as pid_reach_warnings
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
 from experiments.config_files import load_mapping
 from latency.frontends import (
@@ -427,6 +428,20 @@ class Scenario(_Model):
                 f"plant.rotor.tilt_stop_deg = {stop:g}°"
             )
         return self
+
+    def reach_warnings(self) -> list[str]:
+        """Reasons why the controller's crossover (PID) or bandwidth (MPC) is far outside what
+        the plant and the camera can do (``controller.pid.reach_warnings``); empty if none."""
+        if isinstance(self.controller, PIDSpec):
+            pid = PIDController(self.controller.config, self.plant)
+            return pid_reach_warnings(pid, self.pipeline.frame_rate_hz)
+        wn, nyquist = self.controller.config.bandwidth_rad_s, np.pi * self.pipeline.frame_rate_hz
+        if wn > nyquist:
+            return [
+                f"MPC bandwidth {wn:g} rad/s is above the camera's Nyquist frequency pi x "
+                f"{self.pipeline.frame_rate_hz:g} Hz = {nyquist:.4g} rad/s"
+            ]
+        return []
 
     def loop_config(self) -> LoopConfig:
         """The closed loop's settings of this scenario."""

@@ -3,9 +3,16 @@
 * Each run is a JSON-able config (a dict). Its id is a hash of the canonical JSON of that config
   (seed included), so the same run always has the same id and a changed config a new one.
 * Each run's result is one row, written atomically (temporary file, then rename) as
-  ``<out>/runs/<id>.parquet``. The sweep's table is the union of those files.
+  ``<out>/runs/<id>.parquet``.
+* A sweep (a list of configs) has its own id, the hash of its sorted run ids, and a manifest
+  ``<out>/sweeps/<sweep id>.json`` listing its run ids. Its table is the union of exactly those
+  runs' files: several sweeps may share a folder and reuse each other's finished runs (same
+  content, same id), but no sweep's table shows another sweep's runs.
 * A restarted sweep skips every id whose file exists: an interrupted sweep (Ctrl-C, a killed
   worker, a crashed run) recomputes nothing that finished and loses nothing.
+* Local pool workers end when the sweep's process dies, even by SIGKILL (they watch their
+  parent), and ignore Ctrl-C (SIGINT), which the sweep's process handles: it stops waiting and
+  the command says what is kept. Dask LocalCluster workers ignore SIGINT the same way.
 * A run that raises records its error and traceback in its row; the sweep goes on.
 * Backends: a local process pool over this machine's cores (default), or Dask distributed
   (``scheduler="tcp://host:8786"``, or ``"local"`` for a ``LocalCluster``): the same function,
@@ -22,6 +29,9 @@ import hashlib
 import importlib
 import json
 import os
+import signal
+import sys
+import threading
 import traceback
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -35,6 +45,52 @@ def run_id(config: dict) -> str:
     """Content-derived id of a run: the first 16 hex digits of SHA-256 of its canonical JSON."""
     canonical = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
+def sweep_id(configs: Iterable[dict]) -> str:
+    """Content-derived id of a sweep: the first 16 hex digits of SHA-256 of its sorted, unique
+    run ids (the order of the configs and repeated configs do not change it)."""
+    ids = sorted({run_id(c) for c in configs})
+    return hashlib.sha256(",".join(ids).encode()).hexdigest()[:16]
+
+
+def write_manifest(configs: list[dict], out_dir: str | Path) -> Path:
+    """Write ``<out_dir>/sweeps/<sweep id>.json`` (the sweep's run ids, in order, duplicates
+    removed) atomically and return its path."""
+    ids = list(dict.fromkeys(run_id(c) for c in configs))
+    folder = Path(out_dir) / "sweeps"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{sweep_id(configs)}.json"
+    tmp = folder / f".{path.stem}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps({"run_ids": ids}, indent=1))
+    os.replace(tmp, path)
+    return path
+
+
+#: How often a pool worker checks that the sweep's process is still alive, s (our choice).
+PARENT_POLL_S = 0.2
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Pool worker initialiser: ignore SIGINT (the sweep's process handles Ctrl-C) and end this
+    worker when the sweep's process dies. On Linux the kernel sends SIGKILL at the parent's
+    death (``prctl(PR_SET_PDEATHSIG)``); everywhere, a daemon thread polls the parent pid."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+
+    def poll() -> None:
+        while os.getppid() == parent_pid:
+            threading.Event().wait(PARENT_POLL_S)
+        os._exit(1)
+
+    if os.getppid() != parent_pid:  # the parent died before the kernel watch was set
+        os._exit(1)
+    threading.Thread(target=poll, daemon=True, name="watch-parent").start()
 
 
 def _resolve(target: str) -> Callable[[dict], dict]:
@@ -76,9 +132,14 @@ def execute(target: str, config: dict, out_dir: str) -> str:
     return rid
 
 
-def table(out_dir: str | Path) -> pd.DataFrame:
-    """The sweep's table: the union of the finished runs' rows, sorted by run id."""
-    files = sorted((Path(out_dir) / "runs").glob("*.parquet"))
+def table(out_dir: str | Path, run_ids: Iterable[str] | None = None) -> pd.DataFrame:
+    """The finished rows of the runs ``run_ids`` (a sweep's, ``sweep_id``), or of every run in
+    the folder when None, sorted by run id."""
+    folder = Path(out_dir) / "runs"
+    if run_ids is None:
+        files = sorted(folder.glob("*.parquet"))
+    else:
+        files = [f for f in (folder / f"{r}.parquet" for r in sorted(set(run_ids))) if f.exists()]
     if not files:
         return pd.DataFrame()
     df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
@@ -115,31 +176,54 @@ def run_sweep(
     scheduler : None for a local process pool; ``"local"`` for a Dask ``LocalCluster``; or a
         Dask scheduler address such as ``"tcp://host:8786"``.
     workers : local processes or LocalCluster workers (default: this machine's cores).
+
+    Returns
+    -------
+    The table of exactly these configs' runs (``table`` of their ids), whichever sweep of the
+    same folder computed them; ``<out_dir>/sweeps/<sweep_id>.json`` lists them.
     """
     _resolve(target)  # fail early on a bad target
     out = str(out_dir)
     Path(out).mkdir(parents=True, exist_ok=True)
+    write_manifest(configs, out)
+    ids = [run_id(c) for c in configs]
     todo = pending(configs, out)
     n_workers = workers or os.cpu_count() or 1
     bar = tqdm(total=len(todo), desc="sweep", unit="run", disable=not progress)
     if not todo:
         bar.close()
-        return table(out)
+        return table(out, ids)
     if scheduler is None:
-        with ProcessPoolExecutor(max_workers=n_workers) as pool:
+        pool = ProcessPoolExecutor(
+            max_workers=n_workers, initializer=_watch_parent, initargs=(os.getpid(),)
+        )
+        try:
             futures = [pool.submit(execute, target, c, out) for c in todo]
             for f in as_completed(futures):
                 f.result()
                 bar.update(1)
+        except BaseException:
+            # Ctrl-C or a failure of the pool: do not wait for the runs in flight (they finish
+            # and write their rows, or end with this process).
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown()
     else:
         from dask.distributed import Client, LocalCluster
         from dask.distributed import as_completed as dask_completed
 
         cluster = None
         if scheduler == "local":
-            cluster = LocalCluster(
-                n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None
-            )
+            # The worker processes inherit an ignored SIGINT: a Ctrl-C reaches this process
+            # only, which closes the cluster, instead of every worker printing a traceback.
+            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                cluster = LocalCluster(
+                    n_workers=n_workers, threads_per_worker=1, processes=True,
+                    dashboard_address=None,
+                )
+            finally:
+                signal.signal(signal.SIGINT, handler)
             client = Client(cluster)
         else:
             client = Client(scheduler)
@@ -153,4 +237,4 @@ def run_sweep(
             if cluster is not None:
                 cluster.close()
     bar.close()
-    return table(out)
+    return table(out, ids)
