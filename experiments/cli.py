@@ -380,14 +380,13 @@ def sweep(
         configs = _expand(data.get("base") or {}, data.get("grid") or {})
     except (ValueError, TypeError) as exc:
         _config_error(ValueError(str(exc)), str(spec))
-    warnings: dict[str, None] = {}
+    scenarios = []
     for i, c in enumerate(configs):
         try:
-            s = Scenario.model_validate(c)
+            scenarios.append(Scenario.model_validate(c))
         except ValidationError as exc:
             _config_error(exc, f"{spec} (run {i + 1} of {len(configs)})")
-        warnings.update(dict.fromkeys(s.reach_warnings()))
-    for reason in warnings:
+    for reason in dict.fromkeys(r for s in scenarios for r in s.reach_warnings()):
         _warn(reason)
     _writable_folder(out)
     try:

@@ -66,6 +66,9 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     """One line from a PyYAML error: the problem, where it is (1-based line and column), and a
     hint for tabs."""
     problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    context = getattr(exc, "context", None)
+    if context and problem.startswith("but "):  # "expected X, but found Y" is split in two
+        problem = f"{context}, {problem}"
     mark = getattr(exc, "problem_mark", None)
     where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
     hint = "; indent with spaces, YAML does not allow tabs" if "\\t" in problem else ""

@@ -172,7 +172,8 @@ class RefSpec(_Model):
             self.build()
         except ValidationError as exc:
             problems = "; ".join(
-                f"args.{'.'.join(str(p) for p in e['loc']) or '(all)'}: {e['msg']}"
+                (f"args.{'.'.join(str(p) for p in e['loc'])}: " if e["loc"] else "")
+                + e["msg"].removeprefix("Value error, ")
                 for e in exc.errors()
             )
             raise ValueError(f"reference {self.kind!r}: {problems}") from None
