@@ -55,13 +55,21 @@ def test_simulate_rejects_a_bad_field_by_name(tmp_path):
     assert "Traceback" not in result.output
 
 
-def test_simulate_runs_a_scenario_file(tmp_path):
+def test_simulate_runs_a_scenario_file_and_never_overwrites_a_result(tmp_path):
     f = tmp_path / "s.yaml"
     f.write_text("name: t\nduration_s: 0.5\nobserver: {kind: solver}\n")
-    result = RUNNER.invoke(app, ["simulate", str(f), "--out", str(tmp_path)])
-    assert result.exit_code == 0, result.output
-    assert (tmp_path / "simulate-t" / "steps.parquet").exists()
-    assert "rms_error_deg" in result.output
+    out = tmp_path / "out"
+    folders = []
+    for _ in range(2):  # the same scenario twice, within the same second
+        result = RUNNER.invoke(app, ["simulate", str(f), "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        assert "rms_error_deg" in result.output
+        folders.append(sorted(out.iterdir()))
+    first, second = folders
+    assert len(first) == 1 and len(second) == 2 and first[0] in second
+    for folder in second:
+        assert re.fullmatch(r"\d{8}-\d{6}-simulate-t(-2)?", folder.name)
+        assert (folder / "steps.parquet").exists() and (folder / "summary.json").exists()
 
 
 def test_sweep_grid_expansion():

@@ -1,14 +1,19 @@
-"""The sweep runner: content ids, local vs Dask, interruption and resume, failed runs."""
+"""The sweep runner: content ids, local vs Dask, interruption and resume, failed runs, sweeps
+sharing a folder, workers that end with their parent, Ctrl-C under Dask."""
 
+import contextlib
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pandas as pd
+import psutil
 
-from experiments.sweep import run_id, run_sweep, table
+from experiments.sweep import run_id, run_sweep, sweep_id, table
 
 TARGET = "experiments.scenario:run_summary"
 
@@ -80,3 +85,108 @@ def test_a_failing_run_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert "duration_s" in row.error and "Traceback" in row.traceback
     assert (df[df.run_id != run_id(bad)].error == "").all()
     assert len(table(tmp_path)) == 2
+
+
+def double(config: dict) -> dict:
+    """A cheap run function for the bookkeeping tests."""
+    return {"twice": 2 * config["x"]}
+
+
+def sleeper(config: dict) -> dict:
+    """A run that says it started (a file named by its worker's pid) and then takes long."""
+    (Path(config["folder"]) / f"{os.getpid()}.pid").write_text("")
+    time.sleep(120)
+    return {}
+
+
+def test_two_sweeps_in_one_folder_each_report_only_their_runs(tmp_path):
+    a = [{"x": 0}, {"x": 1}]
+    b = [{"x": 1}, {"x": 2}, {"x": 2}]  # one run shared with a, one repeated
+    df_a = run_sweep("tests.test_sweep:double", a, tmp_path, workers=1, progress=False)
+    shared = tmp_path / "runs" / f"{run_id({'x': 1})}.parquet"
+    mtime = shared.stat().st_mtime_ns
+    df_b = run_sweep("tests.test_sweep:double", b, tmp_path, workers=1, progress=False)
+    assert sorted(df_a["config.x"]) == [0, 1] and sorted(df_b["config.x"]) == [1, 2]
+    assert list(df_b["result.twice"]) == [2 * x for x in df_b["config.x"]]
+    assert shared.stat().st_mtime_ns == mtime  # reused by content id, not recomputed
+    assert len(table(tmp_path)) == 3  # the folder holds both sweeps' runs
+    manifest = json.loads((tmp_path / "sweeps" / f"{sweep_id(b)}.json").read_text())
+    assert manifest["run_ids"] == [run_id({"x": 1}), run_id({"x": 2})]
+    assert sweep_id(a) != sweep_id(b) and sweep_id(b) == sweep_id(list(reversed(b)))
+
+
+def test_cli_sweeps_sharing_a_folder_report_their_own_grid(tmp_path):
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    out = tmp_path / "sw"
+    tables = []
+    for seeds in ("[0, 1]", "[1, 2]"):
+        spec = tmp_path / "spec.yaml"
+        spec.write_text("base: {duration_s: 0.3, observer: {kind: solver}}\n"
+                        f"grid: {{seed: {seeds}}}\n")
+        result = CliRunner().invoke(app, ["sweep", str(spec), "--out", str(out),
+                                          "--workers", "1"])
+        assert result.exit_code == 0, result.output
+        assert "2 runs (0 failed)" in result.output
+        tables.append(pd.read_parquet(result.output.split(": ")[-1].strip()))
+    assert [sorted(t["config.seed"]) for t in tables] == [[0, 1], [1, 2]]
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a zombie waiting to be reaped has ended)."""
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def test_sigkill_of_the_sweep_process_leaves_no_pool_workers(tmp_path):
+    code = (
+        "from experiments.sweep import run_sweep; "
+        f"run_sweep('tests.test_sweep:sleeper', [{{'folder': {str(tmp_path)!r}, 'i': i}} "
+        f"for i in range(2)], {str(tmp_path / 'out')!r}, workers=2, progress=False)"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=os.getcwd(),
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(list(tmp_path.glob("*.pid"))) < 2:
+            time.sleep(0.05)
+        workers = [int(p.stem) for p in tmp_path.glob("*.pid")]
+        assert len(workers) == 2 and all(_alive(w) for w in workers)
+        proc.kill()  # SIGKILL of the sweep's process alone, not of its group
+        proc.wait()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(w) for w in workers):
+            time.sleep(0.05)
+        assert not any(_alive(w) for w in workers)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_ctrl_c_under_dask_ends_without_worker_tracebacks(tmp_path):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("base: {duration_s: 1.0, observer: {kind: solver}}\n"
+                    "grid: {seed: [0, 1, 2, 3, 4, 5, 6, 7]}\n")
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.cli", "sweep", str(spec), "--out", str(out),
+         "--scheduler", "local", "--workers", "2"],
+        cwd=os.getcwd(), start_new_session=True, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and not list((out / "runs").glob("*.parquet")):
+            time.sleep(0.05)
+        assert list((out / "runs").glob("*.parquet")), "no run finished"
+        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert "Traceback" not in stderr, stderr
+    assert proc.returncode == 130, stderr
+    assert "interrupted: the runs that finished are kept" in stderr
