@@ -368,7 +368,7 @@ def sweep(
     Example: pmspm sweep examples/sweep.yaml --out runs/sweep --scheduler tcp://host:8786
     """
     from experiments.scenario import Scenario
-    from experiments.sweep import run_sweep, sweep_id
+    from experiments.sweep import SchedulerUnreachable, run_sweep, sweep_id
 
     _check_workers_and_scheduler(workers, scheduler)
     data = _load_yaml(spec)
@@ -391,6 +391,8 @@ def sweep(
     _writable_folder(out)
     try:
         df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+    except SchedulerUnreachable as exc:
+        _fail(str(exc))
     except KeyboardInterrupt:
         _interrupted()
     path = Path(out) / f"sweep-{sweep_id(configs)}.parquet"

@@ -47,6 +47,14 @@ def run_id(config: dict) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
 
+#: How long to try to connect to a Dask scheduler before giving up, s (our choice).
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The Dask scheduler given by address did not answer; nothing has run."""
+
+
 def sweep_id(configs: Iterable[dict]) -> str:
     """Content-derived id of a sweep: the first 16 hex digits of SHA-256 of its sorted, unique
     run ids (the order of the configs and repeated configs do not change it)."""
@@ -203,9 +211,12 @@ def run_sweep(
                 f.result()
                 bar.update(1)
         except BaseException:
-            # Ctrl-C or a failure of the pool: do not wait for the runs in flight (they finish
-            # and write their rows, or end with this process).
+            # Ctrl-C or a failure of the pool: stop now; the runs in flight are lost and
+            # recomputed on resume. (Python < 3.14 has no public way to end the workers.)
+            workers = list((pool._processes or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
+            for worker in workers:
+                worker.terminate()
             raise
         pool.shutdown()
     else:
@@ -226,7 +237,14 @@ def run_sweep(
                 signal.signal(signal.SIGINT, handler)
             client = Client(cluster)
         else:
-            client = Client(scheduler)
+            try:
+                client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+            except OSError as exc:  # distributed raises OSError (or TimeoutError) on failure
+                bar.close()
+                raise SchedulerUnreachable(
+                    f"cannot reach the Dask scheduler {scheduler!r} within "
+                    f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
+                ) from None
         try:
             futures = [client.submit(execute, target, c, out, pure=False) for c in todo]
             for f in dask_completed(futures):

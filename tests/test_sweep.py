@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import psutil
+import pytest
 
 from experiments.sweep import run_id, run_sweep, sweep_id, table
 
@@ -167,14 +168,15 @@ def test_sigkill_of_the_sweep_process_leaves_no_pool_workers(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
-def test_ctrl_c_under_dask_ends_without_worker_tracebacks(tmp_path):
+@pytest.mark.parametrize("backend", [["--scheduler", "local"], []], ids=["dask", "pool"])
+def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     spec = tmp_path / "spec.yaml"
     spec.write_text("base: {duration_s: 1.0, observer: {kind: solver}}\n"
                     "grid: {seed: [0, 1, 2, 3, 4, 5, 6, 7]}\n")
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.cli", "sweep", str(spec), "--out", str(out),
-         "--scheduler", "local", "--workers", "2"],
+         "--workers", "2", *backend],
         cwd=os.getcwd(), start_new_session=True, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -190,3 +192,5 @@ def test_ctrl_c_under_dask_ends_without_worker_tracebacks(tmp_path):
     assert "Traceback" not in stderr, stderr
     assert proc.returncode == 130, stderr
     assert "interrupted: the runs that finished are kept" in stderr
+    finished = list((out / "runs").glob("*.parquet"))
+    assert 1 <= len(finished) < 8  # stopped early, and what finished is kept
