@@ -67,14 +67,20 @@ def _load_yaml(path: Path) -> dict:
         _fail(str(exc))
 
 
-def _number(name: str, value: float | None, *, low: float = 0.0, strict: bool = False) -> None:
-    """Exit with a message unless ``value`` (an option) is finite and above ``low`` (``> low``
-    when ``strict``, else ``>= low``); None passes (the option's default)."""
+def _number(
+    name: str, value: float | None, *, low: float = 0.0, strict: bool = False,
+    high: float = math.inf, why: str = "",
+) -> None:
+    """Exit with a message unless ``value`` (an option) is finite, above ``low`` (``> low``
+    when ``strict``, else ``>= low``) and at most ``high``; None passes (the option's
+    default). ``why`` explains the bounds in the message."""
     if value is None:
         return
-    ok = math.isfinite(value) and (value > low if strict else value >= low)
+    ok = math.isfinite(value) and (value > low if strict else value >= low) and value <= high
     if not ok:
-        _fail(f"{name} must be a finite number {'>' if strict else '>='} {low:g}, got {value}")
+        upper = f" and <= {high:g}" if math.isfinite(high) else ""
+        _fail(f"{name} must be a finite number {'>' if strict else '>='} {low:g}{upper}, got "
+              f"{value}{why}")
 
 
 def _writable_folder(out: Path, option: str = "--out") -> Path:
@@ -269,9 +275,11 @@ def margins(
     )
     from plant.params import PlantParams
 
-    _number("--crossover-rad-s", crossover_rad_s, strict=True)
+    beyond = " (beyond it the margin computation does not finish)"
+    _number("--crossover-rad-s", crossover_rad_s, low=MIN_CROSSOVER_RAD_S,
+            high=MAX_CROSSOVER_RAD_S, why=beyond)
     _number("--frame-rate-hz", frame_rate_hz, strict=True)
-    _number("--delay-ms", delay_ms)
+    _number("--delay-ms", delay_ms, high=MAX_DELAY_MS, why=beyond)
     p = PlantParams()
     if frame_rate_hz * p.camera.exposure_s > 1.0:
         _fail(
@@ -305,6 +313,11 @@ def margins(
 #: Most runs in one sweep file (our choice: a grid this large is a typo, and expanding it
 #: would take the memory before any run starts).
 MAX_SWEEP_RUNS = 100_000
+
+
+#: Range of ``margins --crossover-rad-s`` and largest ``--delay-ms`` (our choice: the margin
+#: computation took up to 10 s at these bounds and did not finish at 1e9 rad/s or 1e300 ms).
+MIN_CROSSOVER_RAD_S, MAX_CROSSOVER_RAD_S, MAX_DELAY_MS = 1e-3, 1e4, 1000.0
 
 
 def _expand(base: dict, grid: dict) -> list[dict]:
@@ -575,21 +588,24 @@ def tune_kalman_cmd(
 
     Example: pmspm tune-kalman --delays-ms 16.33 --delays-ms 31.23 --trials 20 --workers 2
     """
-    from experiments.tuning import tune_kalman
+    from experiments.tuning import SEED_Q_SCALE, SEED_R_SCALE, TuningObjective, tune_kalman
 
-    if grid_points < 2 or trials < 0:
-        _fail(f"need --grid-points >= 2 and --trials >= 0, got {grid_points} and {trials}")
+    if not (2 <= grid_points <= 100 and trials >= 0):
+        _fail(f"need 2 <= --grid-points <= 100 and --trials >= 0, got {grid_points} and "
+              f"{trials}")
     _number("--duration-s", duration_s, strict=True)
     for d in delays_ms or []:
         _number("--delays-ms", d)
-        if d / 1e3 >= duration_s:
-            _fail(f"--delays-ms {d:g} is not shorter than --duration-s {duration_s:g} s: no "
-                  "estimate would arrive")
+    delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
+    try:  # the scenarios of the runs, validated here rather than in the workers
+        for d in delays:
+            TuningObjective(delay_s=d, duration_s=duration_s).configs(SEED_Q_SCALE, SEED_R_SCALE)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, "options")
     _check_workers_and_scheduler(workers, scheduler)
     _writable_folder(out)
     if storage is not None:
         _check_storage(storage)
-    delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
     try:
         result = tune_kalman(
             out,

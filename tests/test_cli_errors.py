@@ -49,6 +49,8 @@ OK_SWEEP = "base: {duration_s: 0.3}\ngrid: {seed: [0, 1]}\n"
 BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{n}: &{n} [{', '.join([f'*{p}'] * 9)}]\n" for p, n in zip("abcdefg", "bcdefgh", strict=True)
 )
+CROSSOVER_RANGE = "--crossover-rad-s must be a finite number >= 0.001 and <= 10000"
+DELAY_RANGE = "--delay-ms must be a finite number >= 0 and <= 1000"
 TILT_10_STOP = "plant: {rotor: {tilt_stop_deg: 10}}\n"
 
 CASES = [
@@ -304,14 +306,16 @@ CASES = [
          "warning: MPC bandwidth 150 rad/s is above the camera's Nyquist frequency",
          {"s.yaml": "controller: {kind: mpc, config: {bandwidth_rad_s: 150, step_s: 0.005}}\n"}),
     # --- margins --------------------------------------------------------------------------
-    command("margins-crossover-nan", "--crossover-rad-s must be a finite number > 0",
-            "margins", "--crossover-rad-s", "nan"),
-    command("margins-crossover-inf", "--crossover-rad-s must be a finite number > 0",
-            "margins", "--crossover-rad-s", "inf"),
-    command("margins-crossover-zero", "--crossover-rad-s must be a finite number > 0",
-            "margins", "--crossover-rad-s", "0"),
-    command("margins-crossover-negative", "--crossover-rad-s must be a finite number > 0",
-            "margins", "--crossover-rad-s", "-4"),
+    command("margins-crossover-nan", CROSSOVER_RANGE, "margins", "--crossover-rad-s", "nan"),
+    command("margins-crossover-inf", CROSSOVER_RANGE, "margins", "--crossover-rad-s", "inf"),
+    command("margins-crossover-zero", CROSSOVER_RANGE, "margins", "--crossover-rad-s", "0"),
+    command("margins-crossover-negative", CROSSOVER_RANGE, "margins", "--crossover-rad-s", "-4"),
+    command("margins-crossover-huge", "the margin computation does not finish", "margins",
+            "--crossover-rad-s", "1e9"),
+    command("margins-crossover-tiny", "--crossover-rad-s must be a finite number >= 0.001",
+            "margins", "--crossover-rad-s", "1e-9"),
+    command("margins-delay-huge", "the margin computation does not finish", "margins",
+            "--delay-ms", "1e300"),
     command("margins-crossover-text", "Invalid value for '--crossover-rad-s'", "margins",
             "--crossover-rad-s", "fast"),
     command("margins-frame-rate-nan", "--frame-rate-hz must be a finite number > 0",
@@ -324,12 +328,9 @@ CASES = [
             "margins", "--frame-rate-hz", "-36"),
     command("margins-frame-rate-unreachable", "more than the camera can reach", "margins",
             "--frame-rate-hz", "1000"),
-    command("margins-delay-nan", "--delay-ms must be a finite number >= 0", "margins",
-            "--delay-ms", "nan"),
-    command("margins-delay-inf", "--delay-ms must be a finite number >= 0", "margins",
-            "--delay-ms", "inf"),
-    command("margins-delay-negative", "--delay-ms must be a finite number >= 0", "margins",
-            "--delay-ms", "-5"),
+    command("margins-delay-nan", DELAY_RANGE, "margins", "--delay-ms", "nan"),
+    command("margins-delay-inf", DELAY_RANGE, "margins", "--delay-ms", "inf"),
+    command("margins-delay-negative", DELAY_RANGE, "margins", "--delay-ms", "-5"),
     command("margins-out-under-a-file", "cannot write results there", "margins", "--out",
             "{d}/f.txt/sub", files={"f.txt": "x"}),
     # --- measure-latency ------------------------------------------------------------------
@@ -369,16 +370,20 @@ CASES = [
             "--delays-ms", "inf", "--out", "{d}/t"),
     command("tune-delay-negative", "--delays-ms must be a finite number >= 0", "tune-kalman",
             "--delays-ms", "16", "--delays-ms", "-1", "--out", "{d}/t"),
-    command("tune-delay-longer-than-run", "not shorter than --duration-s", "tune-kalman",
+    command("tune-delay-longer-than-run", "is not shorter than duration_s", "tune-kalman",
             "--delays-ms", "5000", "--out", "{d}/t"),
+    command("tune-duration-too-long", "less than or equal to 3600", "tune-kalman",
+            "--duration-s", "7200", "--out", "{d}/t"),
+    command("tune-grid-points-huge", "--grid-points <= 100", "tune-kalman", "--grid-points",
+            "100000", "--out", "{d}/t"),
     command("tune-duration-zero", "--duration-s must be a finite number > 0", "tune-kalman",
             "--duration-s", "0", "--out", "{d}/t"),
     command("tune-duration-nan", "--duration-s must be a finite number > 0", "tune-kalman",
             "--duration-s", "nan", "--out", "{d}/t"),
     command("tune-duration-inf", "--duration-s must be a finite number > 0", "tune-kalman",
             "--duration-s", "inf", "--out", "{d}/t"),
-    command("tune-grid-points-one", "need --grid-points >= 2", "tune-kalman", "--grid-points",
-            "1", "--out", "{d}/t"),
+    command("tune-grid-points-one", "need 2 <= --grid-points <= 100", "tune-kalman",
+            "--grid-points", "1", "--out", "{d}/t"),
     command("tune-trials-negative", "--trials >= 0", "tune-kalman", "--trials", "-1", "--out",
             "{d}/t"),
     command("tune-workers-zero", "--workers must be >= 1", "tune-kalman", "--workers", "0",
@@ -464,3 +469,28 @@ def test_cli_mistake_exits_2_with_a_message(case: Case, tmp_path, monkeypatch):
     assert not isinstance(result.exception, AssertionError), output
     assert result.exit_code == case.code, output
     assert case.fragment in output, output
+
+
+def test_the_default_scenario_gives_no_reach_warning():
+    from experiments.scenario import Scenario
+
+    assert Scenario().reach_warnings() == []
+
+
+@pytest.mark.parametrize(
+    "crossover_rad_s, frame_rate_hz, warned",
+    [(110.0, 36.0, False), (116.0, 36.0, True), (116.0, 72.0, False), (230.0, 72.0, True)],
+)
+def test_the_nyquist_warning_sits_at_pi_times_the_frame_rate(
+    crossover_rad_s, frame_rate_hz, warned
+):
+    from experiments.scenario import Scenario
+
+    # pi x 36 frames/s = 113.1 rad/s; pi x 72 frames/s = 226.2 rad/s.
+    s = Scenario.model_validate(
+        {
+            "controller": {"kind": "pid", "config": {"crossover_rad_s": crossover_rad_s}},
+            "pipeline": {"frame_rate_hz": frame_rate_hz},
+        }
+    )
+    assert any("Nyquist" in w for w in s.reach_warnings()) == warned
