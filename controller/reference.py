@@ -317,7 +317,7 @@ class RandomSmooth(_Model):
     (relative error < 1e-5 for the defaults).
     """
 
-    seed: int = Field(0, description="Random seed (same seed, same trajectory).")
+    seed: int = Field(0, ge=0, description="Random seed (same seed, same trajectory).")
     max_rate_rad_s: float = Field(gt=0.0, description="Peak body angular rate, rad/s.")
     tilt_max_deg: float = Field(
         12.0,

@@ -397,30 +397,35 @@ class Scenario(_Model):
 
     @model_validator(mode="after")
     def _runnable(self) -> Scenario:
-        """Combinations that would fail or hang only once the run has started: the loop's own
-        checks (an observer latency not shorter than the run), a frame rate whose period is
-        shorter than the exposure, a controller clock faster than the physics, a reference
-        beyond the tilt stop."""
+        """Combinations that would fail, hang or silently do nothing once the run has started:
+        the loop's own checks (latencies not shorter than the run, a frame period shorter than
+        the exposure), a controller clock faster than the physics, a reference that starts
+        after the run or goes beyond the tilt stop."""
         try:
             self.loop_config()
         except ValidationError as exc:
             raise ValueError(
                 "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())
             ) from None
-        pipe, phys = self.pipeline, self.plant.physics_dt_s
-        if pipe.exposure_s > pipe.frame_period_s:
-            raise ValueError(
-                f"pipeline.frame_rate_hz = {pipe.frame_rate_hz:g} is more than the camera can "
-                f"reach with pipeline.exposure_s = {pipe.exposure_s:g} s (at most "
-                f"{1.0 / pipe.exposure_s:g} Hz: each frame is exposed within its period)"
-            )
+        phys = self.plant.physics_dt_s
         if self.controller_rate_hz is not None and self.controller_rate_hz * phys > 1.0:
             raise ValueError(
                 f"controller_rate_hz = {self.controller_rate_hz:g} is faster than the physics "
                 f"(1 / plant.physics_dt_s = {1.0 / phys:g} Hz)"
             )
+        ref_spec = self.reference
+        start_s = (
+            ref_spec.t_step_s
+            if isinstance(ref_spec, TiltStepSpec)
+            else float(ref_spec.args.get("t_start_s", 0.0))
+        )
+        if start_s >= self.duration_s:
+            raise ValueError(
+                f"the reference starts at {start_s:g} s, not before the run ends (duration_s = "
+                f"{self.duration_s:g} s): the run would only hold the initial attitude"
+            )
         stop = self.plant.rotor.tilt_stop_deg
-        ref = self.reference.build()
+        ref = ref_spec.build()
         times = np.linspace(0.0, self.duration_s, _TILT_CHECK_SAMPLES)
         tilt_deg = max(np.degrees(attitude.tilt(ref.sample(float(t)).q)) for t in times)
         if tilt_deg > stop + 1e-9:

@@ -108,11 +108,28 @@ class LoopConfig(BaseModel):
 
     @model_validator(mode="after")
     def _latency_fits(self) -> LoopConfig:
-        mean = self.pipeline.observer.mean_s
+        """Settings that would run without a single estimate or command, or that the camera
+        cannot do (the frame scheduler would stop the run at its first frame)."""
+        pipe = self.pipeline
+        mean = pipe.observer.mean_s
         if mean >= self.duration_s:
             raise ValueError(
                 f"pipeline.observer latency (mean {mean} s) is not shorter than duration_s "
                 f"({self.duration_s} s): no estimate would arrive"
+            )
+        if self.controller_latency != "measured":
+            total = mean + self.controller_latency.mean_s
+            if total >= self.duration_s:
+                raise ValueError(
+                    f"pipeline.observer latency plus controller_latency (means, {total:g} s) "
+                    f"is not shorter than duration_s ({self.duration_s} s): no command would "
+                    "take effect"
+                )
+        if pipe.exposure_s > pipe.frame_period_s:
+            raise ValueError(
+                f"pipeline.frame_rate_hz = {pipe.frame_rate_hz:g} is more than the camera can "
+                f"reach with pipeline.exposure_s = {pipe.exposure_s:g} s (at most "
+                f"{1.0 / pipe.exposure_s:g} Hz: each frame is exposed within its period)"
             )
         return self
 
