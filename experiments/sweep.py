@@ -32,6 +32,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -93,7 +94,7 @@ def _watch_parent(parent_pid: int) -> None:
 
     def poll() -> None:
         while os.getppid() == parent_pid:
-            threading.Event().wait(PARENT_POLL_S)
+            time.sleep(PARENT_POLL_S)
         os._exit(1)
 
     if os.getppid() != parent_pid:  # the parent died before the kernel watch was set
