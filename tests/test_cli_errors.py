@@ -300,6 +300,8 @@ CASES = [
          "cannot write results there", {"s.yaml": "seed: 1\n"}),
     Case("simulate-out-nul-byte", ("simulate", "{d}/s.yaml", "--out", "{d}/a\x00b"),
          "embedded null byte", {"s.yaml": "seed: 1\n"}),
+    # Warnings print after validation and before the output folder is checked: a file given
+    # as --out then stops these rows before the run.
     Case("warning-crossover-above-nyquist",
          ("simulate", "{d}/s.yaml", "--out", "{d}/s.yaml"),
          "warning: crossover 300 rad/s is above the camera's Nyquist frequency",
