@@ -143,11 +143,13 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_sigkill_of_the_sweep_process_leaves_no_pool_workers(tmp_path):
+@pytest.mark.parametrize("scheduler", [None, "local"], ids=["pool", "dask"])
+def test_sigkill_of_the_sweep_process_leaves_no_workers(tmp_path, scheduler):
     code = (
         "from experiments.sweep import run_sweep; "
         f"run_sweep('tests.test_sweep:sleeper', [{{'folder': {str(tmp_path)!r}, 'i': i}} "
-        f"for i in range(2)], {str(tmp_path / 'out')!r}, workers=2, progress=False)"
+        f"for i in range(2)], {str(tmp_path / 'out')!r}, scheduler={scheduler!r}, workers=2, "
+        "progress=False)"
     )
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=os.getcwd(),
                             start_new_session=True)
