@@ -99,15 +99,15 @@ def _writable_folder(out: Path, option: str = "--out") -> Path:
 def _new_folder(root: Path, label: str) -> Path:
     """A new folder ``<root>/<timestamp>-<label>`` (``-2``, ``-3``... if that exists): a run
     never writes into an earlier run's folder."""
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    for n in itertools.count(1):
-        folder = root / (f"{stamp}-{label}" if n == 1 else f"{stamp}-{label}-{n}")
+    name = f"{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}-{label}"
+    folder, n = root / name, 1
+    while True:
         try:
             folder.mkdir(parents=True, exist_ok=False)
             return folder
         except FileExistsError:
-            continue
-    raise AssertionError("unreachable")
+            n += 1
+            folder = root / f"{name}-{n}"
 
 
 #: A Dask scheduler address: [protocol://]host:port (or 'local' for a LocalCluster).
@@ -541,7 +541,7 @@ def bench_trackers(
         )
     except ValueError as exc:  # the options, checked before any sequence is rendered
         bar.close()
-        if new_folder:
+        if new_folder and not any(out.iterdir()):
             out.rmdir()
         _config_error(exc, "options")
     except KeyboardInterrupt:
