@@ -11,8 +11,9 @@
 * A restarted sweep skips every id whose file exists: an interrupted sweep (Ctrl-C, a killed
   worker, a crashed run) recomputes nothing that finished and loses nothing.
 * Local pool workers end when the sweep's process dies, even by SIGKILL (they watch their
-  parent), and ignore Ctrl-C (SIGINT), which the sweep's process handles: it stops waiting and
-  the command says what is kept. Dask LocalCluster workers ignore SIGINT the same way.
+  parent), and ignore Ctrl-C (SIGINT), which the sweep's process handles: it ends the workers
+  (the runs in flight are recomputed on resume) and re-raises ``KeyboardInterrupt``. Dask
+  LocalCluster workers ignore SIGINT the same way; the cluster is closed.
 * A run that raises records its error and traceback in its row; the sweep goes on.
 * Backends: a local process pool over this machine's cores (default), or Dask distributed
   (``scheduler="tcp://host:8786"``, or ``"local"`` for a ``LocalCluster``): the same function,
