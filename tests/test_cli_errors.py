@@ -507,3 +507,24 @@ def test_the_nyquist_warning_sits_at_pi_times_the_frame_rate(
         }
     )
     assert any("Nyquist" in w for w in s.reach_warnings()) == warned
+
+
+@pytest.mark.parametrize(
+    "fields, fragment",
+    [
+        ({"controller_rate_hz": float("inf")}, "finite number"),
+        ({"seed": -1}, "greater than or equal to 0"),
+        ({"pipeline": {"frame_rate_hz": 1000.0}}, "more than the camera can reach"),
+        ({"duration_s": 0.01}, "no estimate would arrive"),
+        ({"controller_latency": {"kind": "constant", "value_s": 1.0}}, "no command would"),
+    ],
+)
+def test_the_loop_config_rejects_what_cannot_run(fields, fragment):
+    """The loop's own settings check the same, for code that builds a loop without a
+    scenario (a 1 s run, a 2 ms exposure, GK-TransT's 16.33 ms by default)."""
+    from pydantic import ValidationError
+
+    from latency.loop import LoopConfig
+
+    with pytest.raises(ValidationError, match=fragment):
+        LoopConfig.model_validate({"duration_s": 1.0, **fields})
