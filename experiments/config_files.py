@@ -3,9 +3,9 @@
 ``load_mapping(path)`` returns the file's top-level mapping or raises ``ConfigFileError`` with
 one sentence that names the file and the problem: a missing file, a directory, a file too large
 or binary to be a configuration, an empty file, a YAML syntax error (with its line and column,
-and a hint when a tab indents), a key given twice in one mapping, aliases that expand into too
-many nodes (an "alias bomb": a few lines that expand into billions of nodes), or a top level
-that is not a mapping.
+and a hint when a tab indents), a key given twice in one mapping, nesting deeper than the
+parser's stack, aliases that expand into too many nodes (an "alias bomb": a few lines that
+expand into billions of nodes), or a top level that is not a mapping.
 Plain ``yaml.safe_load`` keeps the last of two duplicate keys silently and expands any alias.
 """
 
@@ -21,6 +21,8 @@ MAX_FILE_BYTES = 1_000_000
 #: Most YAML nodes in a file once its aliases (``*name``) are expanded: a scenario has a few
 #: hundred; a nine-level "billion laughs" bomb has 9**9 (our choice).
 MAX_NODES = 100_000
+#: Deepest nesting of mappings and lists: a scenario has five levels (our choice).
+MAX_DEPTH = 50
 
 
 class ConfigFileError(ValueError):
@@ -47,9 +49,12 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _expanded_size(node: yaml.Node, memo: dict[int, int]) -> int:
+def _expanded_size(node: yaml.Node, memo: dict[int, int], depth: int = 0) -> int:
     """Number of nodes under ``node`` with every alias expanded (an alias shares its anchor's
-    node object, so ``memo`` keeps this linear in the file's size)."""
+    node object, so ``memo`` keeps this linear in the file's size). Raises ``RecursionError``
+    below ``MAX_DEPTH`` levels, as the parser does when it runs out of stack."""
+    if depth > MAX_DEPTH:
+        raise RecursionError(f"more than {MAX_DEPTH} levels")
     key = id(node)
     if key not in memo:
         if isinstance(node, yaml.MappingNode):
@@ -58,7 +63,7 @@ def _expanded_size(node: yaml.Node, memo: dict[int, int]) -> int:
             children = node.value
         else:
             children = []
-        memo[key] = 1 + sum(_expanded_size(c, memo) for c in children)
+        memo[key] = 1 + sum(_expanded_size(c, memo, depth + 1) for c in children)
     return memo[key]
 
 
@@ -82,8 +87,8 @@ def load_mapping(path: str | Path) -> dict:
     ------
     ConfigFileError
         If the file is missing, not a regular file, larger than ``MAX_FILE_BYTES``, binary,
-        empty, not valid YAML, has duplicate keys, expands into more than ``MAX_NODES`` nodes,
-        or is not a mapping.
+        empty, not valid YAML, has duplicate keys, nests deeper than ``MAX_DEPTH`` levels,
+        expands into more than ``MAX_NODES`` nodes, or is not a mapping.
     """
     p = Path(path)
     if not p.exists():
@@ -110,16 +115,19 @@ def load_mapping(path: str | Path) -> dict:
     loader = _StrictLoader(text)
     try:
         node = loader.get_single_node()
-        if node is not None and _expanded_size(node, {}) > MAX_NODES:
-            raise ConfigFileError(
-                f"{p}: more than {MAX_NODES} YAML nodes once its aliases are expanded (an alias "
-                "bomb?); write the settings out"
-            )
-        data = None if node is None else loader.construct_document(node)
+        size = 0 if node is None else _expanded_size(node, {})
+        data = None if node is None or size > MAX_NODES else loader.construct_document(node)
     except yaml.YAMLError as exc:
         raise ConfigFileError(f"{p}: not valid YAML: {_yaml_problem(exc)}") from None
+    except RecursionError:  # the parser recurses once per level of nesting
+        raise ConfigFileError(f"{p}: nested more than {MAX_DEPTH} levels deep") from None
     finally:
         loader.dispose()
+    if size > MAX_NODES:
+        raise ConfigFileError(
+            f"{p}: more than {MAX_NODES} YAML nodes once its aliases are expanded (an alias "
+            "bomb?); write the settings out"
+        )
     if data is None:
         raise ConfigFileError(f"{p}: the file is empty (no settings); write at least one field")
     if not isinstance(data, dict):
