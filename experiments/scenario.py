@@ -401,6 +401,9 @@ class Scenario(_Model):
         the loop's own checks (latencies not shorter than the run, a frame period shorter than
         the exposure), a controller clock faster than the physics, a reference that starts
         after the run or goes beyond the tilt stop."""
+        where = _non_finite(self.model_dump())  # also infinities given as text ("inf")
+        if where is not None:
+            raise ValueError(f"{where} must be a finite number (got inf or nan)")
         try:
             self.loop_config()
         except ValidationError as exc:
