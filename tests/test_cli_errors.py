@@ -2,8 +2,9 @@
 problem, without a traceback, before any expensive work (docs/reliability.md).
 
 Every row runs in-process (typer's CliRunner). The expensive entry points (a run, a sweep, a
-latency measurement, the study, the demo, the tuning, rendering the tracking sequences) are
-replaced by functions that fail the test, so a row passes only if its mistake is caught first.
+latency measurement, the study, the demo, the tuning, rendering the tracking sequences, the
+margins) are replaced by functions that fail the test, so a row passes only if its mistake is
+caught first.
 """
 
 from __future__ import annotations
@@ -449,6 +450,7 @@ def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
     import experiments.study
     import experiments.sweep
     import experiments.tuning
+    import latency.margins
     import latency.profile
 
     def work(*args, **kwargs):
@@ -463,6 +465,7 @@ def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
         (experiments.sequences, "validation_suite"),
         (latency.profile, "measure_locator_latency"),
         (latency.profile, "measure_orb_latency"),
+        (latency.margins, "attitude_margins"),
     ]:
         monkeypatch.setattr(module, name, work)
 
