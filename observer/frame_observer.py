@@ -22,6 +22,7 @@ an estimate with ``valid=False``, ``lost=True`` and a reason that starts with ``
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -60,6 +61,9 @@ class MarkerLocator:
     tracker : object with ``init(frame, box)`` and ``track(frame) -> (box, score)`` (image px);
         default OpenCV KCF.
     gk : GKAssist, optional
+    clock : callable returning seconds, default ``time.perf_counter``
+        Times ``locate`` (``compute_time_s``); tests inject a stand-in so that the latency does
+        not depend on machine load.
 
     ``start(frame, box_sensor_px)`` initialises the tracker on the red marker (a user's first-frame
     annotation). When the GK assistance had to stand in for the tracker, the tracker is restarted
@@ -67,8 +71,15 @@ class MarkerLocator:
     check D_exp = L·S·cos β.
     """
 
-    def __init__(self, params: PlantParams, tracker=None, gk: GKAssist | None = None) -> None:
+    def __init__(
+        self,
+        params: PlantParams,
+        tracker=None,
+        gk: GKAssist | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.params = params
+        self.clock = clock
         self.tracker = tracker or OpenCVTracker("kcf")
         self.gk = gk or GKAssist(params)
         self.tilt_hint_rad: float | None = None
@@ -108,7 +119,7 @@ class MarkerLocator:
         A bad frame (``check_frame``) is not shown to the tracker; the GK assistance predicts
         through it and the result is ``lost`` with the problem in ``reason`` and ``bad_frame``.
         """
-        t0 = time.perf_counter()
+        t0 = self.clock()
         if not self.started:
             raise RuntimeError("start() the locator on the red marker's box first")
         bad = self.check_frame(image, binning)
@@ -134,14 +145,15 @@ class MarkerLocator:
                 reason = f"{reason}; tracker not restarted: {exc}" if reason else \
                     f"tracker not restarted: {exc}"
         return Located(res.marker_px, res.lost or bool(bad), reason,
-                       time.perf_counter() - t0, res, bad)
+                       self.clock() - t0, res, bad)
 
 
 class FrameObserver:
     """``update(frame, t_exposure) -> Estimate`` from a locator and a pixel back end.
 
-    The estimate is released immediately (``t_available = t_exposure`` + the measured compute
-    time); the timed loop instead releases through its latency model.
+    The estimate is released immediately (``t_available = t_exposure`` + the compute time
+    measured by the locator's ``clock``); the timed loop instead releases through its latency
+    model.
 
     A bad frame (``MarkerLocator.check_frame``) reaches the back end as a lost frame (it
     predicts or holds) and the estimate is flagged ``valid=False``, ``lost=True``, with a reason
@@ -164,12 +176,12 @@ class FrameObserver:
     def update(self, frame, t_exposure: float) -> Estimate:
         """Estimate from one ``plant.scene.Frame`` (or any object with ``image`` and
         ``binning``) taken at mid-exposure ``t_exposure`` (s)."""
-        t0 = time.perf_counter()
+        t0 = self.locator.clock()
         image = getattr(frame, "image", None)
         binning = getattr(frame, "binning", None)
         loc = self.locator.locate(image, binning)  # type: ignore[arg-type]
         self.backend.process(loc.marker_px, t_exposure, loc.lost, loc.reason, loc.compute_time_s)
-        elapsed = time.perf_counter() - t0
+        elapsed = self.locator.clock() - t0
         est = self.backend.release(t_exposure + elapsed)
         reason = est.reason
         if loc.reason and loc.reason not in reason:

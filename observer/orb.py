@@ -33,6 +33,7 @@ image, a textureless or blurred frame) gives a measurement with ``valid=False`` 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -289,8 +290,14 @@ class OrbFrontEnd:
     """ORB keypoints of a frame matched to an ``OrbReference`` (see the module docstring)."""
 
     def __init__(
-        self, params: PlantParams, reference: OrbReference, config: OrbConfig | None = None
+        self,
+        params: PlantParams,
+        reference: OrbReference,
+        config: OrbConfig | None = None,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
+        #: Times ``measure`` (``compute_time_s``), s; tests inject a stand-in.
+        self.clock = clock
         self.params = params
         self.reference = reference
         self.config = config or OrbConfig()
@@ -377,10 +384,10 @@ class OrbFrontEnd:
 
     def measure(self, image: NDArray[np.uint8], binning: int) -> OrbMeasurement:
         """Match the ORB keypoints of an RGB ``image`` binned by ``binning`` to the reference."""
-        t0 = time.perf_counter()
+        t0 = self.clock()
 
         def done(m: OrbMeasurement) -> OrbMeasurement:
-            return replace(m, compute_time_s=time.perf_counter() - t0)
+            return replace(m, compute_time_s=self.clock() - t0)
 
         c, ref = self.config, self.reference
         if binning != ref.binning:
