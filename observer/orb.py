@@ -26,8 +26,8 @@ observes their pixels under the current attitude (Eq. 13). Here:
 
 Pixels are full-sensor pixels unless a name says ``image``; frames are RGB, binned by
 ``binning`` (``plant.camera.sensor_to_image``). Bad input (an empty, NaN or wrongly shaped
-image, a textureless or blurred frame) gives a measurement with ``valid=False`` and a
-``reason``, never an exception in a loop.
+image, a frame whose size is not the sensor's at its binning, a textureless or blurred frame)
+gives a measurement with ``valid=False`` and a ``reason``, never an exception in a loop.
 """
 
 from __future__ import annotations
@@ -399,6 +399,15 @@ class OrbFrontEnd:
         gray = _to_gray(image)
         if isinstance(gray, str):
             return done(OrbMeasurement.invalid(gray))
+        cam = self.params.camera
+        expected = (cam.sensor_height_px // binning, cam.sensor_width_px // binning)
+        if gray.shape != expected:  # e.g. a resized frame: its pixels would mean other rays
+            return done(
+                OrbMeasurement.invalid(
+                    f"frame size {gray.shape[1]} x {gray.shape[0]} px does not match the camera "
+                    f"at binning {binning}: expected {expected[1]} x {expected[0]} px"
+                )
+            )
         kps, desc = self._orb.detectAndCompute(gray, None)
         n_kp = len(kps)
         if desc is None or n_kp < 2:

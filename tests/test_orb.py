@@ -498,6 +498,29 @@ def test_too_few_matches_gives_invalid_measurements_with_reasons(renderer, refer
     assert not m.valid and "binning" in m.reason
 
 
+def test_a_frame_of_another_size_than_the_camera_is_rejected(renderer, reference):
+    """A half-size frame at binning 4 (a resized view of a 6° tilt) would be matched as the
+    print seen from elsewhere (it gave a valid 37° tilt): it is rejected before matching, and
+    the observer's estimate for it is not a measured attitude."""
+    q = A.from_zyz(0.3, np.deg2rad(6.0), -0.3)
+    f = renderer.render(q)
+    half = cv2.resize(f.image, (f.image.shape[1] // 2, f.image.shape[0] // 2),
+                      interpolation=cv2.INTER_AREA)
+    fe = OrbFrontEnd(P, reference)
+    m = fe.measure(half, f.binning)
+    assert not m.valid and "does not match the camera at binning 4" in m.reason, m.reason
+    assert "306 x 256" in m.reason and "612 x 512" in m.reason
+    assert fe.measure(f.image, f.binning).valid  # the full frame is fine
+    alone = OrbObserver(P, reference, "orb")
+    e = alone.update(replace(f, image=half), 0.0)
+    assert not e.valid and np.all(np.isnan(e.q)) and "does not match" in e.reason
+    aekf = OrbObserver(P, reference, "aekf")
+    aekf.reset(q, 0.0)
+    e = aekf.update(replace(f, image=half), 0.01)  # predicted through, flagged lost
+    assert e.lost and "does not match" in e.reason
+    assert A.geodesic_angle(e.q, q) < np.deg2rad(0.1)
+
+
 def test_filter_predicts_through_bad_frames(sequence, sequence_measurements, reference):
     qs, _, frames = sequence
     blur = [replace(f, image=cv2.GaussianBlur(f.image, (0, 0), 6.0)) for f in frames]
