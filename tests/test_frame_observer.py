@@ -231,3 +231,27 @@ def test_coasting_through_black_frames_is_flagged_and_bounded_then_reacquired(ki
         if e.valid:
             error = np.degrees(A.geodesic_angle(e.q, cone(e.state_time)))
             assert error < (0.5 if e.lost else 0.3), (k, error)
+
+
+def test_trackers_flag_featureless_frames():
+    """All-black and all-white frames have nothing to track (OpenCV's KCF scored a black frame
+    1.0): every single-object tracker returns a NaN box and score 0, OpenCV's with the reason,
+    and the next real frame still tracks the marker (against the renderer's truth)."""
+    from observer.trackers import NumpyKCF
+
+    renderer = AnalyticRenderer(P, seed=8)
+    f = renderer.render(cone(0.0))
+    box = box_sensor_to_image(f.boxes_px[0], f.binning)
+    featureless = {"black": np.zeros_like(f.image), "white": np.full_like(f.image, 255),
+                   "grey": np.full_like(f.image, 128)}
+    for tr in (OpenCVTracker("kcf"), OpenCVTracker("csrt"), NumpyKCF()):
+        tr.init(f.image, box)
+        for name, img in featureless.items():
+            b, s = tr.track(img)
+            assert np.all(np.isnan(b)) and s == 0.0, (tr, name)
+            if isinstance(tr, OpenCVTracker):
+                assert "frame is uniform" in tr.reason, (tr.kind, name, tr.reason)
+        b, s = tr.track(f.image)
+        assert s > 0
+        c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
+        assert np.linalg.norm(c - f.marker_px[0]) < 3.0

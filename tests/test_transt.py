@@ -468,10 +468,19 @@ def test_track_survives_bad_input(clean_frame) -> None:
         np.zeros((0, 0, 3), np.uint8),  # empty
         clean_frame.image[..., :2],  # wrong shape
         None,
+        np.full_like(clean_frame.image, 255),  # all white
     ]
     for frame in bad:
         box, score = trk.track(frame)
         assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
+        assert np.allclose(trk.centre_image_px, state)
+    # A valid RGB frame of another size than the init frame (it scored 0.99 before): its
+    # pixels are not the coordinates the track is kept in.
+    img = clean_frame.image
+    for other in (np.ascontiguousarray(img[::2, ::2]), np.pad(img, ((0, 8), (0, 8), (0, 0)))):
+        box, score = trk.track(other)
+        assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
+        assert "differs from the init frame" in trk.last.status, trk.last.status
         assert np.allclose(trk.centre_image_px, state)
     box, score = trk.track(clean_frame.image, search_centre_image_px=[np.nan, 3.0])
     assert np.all(np.isnan(box)) and "search_centre" in trk.last.status
