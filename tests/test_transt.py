@@ -249,7 +249,18 @@ def test_corrupt_or_missing_weights_are_refused(tmp_path) -> None:
     with pytest.raises(WeightsError, match="not found") as err:
         load_weights(tmp_path / "nothing.pt")
     assert REBUILD_COMMAND in str(err.value)
-    (tmp_path / "transt_small.pt.sha256").unlink()
+    checksum = tmp_path / "transt_small.pt.sha256"
+    for text, words in (("", "is empty"), ("  \n", "is empty"),
+                        ("abc123  transt_small.pt\n", "64-digit hex"),
+                        ("z" * 64 + "  transt_small.pt\n", "64-digit hex")):
+        checksum.write_text(text)  # an empty .sha256 raised IndexError before
+        with pytest.raises(WeightsError, match=words) as err:
+            load_weights(copy)
+        assert str(checksum) in str(err.value) and REBUILD_COMMAND in str(err.value)
+    checksum.write_bytes(b"\xff\xfe")
+    with pytest.raises(WeightsError, match="cannot be read as text"):
+        load_weights(copy)
+    checksum.unlink()
     with pytest.raises(WeightsError, match="checksum file not found"):
         load_weights(copy)
 
