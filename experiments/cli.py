@@ -351,6 +351,10 @@ def bench_trackers(
             torch.set_num_threads(max(1, torch_threads))
         except ImportError:
             pass
+    try:  # TransT rows without the shipped network: fail here, not omit them silently
+        tb.tracker_factories(tracker_list, stand_in, require_transt=True)
+    except ValueError as exc:
+        _config_error(exc, "options")
     if out is None:
         stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path("runs") / f"{stamp}-bench-trackers"
@@ -361,7 +365,7 @@ def bench_trackers(
         report = tb.run_tracking_benchmark(
             out, seeds=seeds, frames=frames, cases=case_list, trackers=tracker_list,
             stand_in=stand_in, progress=lambda msg: bar.set_postfix_str(msg, refresh=True),
-            on_step=lambda: bar.update(1),
+            on_step=lambda: bar.update(1), require_transt=True,
         )
     except ValueError as exc:
         bar.close()

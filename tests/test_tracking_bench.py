@@ -4,6 +4,7 @@ independent computations, the CVAT round trip, and the pipeline with a tracker o
 from __future__ import annotations
 
 import math
+import shutil
 import textwrap
 
 import cv2
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from experiments import cvat
+from experiments import tracking_bench as tb
 from experiments.sequences import (
     BLUR_FRAMES,
     K_DOWNSAMPLE,
@@ -394,3 +396,32 @@ def test_benchmark_on_a_cvat_folder(tmp_path):
     assert (tmp_path / "out" / f"{loaded.name}_precision.png").exists()
     with pytest.raises(ValueError, match="binned"):
         cvat.load_cvat_sequence(frames, xml, PlantParams(camera={"sensor_width_px": 2000}))
+
+
+def test_broken_transt_weights_fail_bench_trackers_naming_the_rows(tmp_path, monkeypatch):
+    """Weights whose .sha256 is empty: ``bench-trackers --trackers gk_transt,kcf`` exits with
+    status 2 and says which rows need the network and why, before any output is written (it
+    exited 0 and left the GK-TransT rows out); the library call leaves them out and says so."""
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+    from observer.transt.tracker import TransTTracker
+    from observer.transt.weights import SMALL_WEIGHTS
+
+    broken = tmp_path / "transt_small.pt"
+    shutil.copy(SMALL_WEIGHTS, broken)
+    (tmp_path / "transt_small.pt.sha256").write_text("")
+    small = TransTTracker.small.__func__
+    monkeypatch.setattr(TransTTracker, "small",
+                        classmethod(lambda cls, weights=broken, **kw: small(cls, weights, **kw)))
+    factories, note = tb.tracker_factories(["gk_transt", "kcf"])
+    assert list(factories) == ["kcf"]
+    assert "gk_transt skipped" in note and "is empty" in note
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["bench-trackers", "--seeds", "1", "--cases", "clean",
+                                      "--frames", "3", "--trackers", "gk_transt,kcf",
+                                      "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output and not out.exists()
+    for words in ("gk_transt need the shipped TransT network", "is empty", "--stand-in"):
+        assert words in result.output, result.output
