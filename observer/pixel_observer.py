@@ -66,7 +66,9 @@ class FilterObserver:
         After this long (s) without an accepted measurement the estimate is flagged invalid.
         Re-acquisition: a measurement the filter rejects after that long (its prediction has
         drifted outside the innovation gate) restarts the filter from the per-frame solve of
-        the pixels (``solver``); ``restarts`` counts these.
+        the pixels (``solver``; ``restarts`` counts these), and the estimate is valid again
+        once the restarted filter accepts a following measurement (so that a single outlier
+        cannot restart it into a valid wrong attitude).
     solver : AttitudeSolver, optional
         The per-frame solve for the restart (default
         ``observer.cor_solver.CorSolver(CorModel.nominal(params))``).
@@ -131,10 +133,12 @@ class FilterObserver:
         else:
             r = self.filter.update(z, t_exposure)
             accepted, result_reason = r.accepted, r.reason
-            if not accepted and t_exposure - self._last_accepted > self.max_coast_s:
-                accepted = self._restart(z, t_exposure)
-                if accepted:
-                    result_reason = f"filter restarted from the per-frame solve ({r.reason})"
+            stale = t_exposure - self._last_accepted > self.max_coast_s
+            if not accepted and stale and self._restart(z, t_exposure):
+                # Not yet accepted: one frame (maybe an outlier) is not a track; the next
+                # measurement the restarted filter accepts makes the estimate valid again.
+                result_reason = (f"filter restarted from the per-frame solve ({r.reason}); "
+                                 "valid after its next accepted measurement")
         if accepted:
             self._last_accepted = t_exposure
         self._pending = (z, t_exposure, lost, result_reason, compute_time_s)

@@ -12,6 +12,7 @@ from observer.pixel_observer import FilterObserver, SolverObserver
 from plant import attitude as A
 from plant.params import PlantParams
 from plant.render_analytic import AnalyticRenderer
+from tests.fake_clock import StepClock
 
 P = PlantParams()
 
@@ -24,7 +25,9 @@ def cone(t):
 
 def run(backend, n=40):
     renderer = AnalyticRenderer(P, seed=3)
-    obs = FrameObserver(MarkerLocator(P), backend)
+    # The estimate is released after the locator's measured time: an injected clock (2-10 ms
+    # per reading) keeps the release times, and so the validity, independent of machine load.
+    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
     obs.reset(cone(0.0), 0.0)
     errors, ests = [], []
     dt = 1.0 / P.camera.frame_rate_hz
@@ -103,7 +106,7 @@ class _Frame:
 
 def _started_observer(backend, seed=5):
     renderer = AnalyticRenderer(P, seed=seed)
-    obs = FrameObserver(MarkerLocator(P), backend)
+    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
     obs.reset(cone(0.0), 0.0)
     first = renderer.render(cone(0.0), t_exposure=0.0)
     obs.start(first.image, first.binning, first.boxes_px[0])
@@ -201,7 +204,7 @@ def test_coasting_through_black_frames_is_flagged_and_bounded_then_reacquired(ki
     against the cone is small."""
     backend = (SolverObserver(CorSolver(CorModel.nominal(P))) if kind == "solver"
                else FilterObserver(P, compensate_delay=False))
-    obs = FrameObserver(MarkerLocator(P), backend)
+    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
     assert obs.max_coast_s == 0.1
     renderer = AnalyticRenderer(P, seed=3)
     obs.reset(cone(0.0), 0.0)
@@ -255,3 +258,29 @@ def test_trackers_flag_featureless_frames():
         assert s > 0
         c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
         assert np.linalg.norm(c - f.marker_px[0]) < 3.0
+
+
+def test_filter_restart_needs_a_confirming_measurement():
+    """After a long outage the filter restarts from the per-frame solve of a rejected
+    measurement, but the estimate is valid only once the restarted filter accepts the next
+    one: a single outlier (pixels of an attitude 10° away) cannot make a wrong attitude
+    valid; the true pixels that follow restart it again and then confirm it."""
+    from plant.camera import marker_pixels
+
+    obs = FilterObserver(P, compensate_delay=False)
+    q_true = cone(0.0)
+    obs.reset(q_true, 0.0)
+    obs.process(marker_pixels(P, q_true), 0.0)
+    assert obs.release(0.0).valid
+    # 1 s without frames (the rotor held still), then an outlier and the true pixels.
+    q_far = A.multiply(q_true, A.from_rotvec([np.deg2rad(10.0), 0.0, 0.0]))
+    steps = [(1.0, q_far), (1.03, q_true), (1.06, q_true), (1.09, q_true)]
+    ests = []
+    for t, q in steps:
+        obs.process(marker_pixels(P, q), t)
+        ests.append(obs.release(t))
+    outlier, first_true, second_true, third_true = ests
+    assert not outlier.valid and "restarted" in outlier.reason and obs.restarts == 2
+    assert not first_true.valid and "restarted" in first_true.reason
+    assert second_true.valid and third_true.valid and obs.restarts == 2
+    assert np.degrees(A.geodesic_angle(third_true.q, q_true)) < 0.05
