@@ -294,16 +294,17 @@ def _expand_track(
     items: list[tuple[int, NDArray, bool, bool]], n: int
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Per-frame boxes (n, 4) and occluded flags of one track: linear interpolation between
-    listed boxes, absent from an ``outside`` box to the next listed one."""
+    listed boxes, absent from an ``outside`` box to the next listed one. The frame indices of
+    ``items`` are in [0, n) (``read_cvat_xml`` checked them)."""
     bx = np.full((n, 4), np.nan)
     oc = np.zeros(n, bool)
     for i, (k, box, outside, occ) in enumerate(items):
-        if outside or not (0 <= k < n):
+        if outside:
             continue
         bx[k], oc[k] = box, occ
         if i + 1 < len(items):
             k2, box2, _, _ = items[i + 1]
-            for j in range(k + 1, min(k2, n)):
+            for j in range(k + 1, k2):
                 a = (j - k) / (k2 - k)
                 bx[j] = (1.0 - a) * box + a * box2
                 oc[j] = occ
