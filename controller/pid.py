@@ -70,6 +70,7 @@ over the elapsed time; the derivative filter is the exact zero-order-hold discre
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from functools import lru_cache
 from typing import Literal
 
@@ -294,10 +295,18 @@ class PIDController:
     ``command(estimate, reference, t)`` returns the stator-frame torque (N·m) to apply from ``t``.
     Attributes after each call: ``last_torque`` (N·m, stator), ``last_saturated``,
     ``last_compute_time_s`` and ``compute_times_s`` (wall clock per call, s), ``invalid_count``.
+    ``clock`` (default ``time.perf_counter``, s) times the calls; tests inject a stand-in so that
+    the timing does not depend on machine load.
     """
 
-    def __init__(self, config: PIDConfig | None = None, params: PlantParams | None = None) -> None:
+    def __init__(
+        self,
+        config: PIDConfig | None = None,
+        params: PlantParams | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.config = cfg = config or PIDConfig()
+        self.clock = clock
         self.params = params or PlantParams()
         J = (
             np.asarray(cfg.inertia_kgm2, dtype=float)
@@ -365,11 +374,11 @@ class PIDController:
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
         """Stator-frame torque (N·m) from time ``t`` (s); see the module docstring."""
-        t0 = time.perf_counter()
+        t0 = self.clock()
         try:
             return self._command(estimate, reference, float(t))
         finally:
-            self.last_compute_time_s = time.perf_counter() - t0
+            self.last_compute_time_s = self.clock() - t0
             self.compute_times_s.append(self.last_compute_time_s)
 
     # --- internals -----------------------------------------------------------------------------

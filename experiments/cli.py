@@ -521,6 +521,10 @@ def bench_trackers(
     tracker_list = _names(trackers) or list(tb.DEFAULT_TRACKERS)
     if torch_threads < 1:
         _fail(f"--torch-threads must be >= 1, got {torch_threads}")
+    try:  # TransT rows without the shipped network: fail here, not omit them silently
+        tb.tracker_factories(tracker_list, stand_in, require_transt=True)
+    except ValueError as exc:
+        _config_error(exc, "options")
     new_folder = out is None
     out = _new_folder(_writable_folder(Path("runs")), "bench-trackers") if new_folder else (
         _writable_folder(out))
@@ -537,7 +541,7 @@ def bench_trackers(
         report = tb.run_tracking_benchmark(
             out, seeds=seeds, frames=frames, cases=case_list, trackers=tracker_list,
             stand_in=stand_in, progress=lambda msg: bar.set_postfix_str(msg, refresh=True),
-            on_step=lambda: bar.update(1),
+            on_step=lambda: bar.update(1), require_transt=True,
         )
     except ValueError as exc:  # the options, checked before any sequence is rendered
         bar.close()

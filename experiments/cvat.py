@@ -18,6 +18,13 @@ with labels ``red`` and ``yellow`` in a CVAT task made from the frames, export "
 * when one label has several tracks, a frame takes the first track that has a visible box;
 * other shapes, tracks of other labels and attributes are ignored.
 
+**Validation.** A file that breaks these rules raises ``CvatError`` (a ``ValueError``) naming the
+file, the line and the element, before any per-frame array is allocated: a box whose ``frame``
+is missing or not an integer, lies before ``start_frame`` or beyond the frame count (the
+frames given, else the task's ``size``, else ``stop_frame``, else ``MAX_UNDECLARED_FRAMES``); a
+box with a missing or non-finite coordinate; a box with a negative width or height (or an empty
+one that is not ``outside``).
+
 **Coordinates.** CVAT measures boxes from the top-left *corner* of the image (the first pixel
 spans [0, 1]); this package uses OpenCV's pixel-*centre* convention (the first pixel's centre is
 0). So ``x_ours = xtl - 0.5`` and ``xbr = x_ours + w + 0.5``, in pixels of the annotated frames;
@@ -34,6 +41,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from xml.parsers import expat
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +53,14 @@ from plant.params import PlantParams
 LABELS = ("red", "yellow")
 LABEL_COLOURS = {"red": "#ff0000", "yellow": "#ffd700"}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: Our choice: the largest frame count accepted from a file that declares none (no ``size`` or
+#: ``stop_frame``): 10⁶ frames (7.7 h at 36 fps) of two labels are 64 MB of boxes.
+MAX_UNDECLARED_FRAMES = 1_000_000
+
+
+class CvatError(ValueError):
+    """A CVAT XML file that cannot be read as the annotation of the marker pair; the message
+    names the file, and the line and element where there is one."""
 
 
 @dataclass
@@ -157,30 +173,90 @@ def _int(el: ET.Element | None, default: int = 0) -> int:
         return default
 
 
+def _element_lines(data: bytes) -> list[int]:
+    """Line of each element's start tag, in document order (ElementTree keeps no lines)."""
+    lines: list[int] = []
+    parser = expat.ParserCreate()
+    parser.StartElementHandler = lambda name, attrs: lines.append(parser.CurrentLineNumber)
+    parser.Parse(data, True)
+    return lines
+
+
+def _box(
+    b: ET.Element, start: int, limit: tuple[int, str], where: str
+) -> tuple[int, NDArray, bool, bool]:
+    """(frame index from ``start_frame``, box (x, y, w, h), outside, occluded) of a ``<box>``;
+    ``CvatError`` (with ``where``) if it breaks the rules of the module docstring. ``limit`` is
+    the frame count and how the message names it."""
+    try:
+        frame = int(b.get("frame", ""))
+    except ValueError:
+        raise CvatError(f"{where}: frame={b.get('frame')!r} is not an integer") from None
+    if frame < start:
+        raise CvatError(f"{where}: frame {frame} is before start_frame {start}")
+    if frame - start >= limit[0]:
+        raise CvatError(f"{where}: frame {frame} is beyond the {limit[1]}")
+    coords = []
+    for name in ("xtl", "ytl", "xbr", "ybr"):
+        try:
+            v = float(b.get(name, ""))
+        except ValueError:
+            v = float("nan")
+        if not np.isfinite(v):
+            raise CvatError(f"{where}: coordinate {name}={b.get(name)!r} is missing or not a "
+                            "finite number")
+        coords.append(v)
+    xtl, ytl, xbr, ybr = coords
+    outside = b.get("outside", "0") == "1"
+    w, h = xbr - xtl, ybr - ytl
+    if w < 0 or h < 0 or (not outside and (w == 0 or h == 0)):
+        raise CvatError(f"{where}: width {w:g} and height {h:g} px (xbr - xtl, ybr - ytl) "
+                        "must be positive")
+    return frame - start, np.array([xtl - 0.5, ytl - 0.5, w, h]), outside, \
+        b.get("occluded", "0") == "1"
+
+
 def read_cvat_xml(path: Path | str, labels: Sequence[str] = LABELS,
                   n_frames: int | None = None) -> CvatTracks:
     """Read the box tracks of ``labels`` from a CVAT for video 1.1 XML (see the module
-    docstring). Raises ``ValueError`` if the file is not CVAT XML or has no track of a label."""
+    docstring). ``n_frames`` (the frames annotated, e.g. the files of a folder) bounds the
+    frame numbers; without it the task's declared size does. Raises ``CvatError`` (a
+    ``ValueError``) if the file is not CVAT XML, has no track of a label or has a bad box."""
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise ValueError(f"{path}: not an XML file ({exc})") from exc
+        data = Path(path).read_bytes()
+        root = ET.fromstring(data)
+        lines = _element_lines(data)
+    except (ET.ParseError, expat.ExpatError) as exc:
+        raise CvatError(f"{path}: not an XML file ({exc})") from exc
+    except OSError as exc:
+        raise CvatError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+    line_of = dict(zip(map(id, root.iter()), lines, strict=True))
     if root.tag != "annotations":
-        raise ValueError(f"{path}: root element is <{root.tag}>, expected <annotations>")
+        raise CvatError(f"{path}: root element is <{root.tag}>, expected <annotations>")
     version = (root.findtext("version") or "").strip()
     if version and not version.startswith("1."):
-        raise ValueError(f"{path}: CVAT XML version {version!r}; this reader knows 1.x")
+        raise CvatError(f"{path}: CVAT XML version {version!r}; this reader knows 1.x")
     task = root.find("meta/task")
     if task is None:
         task = root.find("meta/job")
     start = _int(task.find("start_frame")) if task is not None else 0
     size = _int(task.find("size")) if task is not None else 0
+    stop = _int(task.find("stop_frame"), -1) if task is not None else -1
     width = _int(task.find("original_size/width")) if task is not None else 0
     height = _int(task.find("original_size/height")) if task is not None else 0
     name = (task.findtext("name") or "") if task is not None else ""
+    if n_frames is not None:
+        limit = (n_frames, f"{n_frames} frames given")
+    elif size > 0:
+        limit = (size, f"task's size of {size} frames")
+    elif stop >= start:
+        limit = (stop - start + 1, f"task's stop_frame {stop}")
+    else:
+        limit = (MAX_UNDECLARED_FRAMES, f"{MAX_UNDECLARED_FRAMES} frames accepted from a file "
+                 "that declares no size or stop_frame")
     tracks = root.findall("track")
     if not tracks and root.findall("image"):
-        raise ValueError(f"{path}: this is a 'CVAT for images' export; export 'CVAT for video'")
+        raise CvatError(f"{path}: this is a 'CVAT for images' export; export 'CVAT for video'")
     per_label: dict[str, list[list[tuple[int, NDArray, bool, bool]]]] = {lab: [] for lab in labels}
     last = -1
     extra: list[str] = []
@@ -188,20 +264,18 @@ def read_cvat_xml(path: Path | str, labels: Sequence[str] = LABELS,
         lab = tr.get("label", "")
         items = []
         for b in tr.findall("box"):
-            k = int(b.get("frame", "0")) - start
-            xtl, ytl = float(b.get("xtl", "nan")), float(b.get("ytl", "nan"))
-            xbr, ybr = float(b.get("xbr", "nan")), float(b.get("ybr", "nan"))
-            box = np.array([xtl - 0.5, ytl - 0.5, xbr - xtl, ybr - ytl])
-            items.append((k, box, b.get("outside", "0") == "1", b.get("occluded", "0") == "1"))
-            last = max(last, k)
+            where = (f"{path}, line {line_of[id(b)]}: <box frame={b.get('frame')!r}> of track "
+                     f"{tr.get('id')!r} ({lab})")
+            items.append(_box(b, start, limit, where))
+            last = max(last, items[-1][0])
         if lab in per_label:
             per_label[lab].append(sorted(items, key=lambda it: it[0]))
         elif lab not in extra:
             extra.append(lab)
     missing = [lab for lab in labels if not per_label[lab]]
     if missing:
-        raise ValueError(f"{path}: no box track with label(s) {missing}; found labels "
-                         f"{sorted({t.get('label', '') for t in tracks})}")
+        raise CvatError(f"{path}: no box track with label(s) {missing}; found labels "
+                        f"{sorted({t.get('label', '') for t in tracks})}")
     n = n_frames if n_frames is not None else max(size, last + 1)
     boxes: dict[str, NDArray[np.float64]] = {}
     occluded: dict[str, NDArray[np.bool_]] = {}
@@ -220,16 +294,17 @@ def _expand_track(
     items: list[tuple[int, NDArray, bool, bool]], n: int
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Per-frame boxes (n, 4) and occluded flags of one track: linear interpolation between
-    listed boxes, absent from an ``outside`` box to the next listed one."""
+    listed boxes, absent from an ``outside`` box to the next listed one. The frame indices of
+    ``items`` are in [0, n) (``read_cvat_xml`` checked them)."""
     bx = np.full((n, 4), np.nan)
     oc = np.zeros(n, bool)
     for i, (k, box, outside, occ) in enumerate(items):
-        if outside or not (0 <= k < n):
+        if outside:
             continue
         bx[k], oc[k] = box, occ
         if i + 1 < len(items):
             k2, box2, _, _ = items[i + 1]
-            for j in range(k + 1, min(k2, n)):
+            for j in range(k + 1, k2):
                 a = (j - k) / (k2 - k)
                 bx[j] = (1.0 - a) * box + a * box2
                 oc[j] = occ

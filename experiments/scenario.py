@@ -18,6 +18,8 @@ the textured rotor and the measured observer latency for the ORB observers (issu
 from __future__ import annotations
 
 import re
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -492,8 +494,13 @@ def _tracker(kind: str):
     return OpenCVTracker(kind)
 
 
-def build_loop(s: Scenario) -> ClosedLoop:
-    """The closed loop of a scenario."""
+def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> ClosedLoop:
+    """The closed loop of a scenario.
+
+    ``clock`` (seconds, default ``time.perf_counter``) times every measured compute time: the
+    observer's front end and back end, the controller's calls and the loop's timer around them.
+    Tests inject a stand-in so that the ``measured`` latencies do not depend on machine load.
+    """
     p = s.plant
     rng = np.random.default_rng([s.seed, 1])
     o = s.observer
@@ -507,13 +514,15 @@ def build_loop(s: Scenario) -> ClosedLoop:
             filter_config=o.aekf,
             compensate_delay=o.compensate_delay,
             max_coast_s=o.orb_max_coast_s,
+            clock=clock,
         )
         front = OrbFrontEnd(renderer, observer)
     else:
         if s.mode == "measurement":
             front = MeasurementFrontEnd(p, s.measurement, rng)
         else:
-            front = ImageFrontEnd(p, _renderer(s), MarkerLocator(p, _tracker(s.tracker)))
+            locator = MarkerLocator(p, _tracker(s.tracker), clock=clock)
+            front = ImageFrontEnd(p, _renderer(s), locator)
         if o.kind in ("aekf", "ekf"):
             cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
             observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)
@@ -525,14 +534,14 @@ def build_loop(s: Scenario) -> ClosedLoop:
             )
             observer = PixelKalmanObserver(CorSolver(CorModel.nominal(p)), pk)
     if isinstance(s.controller, PIDSpec):
-        controller = PIDController(s.controller.config, p)
+        controller = PIDController(s.controller.config, p, clock)
     else:
         mpc = s.controller.config
         if mpc.compute_latency_s is None and s.controller_latency != "measured":
             # The MPC's delay compensation must assume the latency the loop applies.
             mpc = mpc.model_copy(update={"compute_latency_s": s.controller_latency.mean_s})
-        controller = MPCController(mpc, p)
-    return ClosedLoop(p, controller, s.reference.build(), front, observer, s.loop_config())
+        controller = MPCController(mpc, p, clock)
+    return ClosedLoop(p, controller, s.reference.build(), front, observer, s.loop_config(), clock)
 
 
 def run(s: Scenario, progress: bool = False) -> LoopResult:

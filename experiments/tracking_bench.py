@@ -516,14 +516,15 @@ def transt_network() -> tuple[Callable[[], object] | None, str]:
 
 
 def tracker_factories(
-    names: Sequence[str], stand_in: bool = False
+    names: Sequence[str], stand_in: bool = False, require_transt: bool = False
 ) -> tuple[dict[str, TrackerFactory], str]:
     """Factories of the named pair trackers (``DEFAULT_TRACKERS`` names) and a note.
 
     With ``stand_in`` the numpy KCF takes the TransT network's place in GK-TransT and dual
     TransT (rows ``gk_standin``, ``dual_standin``: not TransT numbers). Without the shipped
-    TransT weights the TransT rows are left out and the note says why. Unknown names raise
-    ``ValueError``."""
+    TransT weights (missing, corrupt, or a bad checksum file) the TransT rows are left out and
+    the note says which and why, or, with ``require_transt``, ``ValueError`` says so. Unknown
+    names raise ``ValueError``."""
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
     known = tuple(PAIR_TRACKERS) + ("gk_transt_norefine", "dual_transt_refine")
@@ -541,8 +542,15 @@ def tracker_factories(
         else:
             network, why = transt_network()
         if network is None:
-            note = (f"TransT rows skipped: the shipped network is not available "
-                    f"({why.splitlines()[0]}).")
+            rows = [n for n in names if n.startswith(("gk_transt", "dual_transt"))]
+            note = (f"TransT rows {', '.join(rows)} skipped: the shipped network is not "
+                    f"available ({why.splitlines()[0]}).")
+            if require_transt:
+                raise ValueError(
+                    f"the trackers {', '.join(rows)} need the shipped TransT network, which "
+                    f"is not available:\n  {why}\nRun with --stand-in for a plumbing run, "
+                    "or leave these trackers out."
+                )
     for name in names:
         if name.startswith(("gk_transt", "dual_transt")):
             if network is None:
@@ -610,6 +618,7 @@ def run_tracking_benchmark(
     progress: Callable[[str], None] | None = None,
     on_step: Callable[[], None] | None = None,
     link_prefix: str = "",
+    require_transt: bool = False,
 ) -> BenchmarkReport:
     """The tracking benchmark of seed 000 §4, composed: the named trackers on ``seeds``
     validation sequences per case (``experiments.sequences.validation_suite``, rendered one at
@@ -620,7 +629,9 @@ def run_tracking_benchmark(
     ``tracking_errors_<case>.png`` (the first sequence's centre error over frames, 12b/d,
     14b/d). ``progress`` gets a message per sequence, ``on_step`` a call per scored frame;
     ``link_prefix`` is put before the plot names in the notes. Raises ``ValueError`` for an
-    unknown case or tracker, fewer than one seed or frames than a case needs (``min_frames``).
+    unknown case or tracker, fewer than one seed or frames than a case needs (``min_frames``),
+    and, with ``require_transt``, TransT trackers without the shipped network (else their
+    rows are left out and ``progress`` and the notes say so).
     """
     from experiments.sequences import CASES, render_sequence, validation_suite
 
@@ -634,7 +645,7 @@ def run_tracking_benchmark(
     if frames < need:
         each = ", ".join(f"{c} {min_frames(c)}" for c in CASES)
         raise ValueError(f"frames must be >= {need} for cases {cases} ({each}), got {frames}")
-    factories, note_transt = tracker_factories(trackers, stand_in)
+    factories, note_transt = tracker_factories(trackers, stand_in, require_transt)
     if not factories:
         raise ValueError(f"no tracker to run: {note_transt}")
     say = progress or (lambda msg: None)

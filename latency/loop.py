@@ -29,6 +29,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -183,6 +184,10 @@ class ClosedLoop:
     front_end : FrontEnd (``MeasurementFrontEnd`` or ``ImageFrontEnd``)
     observer : PixelObserver (e.g. ``observer.pixel_observer.FilterObserver``)
     config : LoopConfig
+    clock : callable returning seconds, default ``time.perf_counter``
+        Times each ``controller.command`` call (``controller_compute_s``; the latency with
+        ``controller_latency: measured``). Tests inject a stand-in so that the loop's
+        bookkeeping does not depend on machine load.
     """
 
     def __init__(
@@ -193,6 +198,7 @@ class ClosedLoop:
         front_end: FrontEnd,
         observer: PixelObserver,
         config: LoopConfig,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         self.params = params
         self.controller = controller
@@ -200,6 +206,7 @@ class ClosedLoop:
         self.front_end = front_end
         self.observer = observer
         self.config = config
+        self.clock = clock
 
     # --- the run ---------------------------------------------------------------------------
     def run(self, progress: bool = False) -> LoopResult:
@@ -407,9 +414,9 @@ class ClosedLoop:
             torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]
             ctrl_time = 0.0
         else:
-            t0 = time.perf_counter()
+            t0 = self.clock()
             torque = np.asarray(self.controller.command(est, self.reference, t), dtype=float)
-            ctrl_time = time.perf_counter() - t0
+            ctrl_time = self.clock() - t0
             if torque.shape != (3,) or not np.all(np.isfinite(torque)):
                 events.append((t, "invalid_command", f"controller returned {torque!r}"))
                 torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]

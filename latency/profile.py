@@ -16,6 +16,9 @@ A profile saved with ``.save(path)`` goes into a scenario as ``pipeline.observer
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+
 import numpy as np
 from tqdm import tqdm
 
@@ -49,7 +52,7 @@ def measure_locator_latency(
 
     Returns an ``Empirical`` latency profile (save it with ``.save(path)``; the timed loop takes
     it as ``PipelineConfig.observer``). Frames whose markers are lost still count: the time is
-    what the observer spends.
+    what the observer spends, as the locator's ``clock`` measures it.
     """
     if n_frames < 1 or warmup < 0:
         raise ValueError(f"need n_frames >= 1 and warmup >= 0, got {n_frames}, {warmup}")
@@ -79,13 +82,14 @@ def measure_orb_latency(
     warmup: int = 5,
     seed: int = 0,
     progress: bool = False,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> Empirical:
     """Per-frame compute time (s) of the ORB observer (``"orb"``, ``"ekf"`` or ``"aekf"``,
     ``observer.orb_observer.OrbObserver``) on ``n_frames`` rendered frames of the textured
     rotor (``texture``, default ``TextureParams()``), matched against a reference view rendered
     at rest. Each frame's time is the observer's own measurement (``Estimate.compute_time_s``:
-    front end + back end). Frames it cannot use still count. Returns an ``Empirical``
-    profile."""
+    front end + back end, timed by ``clock``; tests inject a stand-in). Frames it cannot use
+    still count. Returns an ``Empirical`` profile."""
     names = {"orb": "ORB alone", "ekf": "ORB-EKF", "aekf": "ORB-AEKF"}
     if method not in names:
         raise ValueError(f"method must be 'orb', 'ekf' or 'aekf', got {method!r}")
@@ -97,7 +101,7 @@ def measure_orb_latency(
 
     tex = texture or TextureParams()
     renderer = AnalyticRenderer(params, options=AnalyticRenderOptions(texture=tex), seed=seed)
-    observer = OrbObserver(params, orb_reference(params, renderer, tex), method=method)
+    observer = OrbObserver(params, orb_reference(params, renderer, tex), method=method, clock=clock)
     period = 1.0 / params.camera.frame_rate_hz
     times = []
     for k in tqdm(range(n_frames + warmup), disable=not progress, desc="latency", unit="frame"):

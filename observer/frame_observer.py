@@ -22,6 +22,7 @@ an estimate with ``valid=False``, ``lost=True`` and a reason that starts with ``
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -60,6 +61,9 @@ class MarkerLocator:
     tracker : object with ``init(frame, box)`` and ``track(frame) -> (box, score)`` (image px);
         default OpenCV KCF.
     gk : GKAssist, optional
+    clock : callable returning seconds, default ``time.perf_counter``
+        Times ``locate`` (``compute_time_s``); tests inject a stand-in so that the latency does
+        not depend on machine load.
 
     ``start(frame, box_sensor_px)`` initialises the tracker on the red marker (a user's first-frame
     annotation). When the GK assistance had to stand in for the tracker, the tracker is restarted
@@ -67,8 +71,15 @@ class MarkerLocator:
     check D_exp = L·S·cos β.
     """
 
-    def __init__(self, params: PlantParams, tracker=None, gk: GKAssist | None = None) -> None:
+    def __init__(
+        self,
+        params: PlantParams,
+        tracker=None,
+        gk: GKAssist | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.params = params
+        self.clock = clock
         self.tracker = tracker or OpenCVTracker("kcf")
         self.gk = gk or GKAssist(params)
         self.tilt_hint_rad: float | None = None
@@ -108,7 +119,7 @@ class MarkerLocator:
         A bad frame (``check_frame``) is not shown to the tracker; the GK assistance predicts
         through it and the result is ``lost`` with the problem in ``reason`` and ``bad_frame``.
         """
-        t0 = time.perf_counter()
+        t0 = self.clock()
         if not self.started:
             raise RuntimeError("start() the locator on the red marker's box first")
         bad = self.check_frame(image, binning)
@@ -134,28 +145,54 @@ class MarkerLocator:
                 reason = f"{reason}; tracker not restarted: {exc}" if reason else \
                     f"tracker not restarted: {exc}"
         return Located(res.marker_px, res.lost or bool(bad), reason,
-                       time.perf_counter() - t0, res, bad)
+                       self.clock() - t0, res, bad)
 
 
 class FrameObserver:
     """``update(frame, t_exposure) -> Estimate`` from a locator and a pixel back end.
 
-    The estimate is released immediately (``t_available = t_exposure`` + the measured compute
-    time); the timed loop instead releases through its latency model.
+    The estimate is released immediately (``t_available = t_exposure`` + the compute time
+    measured by the locator's ``clock``); the timed loop instead releases through its latency
+    model.
 
     A bad frame (``MarkerLocator.check_frame``) reaches the back end as a lost frame (it
     predicts or holds) and the estimate is flagged ``valid=False``, ``lost=True``, with a reason
     that starts with ``"bad frame: "``. The locator's reasons (for example that the Kalman
     prediction stood in for the tracker) are kept in the estimate's ``reason``.
+
+    Coasting: a frame whose red marker was not measured (the GK Kalman prediction stood in, the
+    track is lost, or the frame is bad) reaches the back end as a lost frame (a filter predicts
+    through it with its model, a per-frame solver holds its last solution) and gives an
+    estimate flagged ``lost=True`` with a reason that starts with ``"coasting: "``; once no
+    marker has been measured for more than ``max_coast_s`` the estimate is also
+    ``valid=False``, until the tracker measures the marker again.
+
+    Parameters
+    ----------
+    locator : MarkerLocator
+    backend : PixelObserver
+    max_coast_s : float
+        The longest time (s) since the last measured marker for which a coasting estimate is
+        still ``valid``. Default 0.1 s (3 frames at 36 fps): on an 8° cone whose azimuth turns
+        at 1 rad/s (a body rate of 8°/s) a held or predicted attitude drifts by up to about
+        0.8° in that time.
     """
 
-    def __init__(self, locator: MarkerLocator, backend: PixelObserver) -> None:
+    def __init__(
+        self, locator: MarkerLocator, backend: PixelObserver, max_coast_s: float = 0.1
+    ) -> None:
+        if not max_coast_s >= 0:
+            raise ValueError(f"max_coast_s must be >= 0 s, got {max_coast_s}")
         self.locator = locator
         self.backend = backend
+        self.max_coast_s = float(max_coast_s)
+        self._last_measured = 0.0
 
     def reset(self, q0: ArrayLike = (1.0, 0.0, 0.0, 0.0), t0: float = 0.0) -> None:
+        """Start from attitude ``q0`` (known: counts as measured) at time ``t0`` (s)."""
         self.locator.reset()
         self.backend.reset(q0, t0)
+        self._last_measured = float(t0)
 
     def start(self, image: NDArray[np.uint8], binning: int, box_sensor_px: ArrayLike) -> None:
         """Initialise the tracker on the red marker's box, sensor px."""
@@ -164,20 +201,32 @@ class FrameObserver:
     def update(self, frame, t_exposure: float) -> Estimate:
         """Estimate from one ``plant.scene.Frame`` (or any object with ``image`` and
         ``binning``) taken at mid-exposure ``t_exposure`` (s)."""
-        t0 = time.perf_counter()
+        t0 = self.locator.clock()
         image = getattr(frame, "image", None)
         binning = getattr(frame, "binning", None)
         loc = self.locator.locate(image, binning)  # type: ignore[arg-type]
-        self.backend.process(loc.marker_px, t_exposure, loc.lost, loc.reason, loc.compute_time_s)
-        elapsed = time.perf_counter() - t0
+        # A predicted marker is not a measurement: the back end predicts (or holds) through it
+        # with its own model rather than fusing the GK prediction as if it were measured.
+        measured = not loc.lost and loc.gk.red_source == "measurement"
+        self.backend.process(loc.marker_px, t_exposure, not measured, loc.reason,
+                             loc.compute_time_s)
+        elapsed = self.locator.clock() - t0
         est = self.backend.release(t_exposure + elapsed)
         reason = est.reason
         if loc.reason and loc.reason not in reason:
             reason = f"{loc.reason}; {reason}" if reason else loc.reason
-        if loc.bad_frame:
-            return replace(est, valid=False, lost=True, reason=reason)
-        if reason != est.reason:
-            est = replace(est, reason=reason)
+        if measured:
+            self._last_measured = float(t_exposure)
+        coast_s = float(t_exposure) - self._last_measured
+        valid = est.valid and not loc.bad_frame and coast_s <= self.max_coast_s
+        if not measured:
+            limit = "over" if coast_s > self.max_coast_s else "within"
+            note = (f"coasting: no marker measured for {coast_s:.3f} s ({limit} max_coast_s = "
+                    f"{self.max_coast_s} s)")
+            # A bad frame's reason stays first ("bad frame: ..."); else the coasting note is.
+            parts = [reason, note] if loc.bad_frame else [note, reason]
+            reason = "; ".join(r for r in parts if r)
+        est = replace(est, valid=valid, lost=est.lost or not measured, reason=reason)
         if est.valid:
             self.locator.tilt_hint_rad = attitude.tilt(est.q)
         return est

@@ -7,8 +7,9 @@ box is NaN); these trackers have no calibrated confidence. Seed 000 §4 uses bot
 
 Bad input: ``init`` raises ``ValueError`` for an unusable frame (see
 ``observer.gk.hsv_gate.check_rgb_image``: not (H, W, 3) uint8, or empty) or box. ``track`` never
-raises: an unusable frame, a frame whose shape differs from the init frame's, no ``init`` or an
-OpenCV error give a NaN box, score 0.0 and the reason in ``reason``.
+raises: an unusable frame, a frame whose shape differs from the init frame's, a featureless
+frame (all black or all white, ``check_featureless``: OpenCV's KCF reports success on it), no
+``init`` or an OpenCV error give a NaN box, score 0.0 and the reason in ``reason``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from observer.gk.hsv_gate import check_rgb_image
+from observer.gk.hsv_gate import check_featureless, check_rgb_image
 
 TrackerKind = Literal["kcf", "csrt"]
 
@@ -81,6 +82,7 @@ class OpenCVTracker:
         bad = check_rgb_image(frame)
         if not bad and frame.shape != self._frame_shape:
             bad = f"frame shape {frame.shape} differs from the init frame's {self._frame_shape}"
+        bad = bad or check_featureless(frame)
         if bad:
             self.reason = bad
             return nan_box, 0.0

@@ -26,13 +26,14 @@ observes their pixels under the current attitude (Eq. 13). Here:
 
 Pixels are full-sensor pixels unless a name says ``image``; frames are RGB, binned by
 ``binning`` (``plant.camera.sensor_to_image``). Bad input (an empty, NaN or wrongly shaped
-image, a textureless or blurred frame) gives a measurement with ``valid=False`` and a
-``reason``, never an exception in a loop.
+image, a frame whose size is not the sensor's at its binning, a textureless or blurred frame)
+gives a measurement with ``valid=False`` and a ``reason``, never an exception in a loop.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -289,8 +290,14 @@ class OrbFrontEnd:
     """ORB keypoints of a frame matched to an ``OrbReference`` (see the module docstring)."""
 
     def __init__(
-        self, params: PlantParams, reference: OrbReference, config: OrbConfig | None = None
+        self,
+        params: PlantParams,
+        reference: OrbReference,
+        config: OrbConfig | None = None,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
+        #: Times ``measure`` (``compute_time_s``), s; tests inject a stand-in.
+        self.clock = clock
         self.params = params
         self.reference = reference
         self.config = config or OrbConfig()
@@ -377,10 +384,10 @@ class OrbFrontEnd:
 
     def measure(self, image: NDArray[np.uint8], binning: int) -> OrbMeasurement:
         """Match the ORB keypoints of an RGB ``image`` binned by ``binning`` to the reference."""
-        t0 = time.perf_counter()
+        t0 = self.clock()
 
         def done(m: OrbMeasurement) -> OrbMeasurement:
-            return replace(m, compute_time_s=time.perf_counter() - t0)
+            return replace(m, compute_time_s=self.clock() - t0)
 
         c, ref = self.config, self.reference
         if binning != ref.binning:
@@ -392,6 +399,15 @@ class OrbFrontEnd:
         gray = _to_gray(image)
         if isinstance(gray, str):
             return done(OrbMeasurement.invalid(gray))
+        cam = self.params.camera
+        expected = (cam.sensor_height_px // binning, cam.sensor_width_px // binning)
+        if gray.shape != expected:  # e.g. a resized frame: its pixels would mean other rays
+            return done(
+                OrbMeasurement.invalid(
+                    f"frame size {gray.shape[1]} x {gray.shape[0]} px does not match the camera "
+                    f"at binning {binning}: expected {expected[1]} x {expected[0]} px"
+                )
+            )
         kps, desc = self._orb.detectAndCompute(gray, None)
         n_kp = len(kps)
         if desc is None or n_kp < 2:

@@ -27,6 +27,7 @@ with: its estimate for such a frame is invalid (q is NaN) and carries the reason
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -75,6 +76,9 @@ class OrbObserver:
     max_coast_s : float
         After this long (s) without an accepted measurement the estimate is invalid; a filter
         that has rejected measurements for this long is restarted from the per-frame solve.
+    clock : callable returning seconds, default ``time.perf_counter``
+        Times the front end and the back end (``compute_time_s``); tests inject a stand-in so
+        that the latency does not depend on machine load.
     """
 
     def __init__(
@@ -86,6 +90,7 @@ class OrbObserver:
         filter_config: AEKFConfig | None = None,
         compensate_delay: bool = True,
         max_coast_s: float = 0.5,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         if method not in ("orb", "ekf", "aekf"):
             raise ValueError(f"method must be 'orb', 'ekf' or 'aekf', got {method!r}")
@@ -93,7 +98,8 @@ class OrbObserver:
             raise ValueError(f"max_coast_s must be positive, got {max_coast_s}")
         self.params = params
         self.method: Method = method
-        self.front_end = OrbFrontEnd(params, reference, orb_config)
+        self.clock = clock
+        self.front_end = OrbFrontEnd(params, reference, orb_config, clock)
         cfg = filter_config or orb_filter_config()
         self.filter_config = cfg.model_copy(update={"adaptive": method == "aekf"})
         self.compensate_delay = compensate_delay
@@ -151,7 +157,7 @@ class OrbObserver:
     ) -> None:
         """Fuse a frame's measurement taken at mid-exposure ``t_exposure`` (s).
         ``compute_time_s`` defaults to the front end's time plus this back end's."""
-        t0 = time.perf_counter()
+        t0 = self.clock()
         m = measurement
         lost = bool(lost or not m.valid)
         reason = reason or m.reason
@@ -179,7 +185,7 @@ class OrbObserver:
                     reason = f"filter rejected the measurement: {r.reason}"
                     if t_exposure - self._last_accepted > self.max_coast_s:
                         self._restart(m, t_exposure)
-        own = time.perf_counter() - t0
+        own = self.clock() - t0
         ct = m.compute_time_s + own if compute_time_s is None else compute_time_s
         #: Compute time (s) of the last processed frame: front end + back end, or as given.
         self.last_compute_time_s = float(ct)
@@ -235,8 +241,7 @@ class OrbObserver:
 
     def update(self, frame, t_exposure: float) -> Estimate:
         """Estimate from one frame taken at mid-exposure ``t_exposure`` (s), released after the
-        measured compute time (``t_available = t_exposure + compute time``)."""
-        t0 = time.perf_counter()
-        m = self.measure(frame)
-        self.process(m, t_exposure)
-        return self.release(t_exposure + (time.perf_counter() - t0))
+        measured compute time (``t_available = t_exposure + compute time``, the front end's
+        and the back end's, ``last_compute_time_s``)."""
+        self.process(self.measure(frame), t_exposure)
+        return self.release(t_exposure + self.last_compute_time_s)

@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from observer.aekf import AEKFConfig, QuaternionAEKF
+from observer.cor_model import CorModel
+from observer.cor_solver import CorSolver
 from observer.gk.pixel_kalman import PixelKalman, PixelKalmanConfig
 from observer.types import AttitudeSolver
 from plant import attitude
@@ -62,6 +64,14 @@ class FilterObserver:
         ``t_available``); if False, the state at the frame's exposure time.
     max_coast_s : float
         After this long (s) without an accepted measurement the estimate is flagged invalid.
+        Re-acquisition: a measurement the filter rejects after that long (its prediction has
+        drifted outside the innovation gate) restarts the filter from the per-frame solve of
+        the pixels (``solver``; ``restarts`` counts these), and the estimate is valid again
+        once the restarted filter accepts a following measurement (so that a single outlier
+        cannot restart it into a valid wrong attitude).
+    solver : AttitudeSolver, optional
+        The per-frame solve for the restart (default
+        ``observer.cor_solver.CorSolver(CorModel.nominal(params))``).
     """
 
     def __init__(
@@ -70,6 +80,7 @@ class FilterObserver:
         config: AEKFConfig | None = None,
         compensate_delay: bool = True,
         max_coast_s: float = 0.5,
+        solver: AttitudeSolver | None = None,
     ) -> None:
         if max_coast_s <= 0:
             raise ValueError(f"max_coast_s must be positive, got {max_coast_s}")
@@ -77,17 +88,33 @@ class FilterObserver:
         self.config = config or AEKFConfig()
         self.compensate_delay = compensate_delay
         self.max_coast_s = max_coast_s
+        self.solver = solver or CorSolver(CorModel.nominal(params))
         self.reset([1.0, 0.0, 0.0, 0.0], 0.0)
 
     def reset(self, q0: ArrayLike, t0: float) -> None:
         """Start from attitude ``q0`` at rest at time ``t0`` (s)."""
         self.filter = QuaternionAEKF(self.params, self.config, q0=q0, t0=t0)
         self._last_accepted = -np.inf
+        self._last_torque = np.zeros(3)
         self._pending: tuple | None = None
+        self.restarts = 0
 
     def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None:
         """The torque (N·m, stator frame) commanded from time ``t`` (s)."""
         self.filter.set_torque(t, torque_stator)
+        self._last_torque = np.asarray(torque_stator, dtype=float).reshape(3).copy()
+
+    def _restart(self, z: NDArray[np.float64], t_exposure: float) -> bool:
+        """Restart the filter at ``t_exposure`` (s) from the per-frame solve of the pixels
+        ``z``, warm-started at the filter's attitude, at rest, with the latest torque.
+        Returns whether the solve succeeded."""
+        s = self.solver.solve(z, self.filter.q)
+        if not s.valid:
+            return False
+        self.filter.restart(s.q, t_exposure)
+        self.filter.set_torque(t_exposure, self._last_torque)
+        self.restarts += 1
+        return True
 
     def process(
         self,
@@ -106,6 +133,12 @@ class FilterObserver:
         else:
             r = self.filter.update(z, t_exposure)
             accepted, result_reason = r.accepted, r.reason
+            stale = t_exposure - self._last_accepted > self.max_coast_s
+            if not accepted and stale and self._restart(z, t_exposure):
+                # Not yet accepted: one frame (maybe an outlier) is not a track; the next
+                # measurement the restarted filter accepts makes the estimate valid again.
+                result_reason = (f"filter restarted from the per-frame solve ({r.reason}); "
+                                 "valid after its next accepted measurement")
         if accepted:
             self._last_accepted = t_exposure
         self._pending = (z, t_exposure, lost, result_reason, compute_time_s)

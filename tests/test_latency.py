@@ -15,6 +15,7 @@ from latency.models import (
     seed_profile,
 )
 from latency.pipeline import FrameScheduler, PipelineConfig
+from tests.fake_clock import StepClock
 
 
 def test_seed_profiles_are_table_1():
@@ -112,9 +113,12 @@ def test_measuring_a_profile_is_one_call(tmp_path):
     from plant.params import PlantParams
 
     p = PlantParams()
-    prof = measure_locator_latency(p, MarkerLocator(p), n_frames=15, warmup=2)
-    assert len(prof.samples_s) == 15
-    assert all(0 < s < 1.0 for s in prof.samples_s)
+    # An injected clock (each reading 1-5 ms after the last) times each locate call as one
+    # step, independently of the machine's load; the warm-up frames are not recorded.
+    clock = StepClock(1e-3, 5e-3, seed=6)
+    prof = measure_locator_latency(p, MarkerLocator(p, clock=clock), n_frames=15, warmup=2)
+    assert len(prof.samples_s) == 15 and clock.calls == 2 * 17
+    assert all(1e-3 - 1e-12 <= s <= 5e-3 + 1e-12 for s in prof.samples_s)
     assert "KCF" in prof.source or "OpenCVTracker" in prof.source
     prof.save(tmp_path / "kcf.json")
     cfg = PipelineConfig(observer=Empirical.load(tmp_path / "kcf.json"))
@@ -130,9 +134,12 @@ def test_measuring_the_orb_observer_profile_is_one_call(tmp_path):
     from plant.texture import TextureParams
 
     p = PlantParams()
-    prof = measure_orb_latency(p, "aekf", TextureParams(seed=2), n_frames=8, warmup=2)
-    assert len(prof.samples_s) == 8
-    assert all(0.002 < s < 1.0 for s in prof.samples_s)  # ORB on 612 x 512 px: not free
+    # The front end and the filter each read the injected clock twice per frame: two steps.
+    clock = StepClock(2e-3, 20e-3, seed=7)
+    prof = measure_orb_latency(p, "aekf", TextureParams(seed=2), n_frames=8, warmup=2,
+                               clock=clock)
+    assert len(prof.samples_s) == 8 and clock.calls == 4 * 10
+    assert all(4e-3 - 1e-12 <= s <= 40e-3 + 1e-12 for s in prof.samples_s)
     assert "ORB-AEKF" in prof.source and "seed 2" in prof.source
     prof.save(tmp_path / "orb.json")
     s = Scenario.model_validate(

@@ -4,6 +4,7 @@ independent computations, the CVAT round trip, and the pipeline with a tracker o
 from __future__ import annotations
 
 import math
+import shutil
 import textwrap
 
 import cv2
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from experiments import cvat
+from experiments import tracking_bench as tb
 from experiments.sequences import (
     BLUR_FRAMES,
     K_DOWNSAMPLE,
@@ -309,6 +311,70 @@ def test_cvat_bad_files(tmp_path):
         cvat.read_cvat_xml(tmp_path / "c.xml")
 
 
+CVAT_HEAD = """<?xml version="1.0" encoding="utf-8"?>
+<annotations>
+  <version>1.1</version>
+  <meta><task><size>{size}</size><start_frame>{start}</start_frame></task></meta>
+  <track id="0" label="red" source="manual">
+    <box frame="{start}" outside="0" occluded="0" xtl="10.5" ytl="20.5" xbr="30.5" ybr="40.5"/>
+  </track>
+  <track id="1" label="yellow" source="manual">
+"""
+
+
+@pytest.mark.parametrize(
+    ("box", "size", "start", "words"),
+    [
+        ('frame="1000000000" xtl="1" ytl="1" xbr="9" ybr="9"', 14, 0,
+         "frame 1000000000 is beyond the task's size of 14 frames"),
+        ('frame="3" xtl="1" ytl="1" xbr="9"', 14, 5, "frame 3 is before start_frame 5"),
+        ('frame="6" xtl="1" ytl="1" xbr="9"', 14, 5, "coordinate ybr=None is missing"),
+        ('frame="6" xtl="1" ytl="nan" xbr="9" ybr="9"', 14, 5, "ytl='nan'"),
+        ('frame="2" xtl="20" ytl="1" xbr="9" ybr="9"', 14, 0, "width -11 and height 8"),
+        ('frame="2" xtl="1" ytl="1" xbr="1" ybr="9"', 14, 0, "must be positive"),
+        ('frame="two" xtl="1" ytl="1" xbr="9" ybr="9"', 14, 0, "frame='two' is not an integer"),
+        ('xtl="1" ytl="1" xbr="9" ybr="9"', 14, 0, "frame=None is not an integer"),
+    ],
+)
+def test_cvat_bad_boxes_are_errors_naming_the_line_and_element(tmp_path, box, size, start,
+                                                                words):
+    """Each bad box raises ``CvatError`` (a ValueError) with the file, the line of the box (the
+    9th of this file) and the problem; none is dropped or kept silently, and a huge frame
+    number is refused before anything of that size is allocated."""
+    xml = tmp_path / "bad.xml"
+    xml.write_text(CVAT_HEAD.format(size=size, start=start) + f"    <box {box}/>\n"
+                   "  </track>\n</annotations>\n")
+    assert xml.read_text().splitlines()[8].strip().startswith("<box")
+    with pytest.raises(cvat.CvatError) as err:
+        cvat.read_cvat_xml(xml)
+    msg = str(err.value)
+    assert isinstance(err.value, ValueError)
+    assert msg.startswith(f"{xml}, line 9: <box frame=") and "track '1' (yellow)" in msg, msg
+    assert words in msg, msg
+
+
+def test_cvat_frame_count_bounds_the_frames(tmp_path):
+    """Frame numbers are checked against the frames given, the declared size or stop_frame,
+    else a fixed cap; an outside box may be empty."""
+    ok = '<box frame="12" outside="1" xtl="0.5" ytl="0.5" xbr="0.5" ybr="0.5"/>'
+    xml = tmp_path / "a.xml"
+    xml.write_text(CVAT_HEAD.format(size=14, start=0) + f"    {ok}\n  </track>\n</annotations>")
+    assert cvat.read_cvat_xml(xml).n_frames == 14
+    with pytest.raises(cvat.CvatError, match="beyond the 10 frames given"):
+        cvat.read_cvat_xml(xml, n_frames=10)
+    undeclared = CVAT_HEAD.replace("<size>{size}</size>", "").format(start=0)
+    big = f'<box frame="{cvat.MAX_UNDECLARED_FRAMES}" xtl="1" ytl="1" xbr="9" ybr="9"/>'
+    xml.write_text(undeclared + f"    {big}\n  </track>\n</annotations>")
+    with pytest.raises(cvat.CvatError, match="declares no size or stop_frame"):
+        cvat.read_cvat_xml(xml)
+    xml.write_text(undeclared.replace("<start_frame>", "<stop_frame>99</stop_frame><start_frame>")
+                   + f"    {big}\n  </track>\n</annotations>")
+    with pytest.raises(cvat.CvatError, match="stop_frame 99"):
+        cvat.read_cvat_xml(xml)
+    with pytest.raises(cvat.CvatError, match="cannot read"):
+        cvat.read_cvat_xml(tmp_path / "missing.xml")
+
+
 def test_benchmark_on_a_cvat_folder(tmp_path):
     """A 'recording': frames written as PNG files plus their CVAT XML, run through the
     benchmark; ground truth survives the trip and KCF tracks every frame."""
@@ -330,3 +396,32 @@ def test_benchmark_on_a_cvat_folder(tmp_path):
     assert (tmp_path / "out" / f"{loaded.name}_precision.png").exists()
     with pytest.raises(ValueError, match="binned"):
         cvat.load_cvat_sequence(frames, xml, PlantParams(camera={"sensor_width_px": 2000}))
+
+
+def test_broken_transt_weights_fail_bench_trackers_naming_the_rows(tmp_path, monkeypatch):
+    """Weights whose .sha256 is empty: ``bench-trackers --trackers gk_transt,kcf`` exits with
+    status 2 and says which rows need the network and why, before any output is written (it
+    exited 0 and left the GK-TransT rows out); the library call leaves them out and says so."""
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+    from observer.transt.tracker import TransTTracker
+    from observer.transt.weights import SMALL_WEIGHTS
+
+    broken = tmp_path / "transt_small.pt"
+    shutil.copy(SMALL_WEIGHTS, broken)
+    (tmp_path / "transt_small.pt.sha256").write_text("")
+    small = TransTTracker.small.__func__
+    monkeypatch.setattr(TransTTracker, "small",
+                        classmethod(lambda cls, weights=broken, **kw: small(cls, weights, **kw)))
+    factories, note = tb.tracker_factories(["gk_transt", "kcf"])
+    assert list(factories) == ["kcf"]
+    assert "gk_transt skipped" in note and "is empty" in note
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["bench-trackers", "--seeds", "1", "--cases", "clean",
+                                      "--frames", "3", "--trackers", "gk_transt,kcf",
+                                      "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output and not out.exists()
+    for words in ("gk_transt need the shipped TransT network", "is empty", "--stand-in"):
+        assert words in result.output, result.output

@@ -249,7 +249,18 @@ def test_corrupt_or_missing_weights_are_refused(tmp_path) -> None:
     with pytest.raises(WeightsError, match="not found") as err:
         load_weights(tmp_path / "nothing.pt")
     assert REBUILD_COMMAND in str(err.value)
-    (tmp_path / "transt_small.pt.sha256").unlink()
+    checksum = tmp_path / "transt_small.pt.sha256"
+    for text, words in (("", "is empty"), ("  \n", "is empty"),
+                        ("abc123  transt_small.pt\n", "64-digit hex"),
+                        ("z" * 64 + "  transt_small.pt\n", "64-digit hex")):
+        checksum.write_text(text)  # an empty .sha256 raised IndexError before
+        with pytest.raises(WeightsError, match=words) as err:
+            load_weights(copy)
+        assert str(checksum) in str(err.value) and REBUILD_COMMAND in str(err.value)
+    checksum.write_bytes(b"\xff\xfe")
+    with pytest.raises(WeightsError, match="cannot be read as text"):
+        load_weights(copy)
+    checksum.unlink()
     with pytest.raises(WeightsError, match="checksum file not found"):
         load_weights(copy)
 
@@ -468,10 +479,19 @@ def test_track_survives_bad_input(clean_frame) -> None:
         np.zeros((0, 0, 3), np.uint8),  # empty
         clean_frame.image[..., :2],  # wrong shape
         None,
+        np.full_like(clean_frame.image, 255),  # all white
     ]
     for frame in bad:
         box, score = trk.track(frame)
         assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
+        assert np.allclose(trk.centre_image_px, state)
+    # A valid RGB frame of another size than the init frame (it scored 0.99 before): its
+    # pixels are not the coordinates the track is kept in.
+    img = clean_frame.image
+    for other in (np.ascontiguousarray(img[::2, ::2]), np.pad(img, ((0, 8), (0, 8), (0, 0)))):
+        box, score = trk.track(other)
+        assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
+        assert "differs from the init frame" in trk.last.status, trk.last.status
         assert np.allclose(trk.centre_image_px, state)
     box, score = trk.track(clean_frame.image, search_centre_image_px=[np.nan, 3.0])
     assert np.all(np.isnan(box)) and "search_centre" in trk.last.status

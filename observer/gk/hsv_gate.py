@@ -135,6 +135,23 @@ def check_rgb_image(image: object) -> str:
     return ""
 
 
+#: A frame whose values span at most this many DN is featureless (all black, all white or
+#: blank): there is nothing to track (our choice; the TransT tracker applies the same rule to
+#: its search region).
+UNIFORM_PTP_DN = 2
+
+
+def check_featureless(image: NDArray[np.uint8]) -> str:
+    """Return "" unless the RGB uint8 frame ``image`` (already checked by ``check_rgb_image``)
+    is uniform (its values span at most ``UNIFORM_PTP_DN``), else the reason. A correlation
+    tracker scores such a frame as a perfect match (OpenCV KCF reports success on a black
+    frame), so the trackers refuse it."""
+    lo, hi, _, _ = cv2.minMaxLoc(np.ascontiguousarray(image).reshape(image.shape[0], -1))
+    if hi - lo <= UNIFORM_PTP_DN:
+        return f"frame is uniform (values {lo:.0f}-{hi:.0f} DN: all black, all white or blank)"
+    return ""
+
+
 def box_pixels(box_image_px: ArrayLike, width: int, height: int) -> tuple[slice, slice] | None:
     """Rows and columns of the pixels whose centres lie in the box (x, y, w, h), image px,
     clipped to a ``width`` x ``height`` frame; None if the box is not finite, has w or h <= 0,

@@ -21,8 +21,8 @@ by the sub-pixel circle fit of seed 004 §4 (``observer.gk.subpixel``; option ``
 
 Bad input: ``start`` raises ``ValueError`` for an unusable first frame or boxes; ``step`` never
 raises: an unusable frame (empty, wrong dtype or shape, non-finite values in a float array,
-uniform: all black) or an internal failure gives a result flagged ``lost`` (or, for GK-TransT,
-a flagged Kalman prediction, ``red_measured`` False) with a ``reason``.
+uniform: all black or all white) or an internal failure gives a result flagged ``lost`` (or,
+for GK-TransT, a flagged Kalman prediction, ``red_measured`` False) with a ``reason``.
 """
 
 from __future__ import annotations
@@ -33,11 +33,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from observer.gk.hsv_gate import box_sensor_to_image, check_rgb_image
+from observer.gk.hsv_gate import box_sensor_to_image, check_featureless, check_rgb_image
 from observer.gk.subpixel import SubpixelConfig, refine_marker_centre
 from plant.params import PlantParams
 from plant.scene import check_binning
@@ -64,10 +63,6 @@ __all__ = [
 
 #: Colours of the two markers, in the order of ``Frame.marker_px`` (seed 000 §3.2.2).
 MARKERS = ("red", "yellow")
-
-#: A frame whose values span at most this many DN is blank (all black): nothing to track
-#: (our choice; the TransT tracker uses the same rule for its search region).
-UNIFORM_PTP_DN = 2
 
 #: Names accepted by ``make_pair_tracker``.
 PAIR_TRACKERS = ("gk_transt", "dual_transt", "kcf", "csrt", "kcf_numpy", "k2cf")
@@ -218,10 +213,7 @@ class MarkerPairTracker(ABC):
             return bad
         if self.frame_shape is not None and image.shape != self.frame_shape:  # type: ignore
             return f"frame shape {image.shape} differs from the start frame's {self.frame_shape}"  # type: ignore
-        lo, hi, _, _ = cv2.minMaxLoc(image.reshape(image.shape[0], -1))  # type: ignore
-        if hi - lo <= UNIFORM_PTP_DN:
-            return f"frame is uniform (values {lo:.0f}-{hi:.0f} DN: all black or blank)"
-        return ""
+        return check_featureless(image)  # type: ignore[arg-type]
 
     # --- public ---------------------------------------------------------------------------------
     def start(

@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.gk.hsv_gate import check_rgb_image
+from observer.gk.hsv_gate import check_featureless, check_rgb_image
 
 
 class KCFConfig(BaseModel):
@@ -224,8 +224,9 @@ class NumpyKCF:
 
         ``search_centre_image_px`` (u, v) places the detection window (seed 004 §3.2.2); by
         default it is the previous position (plain KCF). A bad frame (see
-        ``observer.gk.hsv_gate.check_rgb_image``, or a shape other than the init frame's), a
-        non-finite search centre or no ``init`` gives a NaN box and score 0.
+        ``observer.gk.hsv_gate.check_rgb_image``, a shape other than the init frame's, or a
+        featureless frame, ``check_featureless``), a non-finite search centre or no ``init``
+        gives a NaN box and score 0.
         """
         t0 = time.perf_counter()
         try:
@@ -237,7 +238,8 @@ class NumpyKCF:
         self, frame: NDArray[np.uint8], search_centre: ArrayLike | None
     ) -> tuple[NDArray[np.float64], float]:
         nan_box = np.full(4, np.nan)
-        if not self.initialised or check_rgb_image(frame) or frame.shape != self._frame_shape:
+        if (not self.initialised or check_rgb_image(frame) or frame.shape != self._frame_shape
+                or check_featureless(frame)):
             self.last_peak = 0.0
             return nan_box, 0.0
         centre = self.centre_image_px if search_centre is None else \

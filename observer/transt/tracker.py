@@ -21,10 +21,11 @@ the window). ``compute_time_s`` is the wall-clock time of the whole ``track`` ca
 
 Frames are RGB uint8 (H, W, 3) as the renderers produce them; boxes are (x, y, w, h) in image
 pixels of that frame (pixel-centre convention, centre = (x + w/2, y + h/2), see
-``observer.transt.crop``). Bad input never raises in ``track``: an unusable frame, search centre
-or network output gives a NaN box, score 0.0 and ``last.status`` saying why, and the tracker
-state stays as it was, so the next good frame continues the track. ``init`` raises
-``ValueError`` for a frame or box it cannot start from.
+``observer.transt.crop``). Bad input never raises in ``track``: an unusable frame (or one
+whose shape differs from the init frame's), search centre or network output gives a NaN box,
+score 0.0 and ``last.status`` saying why, and the tracker state stays as it was, so the next
+good frame continues the track. ``init`` raises ``ValueError`` for a frame or box it cannot
+start from.
 """
 
 from __future__ import annotations
@@ -175,6 +176,7 @@ class TransTTracker:
         self._runner = _Runner(self.net, backend)
         self._window = hanning_window(self.config.search_feature_size)
         self.centre_image_px: NDArray[np.float64] | None = None
+        self._frame_shape: tuple[int, ...] | None = None
         self.size_image_px: NDArray[np.float64] | None = None
         self._pad: NDArray[np.float64] | None = None
         self.compute_time_s = 0.0
@@ -252,6 +254,7 @@ class TransTTracker:
             )
         self._runner.set_template(normalise(crop[None]))
         self._pad = pad
+        self._frame_shape = frame_rgb.shape
         self.centre_image_px = centre
         self.size_image_px = box[2:].copy()
         self.last = None
@@ -265,9 +268,10 @@ class TransTTracker:
         """Box (x, y, w, h), image px, and score of the target in the next frame.
 
         ``search_centre_image_px`` (2,), image px, places the search crop there instead of at
-        the previous box centre. A failure (bad frame or centre, uniform search region,
-        non-finite network output, not initialised) returns a NaN box and score 0.0 and leaves
-        the state unchanged; ``last.status`` says why.
+        the previous box centre. A failure (bad frame or centre, a frame shape other than the
+        init frame's, uniform search region, non-finite network output, not initialised)
+        returns a NaN box and score 0.0 and leaves the state unchanged; ``last.status`` says
+        why.
         """
         t0 = time.perf_counter()
         res = self._track(frame_rgb, search_centre_image_px, t0)
@@ -286,6 +290,10 @@ class TransTTracker:
         side = context_side(self.size_image_px, self.config.search_factor)
         centre = self.centre_image_px
         why = check_frame(frame)
+        if why is None and frame.shape != self._frame_shape:  # type: ignore[union-attr]
+            # Another frame size: the box and search centre would be read in the wrong pixels.
+            why = (f"frame shape {frame.shape} differs from the init frame's "  # type: ignore[union-attr]
+                   f"{self._frame_shape}")
         if why is None and search_centre is not None:
             try:
                 sc = np.asarray(search_centre, dtype=float).reshape(2)

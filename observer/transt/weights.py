@@ -12,6 +12,7 @@ the command that rebuilds it. Nothing is ever downloaded.
 from __future__ import annotations
 
 import hashlib
+import string
 from pathlib import Path
 
 import torch
@@ -57,11 +58,29 @@ def _rebuild_hint(path: Path) -> str:
     return f"Rebuild it (and its .sha256) with:\n    {REBUILD_COMMAND}\n(weights file: {path})"
 
 
+def _recorded_digest(cp: Path, p: Path) -> str:
+    """The SHA-256 recorded in the checksum file ``cp`` of weights ``p`` (``sha256sum`` format:
+    64 hex digits, then the file name), lower case; ``WeightsError`` if the file is
+    unreadable, empty or does not start with such a digest."""
+    try:
+        fields = cp.read_text(encoding="ascii").split()
+    except (OSError, UnicodeDecodeError) as exc:
+        problem = f"cannot be read as text ({exc})"
+    else:
+        digest = fields[0] if fields else ""
+        if len(digest) == 64 and all(c in string.hexdigits for c in digest):
+            return digest.lower()
+        problem = ("is empty" if not fields
+                   else f"does not start with a 64-digit hex SHA-256 (it starts {digest[:20]!r})")
+    raise WeightsError(f"checksum file {cp} of TransT weights {p} {problem}\n" + _rebuild_hint(p))
+
+
 def verify(path: str | Path, expected_sha256: str | None = None) -> str:
     """Check ``path`` against ``expected_sha256`` (default: the digest in ``<path>.sha256``).
 
     Returns the digest; raises ``WeightsError`` (naming the file and the rebuild command) when
-    the file or its digest is missing or the digests differ.
+    the file or its digest is missing, the checksum file is empty or malformed, or the digests
+    differ.
     """
     p = Path(path)
     if not p.is_file():
@@ -73,7 +92,7 @@ def verify(path: str | Path, expected_sha256: str | None = None) -> str:
                 f"checksum file not found for TransT weights {p}: expected {cp}\n"
                 + _rebuild_hint(p)
             )
-        expected_sha256 = cp.read_text().split()[0].strip().lower()
+        expected_sha256 = _recorded_digest(cp, p)
     actual = sha256_of(p)
     if actual != expected_sha256.lower():
         raise WeightsError(
