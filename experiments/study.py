@@ -24,13 +24,15 @@ the loop's total delay adds half the exposure (mid-exposure time stamp).
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import json
-import math
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
+import control as ct  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
@@ -41,9 +43,17 @@ from controller.pid import PIDConfig, PIDController  # noqa: E402
 from experiments.report import write_report  # noqa: E402
 from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, PIDSpec, Scenario, run  # noqa: E402
 from experiments.sweep import run_sweep  # noqa: E402
-from latency.margins import attitude_margins, attitude_plant, sampled_margins  # noqa: E402
+from latency.margins import (  # noqa: E402
+    Margins,
+    as_run_margins,
+    attitude_plant,
+    first_unstable_delay,
+    sampled_margins,
+    sampled_stable,
+)
 from latency.models import SEED_LATENCY_S  # noqa: E402
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain  # noqa: E402
+from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode  # noqa: E402
 from latency.profile import measure_locator_latency  # noqa: E402
 from observer.frame_observer import MarkerLocator  # noqa: E402
 from plant.params import PlantParams  # noqa: E402
@@ -77,48 +87,94 @@ class StudyConfig(BaseModel):
 
 
 # --- 1. margins -----------------------------------------------------------------------------
-def _delay_cases(params: PlantParams):
-    """(vision delay ms, observer semantics, update period T s, loop delay s) of the margin
-    tables: 0-60 ms by 1 ms and the seed's two latencies, sequential and pipelined. The loop
-    delay adds half the exposure (mid-exposure time stamps)."""
-    T_f = 1.0 / params.camera.frame_rate_hz
-    half_exp = 0.5 * params.camera.exposure_s
-    for d_ms in np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]:
-        d = d_ms / 1e3
-        for mode in ("sequential", "pipelined"):
-            # Sequential: the observer takes every m-th frame, m = ceil(latency / frame period).
-            m = max(1, math.ceil(d / T_f - 1e-9)) if mode == "sequential" else 1
-            yield d_ms, mode, m * T_f, half_exp + d
+OBSERVER_MODES: tuple[PipelineMode, ...] = ("sequential", "pipelined")
+
+
+def _vision_delays_ms() -> list[float]:
+    """The margin tables' vision delays: 0-60 ms by 1 ms and the seed's two latencies."""
+    return np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]
+
+
+def loop_timing_for(
+    params: PlantParams, vision_delay_s: float, mode: PipelineMode, compute_s: float = 0.0
+) -> LoopTiming:
+    """Update period and loop delay of the camera of ``params`` (``latency.pipeline``)."""
+    pipe = PipelineConfig.from_camera(params.camera, mode=mode)
+    return pipe.timing(compute_s, vision_delay_s)
+
+
+def pid_axis_margins(
+    params: PlantParams, crossover_rad_s: float, vision_delay_s: float, mode: PipelineMode,
+    axis: int = 1,
+) -> tuple[LoopTiming, Margins]:
+    """Margins of one axis of the PID loop as it runs: its discrete ``C(z)`` at the update
+    period of the observer ``mode`` for this vision delay (s), on ``1/(J s² + b s)``
+    (``latency.margins.as_run_margins``). The CLI, the study and the notebook call this."""
+    pid = PIDController(PIDConfig(crossover_rad_s=crossover_rad_s), params)
+    timing = loop_timing_for(params, vision_delay_s, mode)
+    m = as_run_margins(
+        pid.discrete_transfer_function(timing.update_period_s, axis=axis),
+        inertia_kgm2=float(pid.J[axis]), damping_Nms_per_rad=params.rotor.viscous_Nms_per_rad,
+        delay_s=timing.delay_s,
+    )
+    return timing, m
+
+
+def _headroom_column(
+    vision_delays_s: list[float], stable_at: Callable[[float], bool]
+) -> list[float]:
+    """Extra vision delay (s) each row tolerates before the loop is unstable, scanned through
+    the pipeline (``stable_at`` rebuilds the loop with the update period of that delay); NaN
+    where the row itself is unstable."""
+    cached = functools.cache(stable_at)
+    out = []
+    for d in vision_delays_s:
+        first = first_unstable_delay(cached, d)
+        out.append(first - d if first > d else np.nan)
+    return out
 
 
 def margins_table(params: PlantParams, cfg: StudyConfig) -> pd.DataFrame:
-    """Per-axis PID margins against the vision delay (ms), sequential and pipelined observer."""
+    """Per-axis PID margins against the vision delay (ms), sequential and pipelined observer.
+
+    Columns: the timing (``update_period_s``, ``loop_delay_s``), stability, the critical
+    crossover's phase margin and frequency, gain margins, the number of gain crossovers, the
+    constant-delay margin at the row's fixed update period, the jitter margin of the discrete
+    law and ``headroom_s``, the extra vision delay before instability scanned through the
+    pipeline (the update period of a sequential observer grows with the delay)."""
     pid = PIDController(PIDConfig(crossover_rad_s=cfg.crossover_rad_s), params)
-    J, b = float(pid.J[1]), params.rotor.viscous_Nms_per_rad
-    plant = attitude_plant(J, b)
+    plant = attitude_plant(float(pid.J[1]), params.rotor.viscous_Nms_per_rad)
     rows = []
-    for d_ms, mode, T, tau in _delay_cases(params):
-        sampled = sampled_margins(plant, pid.discrete_transfer_function(T, axis=1), delay_s=tau)
-        hybrid = attitude_margins(
-            pid.transfer_function(1),
-            inertia_kgm2=J,
-            damping_Nms_per_rad=b,
-            frame_period_s=T,
-            delay_s=tau,
-        )
-        rows.append(
-            {
-                "vision_delay_ms": d_ms,
-                "observer": mode,
-                "update_period_s": T,
-                "stable": bool(sampled.stable),
-                "phase_margin_deg": sampled.phase_margin_deg if sampled.stable else np.nan,
-                "crossover_rad_s": sampled.crossover_rad_s if sampled.stable else np.nan,
-                "delay_margin_s": sampled.delay_margin_s if sampled.stable else np.nan,
-                "jitter_margin_s": hybrid.jitter_margin_s if hybrid.stable else np.nan,
-            }
-        )
+    for mode in OBSERVER_MODES:
+        def stable_at(d: float, mode: PipelineMode = mode) -> bool:
+            t = loop_timing_for(params, d, mode)
+            C = pid.discrete_transfer_function(t.update_period_s, axis=1)
+            return sampled_stable(plant, C, delay_s=t.delay_s)
+
+        delays = _vision_delays_ms()
+        head = _headroom_column([d / 1e3 for d in delays], stable_at)
+        for d_ms, h in zip(delays, head, strict=True):
+            timing, m = pid_axis_margins(params, cfg.crossover_rad_s, d_ms / 1e3, mode)
+            rows.append(_margin_row(d_ms, timing, m) | {"headroom_s": h})
     return pd.DataFrame(rows).sort_values(["observer", "vision_delay_ms"]).reset_index(drop=True)
+
+
+def _margin_row(d_ms: float, timing: LoopTiming, m: Margins) -> dict:
+    """One row of a margin table; margins NaN where the loop is unstable."""
+    ok = bool(m.stable)
+
+    def v(x: float) -> float:
+        return float(x) if ok else np.nan
+
+    return {
+        "vision_delay_ms": d_ms, "observer": timing.mode,
+        "update_period_s": timing.update_period_s, "loop_delay_s": timing.delay_s,
+        "stable": ok, "phase_margin_deg": v(m.phase_margin_deg),
+        "crossover_rad_s": v(m.crossover_rad_s), "gain_margin": v(m.gain_margin),
+        "gain_margin_lower": v(m.gain_margin_lower), "n_crossovers": len(m.crossovers_rad_s),
+        "conditionally_stable": m.conditionally_stable,
+        "delay_margin_s": v(m.delay_margin_s), "jitter_margin_s": v(m.jitter_margin_s),
+    }
 
 
 def _mark_delays(a, marks: dict[str, float], zero_line: bool = True) -> None:
@@ -138,28 +194,34 @@ def mpc_margins_table(
     """Per-axis margins of the MPC's linearised law (``latency.mpc_law``) against the vision
     delay (ms), sequential and pipelined observer, delay-aware (the MPC knows its latency) and,
     for comparison, without the delay compensation. Same columns as :func:`margins_table` plus
-    ``delay_aware``. The loop's delay adds the MPC's own compute time, as the scenarios do
+    ``delay_aware`` (no jitter margin: the law's state-space form is analysed sampled only).
+    The loop's delay adds the MPC's own compute time, as the scenarios do
     (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here), and the MPC predicts across it."""
     mpc = mpc or MPCConfig()
     compute_s = MPC_CALL_MEDIAN_S[(mpc.solver, mpc.hessian)]
     K = mpc_state_gain(mpc, params)
     J, b = float(PIDController(None, params).J[1]), params.rotor.viscous_Nms_per_rad
     plant = attitude_plant(J, b)
+
+    def law(t: LoopTiming, aware: bool) -> ct.StateSpace:
+        return mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J, damping_Nms_per_rad=b,
+                                period_s=t.update_period_s, delay_s=t.delay_s,
+                                delay_aware=aware)
+
     rows = []
-    for d_ms, mode, T, tau_vision in _delay_cases(params):
+    for mode in OBSERVER_MODES:
         for aware in (True, False):
-            tau = tau_vision + compute_s
-            law = mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J,
-                                   damping_Nms_per_rad=b, period_s=T, delay_s=tau,
-                                   delay_aware=aware)
-            mg = sampled_margins(plant, law, delay_s=tau)
-            rows.append({
-                "vision_delay_ms": d_ms, "observer": mode, "delay_aware": aware,
-                "update_period_s": T, "stable": bool(mg.stable),
-                "phase_margin_deg": mg.phase_margin_deg if mg.stable else np.nan,
-                "crossover_rad_s": mg.crossover_rad_s if mg.stable else np.nan,
-                "delay_margin_s": mg.delay_margin_s if mg.stable else np.nan,
-            })
+            def stable_at(d: float, mode: PipelineMode = mode, aware: bool = aware) -> bool:
+                t = loop_timing_for(params, d, mode, compute_s)
+                return sampled_stable(plant, law(t, aware), delay_s=t.delay_s)
+
+            delays = _vision_delays_ms()
+            head = _headroom_column([d / 1e3 for d in delays], stable_at)
+            for d_ms, h in zip(delays, head, strict=True):
+                t = loop_timing_for(params, d_ms / 1e3, mode, compute_s)
+                mg = sampled_margins(plant, law(t, aware), delay_s=t.delay_s)
+                rows.append(_margin_row(d_ms, t, mg)
+                            | {"delay_aware": aware, "headroom_s": h, "jitter_margin_s": np.nan})
     return (pd.DataFrame(rows).sort_values(["observer", "delay_aware", "vision_delay_ms"])
             .reset_index(drop=True))
 

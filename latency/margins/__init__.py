@@ -57,22 +57,30 @@ crossover search), :mod:`~latency.margins.hybrid` (hybrid margins and the jitter
 (Figures, no backend set) and :mod:`~latency.margins.attitude` (the per-axis attitude loop).
 """
 
-from latency.margins.attitude import attitude_delay_sweep, attitude_margins, attitude_plant
+from latency.margins.attitude import (
+    as_run_margins,
+    attitude_delay_sweep,
+    attitude_margins,
+    attitude_plant,
+    first_unstable_delay,
+)
 from latency.margins.hybrid import jitter_margin, loop_margins
 from latency.margins.model import LoopModel, loop_frd, loop_model
 from latency.margins.nyquist import nyquist_count
 from latency.margins.pade import loop_pade, pade_margins
 from latency.margins.plots import bode_data, nyquist_data, plot_bode, plot_nyquist
 from latency.margins.result import Margins
-from latency.margins.sampled import sampled_loop, sampled_margins, sampled_plant
+from latency.margins.sampled import sampled_loop, sampled_margins, sampled_plant, sampled_stable
 
 __all__ = [
     "LoopModel",
     "Margins",
+    "as_run_margins",
     "attitude_delay_sweep",
     "attitude_margins",
     "attitude_plant",
     "bode_data",
+    "first_unstable_delay",
     "jitter_margin",
     "loop_frd",
     "loop_margins",
@@ -86,4 +94,5 @@ __all__ = [
     "sampled_loop",
     "sampled_margins",
     "sampled_plant",
+    "sampled_stable",
 ]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
@@ -96,3 +98,70 @@ def attitude_delay_sweep(
         for d in (np.linspace(0.0, 0.060, 61) if delays_s is None else np.asarray(delays_s, float))
     ]
     return pd.DataFrame(rows)
+
+
+def as_run_margins(
+    controller: ct.LTI,
+    *,
+    inertia_kgm2: float,
+    damping_Nms_per_rad: float,
+    delay_s: float,
+    observer: ct.LTI | None = None,
+) -> Margins:
+    """Margins of the per-axis loop with the controller exactly as it runs.
+
+    ``controller`` is the discrete ``C(z)`` at its update period ``T`` (its ``dt``). Stability,
+    the crossovers, the phase, gain and delay margins come from the exact sampled loop
+    (:func:`sampled_margins`). The jitter margin (Kao & Lincoln) comes from the hybrid model of
+    the *same* ``C(z)`` evaluated at ``z = e^{jwT}`` with the hold at ``T``
+    (:func:`loop_margins`), not from a continuous ``C(s)``: a continuous controller lacks the
+    phase lag of the discrete one and overstates the margin at long update periods.
+    """
+    if not controller.isdtime(strict=True):
+        raise ValueError("controller must be discrete (the law as it runs)")
+    P = attitude_plant(inertia_kgm2, damping_Nms_per_rad)
+    sampled = sampled_margins(P, controller, delay_s=delay_s, observer=observer)
+    if not sampled.stable:
+        return sampled
+    hybrid = loop_margins(loop_model(P, controller, delay_s=delay_s, observer=observer))
+    jm = hybrid.jitter_margin_s if hybrid.stable else math.nan
+    return dataclasses.replace(
+        sampled,
+        jitter_margin_s=jm,
+        jitter_frequency_rad_s=hybrid.jitter_frequency_rad_s,
+        formulation="sampled (jitter margin: hybrid with the same C(z))",
+        notes=sampled.notes + hybrid.notes,
+    )
+
+
+def first_unstable_delay(
+    stable_at: Callable[[float], bool],
+    start_s: float,
+    *,
+    step_s: float = 0.5e-3,
+    limit_s: float = 0.3,
+    tol_s: float = 1e-6,
+) -> float:
+    """Smallest delay above ``start_s`` (s) at which ``stable_at`` first says unstable.
+
+    Scans the multiples of ``step_s`` above ``start_s`` up to ``limit_s`` and bisects the first
+    unstable step to ``tol_s``. ``stable_at`` may change the whole loop with the delay (e.g. the
+    update period of a sequential observer, which drops frames once the delay exceeds a frame
+    period), so the boundary may be a jump rather than a zero crossing; the bisection finds
+    either. Returns ``inf`` if the loop is stable at every scanned delay.
+    """
+    if not stable_at(start_s):
+        return float(start_s)
+    # The scan points are whole multiples of step_s, so scans from different starts share
+    # them (a caching stable_at then evaluates each once).
+    prev, k = float(start_s), math.floor(start_s / step_s + 1e-9) + 1
+    while k * step_s <= limit_s + 1e-15:
+        x = k * step_s
+        if not stable_at(x):
+            lo, hi = prev, x
+            while hi - lo > tol_s:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if stable_at(mid) else (lo, mid)
+            return hi
+        prev, k = x, k + 1
+    return math.inf

@@ -102,7 +102,7 @@ def loop_margins(model: LoopModel, omega: ArrayLike | None = None) -> Margins:
         jm, wj = jitter_margin(model, w)
     else:
         pm_deg = gm = gm_lower = dm = jm = math.nan
-        wc = cr.wc[int(np.argmin(cr.pm))] if cr.wc else math.nan
+        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
         wpc = wj = math.nan
     return Margins(
         stable=stable,

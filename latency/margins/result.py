@@ -27,16 +27,22 @@ class Margins:
         Closed-loop poles in the open right half-plane (continuous) or on/outside the unit circle
         (sampled).
     phase_margin_deg : float
-        Smallest phase margin over all gain crossovers, ``180° + arg L(jw_c)`` wrapped to
-        (-180°, 180°]; ``inf`` without a crossover; ``nan`` when unstable.
+        Phase margin ``180° + arg L(jw_c)``, wrapped to (-180°, 180°], at the *critical* gain
+        crossover: the one where ``L`` comes closest to -1 (smallest ``|PM|``; the distance
+        from -1 is ``2 sin(|PM|/2)``). A loop with several crossovers may show a large negative
+        margin at another crossover far from -1 (``phase_margins_deg``); that crossover is not
+        the one a small phase error would destabilise. ``inf`` without a crossover; ``nan``
+        when unstable.
     gain_margin : float
         Factor by which the loop gain can grow before instability: smallest ``1/|L(jw_pc)|`` > 1
         over the phase crossovers (``L`` on the negative real axis); ``inf`` if none; ``nan`` when
         unstable. Phase crossovers with ``|L| < 1e-3`` are not resolved.
     gain_margin_lower : float
         Factor by which it can shrink (largest ``1/|L|`` < 1; 0 if none; ``nan`` when unstable).
+        A value above 0 makes the loop *conditionally stable* (:attr:`conditionally_stable`).
     crossover_rad_s : float
-        The gain-crossover frequency that sets the phase margin (rad/s); ``nan`` if none.
+        The critical gain-crossover frequency, which sets the phase margin (rad/s); ``nan`` if
+        none.
     phase_crossover_rad_s : float
         The phase-crossover frequency that sets ``gain_margin`` (rad/s); ``nan`` if none.
     delay_margin_s : float
@@ -82,6 +88,30 @@ class Margins:
     confirmation: str
     notes: tuple[str, ...] = field(default=())
 
+    @property
+    def critical_crossover(self) -> int | None:
+        """Index into ``crossovers_rad_s`` of the critical crossover (None without one)."""
+        if not self.crossovers_rad_s:
+            return None
+        return int(np.argmin(np.abs(self.phase_margins_deg)))
+
+    @property
+    def conditionally_stable(self) -> bool:
+        """Stable, and unstable again if the loop gain shrinks enough: a lower gain margin
+        exists (``0 < gain_margin_lower < 1``)."""
+        return bool(self.stable and 0.0 < self.gain_margin_lower < 1.0)
+
+    def crossover_lines(self) -> list[str]:
+        """One line per gain crossover with its phase margin, the critical one marked."""
+        k = self.critical_crossover
+        return [
+            f"gain crossover {w:.4g} rad/s: phase margin {pm:+.2f} deg"
+            + (" (critical: closest to -1)" if i == k else "")
+            for i, (w, pm) in enumerate(
+                zip(self.crossovers_rad_s, self.phase_margins_deg, strict=True)
+            )
+        ]
+
     def summary(self) -> str:
         """One line; says "unstable" (and no margin) when the closed loop is unstable."""
         if not self.stable:
@@ -94,9 +124,16 @@ class Margins:
             if np.isfinite(self.jitter_margin_s)
             else ""
         )
+        n = len(self.crossovers_rad_s)
+        several = f" (critical of {n} gain crossovers)" if n > 1 else ""
+        lower = (
+            f", lower GM {self.gain_margin_lower:.4g} (conditionally stable)"
+            if self.conditionally_stable else ""
+        )
         return (
-            f"stable: PM {self.phase_margin_deg:.2f} deg at {self.crossover_rad_s:.4g} rad/s, "
-            f"GM {self.gain_margin:.4g}, delay margin {self.delay_margin_s * 1e3:.3f} ms, "
+            f"stable: PM {self.phase_margin_deg:.2f} deg at {self.crossover_rad_s:.4g} rad/s"
+            f"{several}, GM {self.gain_margin:.4g}{lower}, delay margin "
+            f"{self.delay_margin_s * 1e3:.3f} ms, "
             f"{jitter}(delay {self.delay_s * 1e3:.2f} ms; {self.formulation}; "
             f"{self.confirmation})"
         )
@@ -110,6 +147,9 @@ class Margins:
             "crossover_rad_s": self.crossover_rad_s,
             "delay_margin_s": self.delay_margin_s,
             "jitter_margin_s": self.jitter_margin_s,
+            "gain_margin_lower": self.gain_margin_lower,
+            "n_crossovers": len(self.crossovers_rad_s),
+            "conditionally_stable": self.conditionally_stable,
             "stable": self.stable,
         }
 
@@ -178,7 +218,7 @@ def _crossings(
 def _margins_from_crossings(cr: _Crossings) -> tuple[float, float, float, float, float, float]:
     """(pm_deg, wc, gm, wpc, gm_lower, delay_margin_s) from the crossings of a stable loop."""
     if cr.wc:
-        k = int(np.argmin(cr.pm))
+        k = int(np.argmin(np.abs(cr.pm)))  # the critical crossover: L closest to -1
         pm_deg = math.degrees(cr.pm[k])
         wc = cr.wc[k]
         dm = min((p % (2 * np.pi)) / x for p, x in zip(cr.pm, cr.wc, strict=True))

@@ -129,6 +129,15 @@ def _spectral_radius_closed(L: ct.StateSpace) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(np.atleast_2d(cl.A)))))
 
 
+def sampled_stable(
+    plant: ct.LTI, controller: ct.LTI, *, delay_s: float = 0.0, observer: ct.LTI | None = None
+) -> bool:
+    """Closed-loop stability of :func:`sampled_loop` (spectral radius below 1), without the
+    margins: the cheap test for scanning a delay."""
+    L = sampled_loop(plant, controller, delay_s=delay_s, observer=observer)
+    return _spectral_radius_closed(L) < 1.0 - 1e-10
+
+
 def sampled_margins(
     plant: ct.LTI,
     controller: ct.LTI,
@@ -202,7 +211,7 @@ def sampled_margins(
             x += step
     else:
         pm_deg = gm = gm_lower = dm = wpc = math.nan
-        wc = cr.wc[int(np.argmin(cr.pm))] if cr.wc else math.nan
+        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
     return Margins(
         stable=stable,
         unstable_poles=Z,
