@@ -135,55 +135,61 @@ def _plot_run(steps, path: Path, title: str) -> None:
 @app.command()
 def margins(
     crossover_rad_s: Annotated[float, typer.Option(help="PID crossover, rad/s.")] = 10.0,
-    frame_rate_hz: Annotated[float, typer.Option(help="Observer update rate, Hz.")] = 36.0,
+    frame_rate_hz: Annotated[
+        float | None, typer.Option(help="Camera frame rate, Hz (default: PlantParams.camera).")
+    ] = None,
     delay_ms: Annotated[float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")] = 16.33,
+    observer: Annotated[
+        str,
+        typer.Option(help="sequential (drops frames while busy, as the study) or pipelined."),
+    ] = "sequential",
     out: OutOption = Path("runs"),
 ) -> None:
-    """Margins of the per-axis PID loop with the exact delay; Bode and Nyquist plots and the
-    margins against delay 0–60 ms.
+    """Margins of the per-axis PID loop as it runs (discrete C(z) at the observer's update
+    period, exact delay); Bode and Nyquist plots and the margins against delay 0–60 ms.
 
-    Example: pmspm margins --crossover-rad-s 10 --delay-ms 31.23
+    Example: pmspm margins --crossover-rad-s 10 --delay-ms 31.23 --observer sequential
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     from controller.pid import PIDConfig, PIDController
-    from latency.margins import (
-        attitude_delay_sweep,
-        attitude_margins,
-        attitude_plant,
-        loop_model,
-        plot_bode,
-        plot_nyquist,
-    )
+    from experiments.study import StudyConfig, margins_table, pid_axis_margins, pid_headroom_s
+    from latency.margins import attitude_plant, loop_model, plot_bode, plot_nyquist
     from plant.params import PlantParams
 
     try:
         cfg = PIDConfig(crossover_rad_s=crossover_rad_s)
+        p = PlantParams()
+        if frame_rate_hz is not None:
+            camera = p.camera.model_dump() | {"frame_rate_hz": frame_rate_hz}
+            p = PlantParams.model_validate(p.model_dump() | {"camera": camera})
     except ValidationError as exc:
         _config_error(exc, "options")
-    if frame_rate_hz <= 0 or delay_ms < 0:
-        _config_error(ValueError("frame_rate_hz must be > 0 and delay_ms >= 0"), "options")
-    p = PlantParams()
-    pid = PIDController(cfg, p)
-    J, b, T = float(pid.J[1]), p.rotor.viscous_Nms_per_rad, 1.0 / frame_rate_hz
-    tau = 0.5 * p.camera.exposure_s + delay_ms / 1e3
-    m = attitude_margins(
-        pid.transfer_function(1), inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T,
-        delay_s=tau,
-    )
-    folder = Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms"
+    if delay_ms < 0 or observer not in ("sequential", "pipelined"):
+        _config_error(
+            ValueError("need delay_ms >= 0 and observer 'sequential' or 'pipelined'"), "options"
+        )
+    timing, m = pid_axis_margins(p, crossover_rad_s, delay_ms / 1e3, observer)
+    folder = Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms-{observer}"
     folder.mkdir(parents=True, exist_ok=True)
+    typer.echo(f"case: {timing.describe()}")
     typer.echo(m.summary())
+    for line in m.crossover_lines():
+        typer.echo(f"  {line}")
+    pid = PIDController(cfg, p)
     model = loop_model(
-        attitude_plant(J, b), pid.transfer_function(1), sample_period_s=T, delay_s=tau
+        attitude_plant(float(pid.J[1]), p.rotor.viscous_Nms_per_rad),
+        pid.discrete_transfer_function(timing.update_period_s, axis=1),
+        delay_s=timing.delay_s,
     )
     plot_bode(model, m).savefig(folder / "bode.png", dpi=110)
     plot_nyquist(model, m).savefig(folder / "nyquist.png", dpi=110)
-    sweep = attitude_delay_sweep(
-        pid.transfer_function(1), inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T
-    )
-    sweep.to_parquet(folder / "margins_vs_delay.parquet")
+    table = margins_table(p, StudyConfig(crossover_rad_s=crossover_rad_s), modes=(observer,))
+    table.to_parquet(folder / "margins_vs_delay.parquet")
+    head = pid_headroom_s(p, crossover_rad_s, delay_ms / 1e3, observer)
+    if head == head:  # NaN when the loop is already unstable
+        typer.echo(
+            f"headroom: {1e3 * head:.2f} ms more vision delay before the loop is unstable "
+            "(scanned through the pipeline)"
+        )
     typer.echo(f"plots and table: {folder}")
 
 

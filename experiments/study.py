@@ -134,24 +134,43 @@ def _headroom_column(
     return out
 
 
-def margins_table(params: PlantParams, cfg: StudyConfig) -> pd.DataFrame:
-    """Per-axis PID margins against the vision delay (ms), sequential and pipelined observer.
+def _pid_stable_at(
+    params: PlantParams, crossover_rad_s: float, mode: PipelineMode
+) -> Callable[[float], bool]:
+    """Stability of the axis-1 PID loop as it runs, as a function of the vision delay (s)."""
+    pid = PIDController(PIDConfig(crossover_rad_s=crossover_rad_s), params)
+    plant = attitude_plant(float(pid.J[1]), params.rotor.viscous_Nms_per_rad)
+
+    def stable_at(d: float) -> bool:
+        t = loop_timing_for(params, d, mode)
+        C = pid.discrete_transfer_function(t.update_period_s, axis=1)
+        return sampled_stable(plant, C, delay_s=t.delay_s)
+
+    return stable_at
+
+
+def pid_headroom_s(
+    params: PlantParams, crossover_rad_s: float, vision_delay_s: float, mode: PipelineMode
+) -> float:
+    """Extra vision delay (s) the PID loop tolerates, scanned through the pipeline."""
+    stable_at = _pid_stable_at(params, crossover_rad_s, mode)
+    return _headroom_column([vision_delay_s], stable_at)[0]
+
+
+def margins_table(
+    params: PlantParams, cfg: StudyConfig, modes: tuple[PipelineMode, ...] = OBSERVER_MODES
+) -> pd.DataFrame:
+    """Per-axis PID margins against the vision delay (ms) for the observer ``modes``.
 
     Columns: the timing (``update_period_s``, ``loop_delay_s``), stability, the critical
     crossover's phase margin and frequency, gain margins, the number of gain crossovers, the
     constant-delay margin at the row's fixed update period, the jitter margin of the discrete
     law and ``headroom_s``, the extra vision delay before instability scanned through the
     pipeline (the update period of a sequential observer grows with the delay)."""
-    pid = PIDController(PIDConfig(crossover_rad_s=cfg.crossover_rad_s), params)
-    plant = attitude_plant(float(pid.J[1]), params.rotor.viscous_Nms_per_rad)
     rows = []
-    for mode in OBSERVER_MODES:
-        def stable_at(d: float, mode: PipelineMode = mode) -> bool:
-            t = loop_timing_for(params, d, mode)
-            C = pid.discrete_transfer_function(t.update_period_s, axis=1)
-            return sampled_stable(plant, C, delay_s=t.delay_s)
-
+    for mode in modes:
         delays = _vision_delays_ms()
+        stable_at = _pid_stable_at(params, cfg.crossover_rad_s, mode)
         head = _headroom_column([d / 1e3 for d in delays], stable_at)
         for d_ms, h in zip(delays, head, strict=True):
             timing, m = pid_axis_margins(params, cfg.crossover_rad_s, d_ms / 1e3, mode)

@@ -193,7 +193,10 @@ def _crossings(
     gpc: list[float] = []
     with np.errstate(divide="ignore", invalid="ignore"):
         v0 = complex(fun(np.array([0.0]))[0])  # L(0) is real; a crossover when it is negative
-    if np.isfinite(v0) and v0.real < 0 and abs(v0.imag) <= 1e-12 * abs(v0):
+    # An integrator makes L(0) infinite; evaluated at z = 1 it comes out as a huge rounding
+    # residue, which is a pole, not a phase crossover: |L(0)| above 1/_SMALL_GAIN is not one.
+    finite = np.isfinite(v0) and abs(v0) <= 1.0 / _SMALL_GAIN
+    if finite and v0.real < 0 and abs(v0.imag) <= 1e-12 * abs(v0):
         wpc.append(0.0)
         gpc.append(abs(v0))
     im = Lw.imag
