@@ -3,6 +3,8 @@ objects; no backend is selected here."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
@@ -41,30 +43,75 @@ def nyquist_data(
     return w, model.response(w)
 
 
+def bode_band(model: LoopModel, margins: Margins | None = None, decades: float = 1.5) -> NDArray:
+    """A frequency grid (rad/s) around the crossovers: ``decades`` below the lowest gain
+    crossover to ``decades`` above the highest (or the phase crossovers when there is no gain
+    crossover), capped at 1.5 times the Nyquist frequency of a sampled loop. Without crossovers
+    (or ``margins``), one decade either side of the loop's characteristic frequencies."""
+    marks = [] if margins is None else [
+        x for x in (*margins.crossovers_rad_s, *margins.phase_crossovers_rad_s) if x > 0
+    ]
+    feats = model.features_rad_s
+    lo, hi = (min(marks), max(marks)) if marks else (feats[0], feats[-1])
+    w_lo, w_hi = lo / 10**decades, hi * 10**decades
+    if model.sample_period_s is not None:
+        w_hi = min(w_hi, 1.5 * model.nyquist_rad_s)
+    return np.logspace(np.log10(w_lo), np.log10(max(w_hi, 10 * w_lo)), 600)
+
+
 def plot_bode(
     model: LoopModel, margins: Margins | None = None, omega: ArrayLike | None = None
 ) -> Figure:
-    """Bode plot of ``L(jw)`` (frequency in Hz on the axis), crossovers marked; a new Figure."""
-    w, mag, ph = bode_data(model, omega)
-    fig = Figure(figsize=(7, 6), layout="constrained")
+    """Bode plot of ``L(jw)`` around its crossovers (frequency in Hz); a new Figure.
+
+    The band defaults to :func:`bode_band`. The phase is shifted by a whole number of turns so
+    that it reads in (-360°, 0°] at the critical gain crossover (or at the band's centre), where
+    the -180° line that sets the phase margin is drawn; gain crossovers (the critical one
+    solid), phase crossovers and the Nyquist frequency are vertical lines named in the legend.
+    """
+    w = bode_band(model, margins) if omega is None else np.asarray(omega, dtype=float)
+    w, mag, ph = bode_data(model, w)
+    ref_w = math.sqrt(w[0] * w[-1])
+    k = None if margins is None else margins.critical_crossover
+    if k is not None:
+        ref_w = margins.crossovers_rad_s[k]
+    ph_ref = float(np.interp(math.log(ref_w), np.log(w), ph))
+    ph = ph - 360.0 * math.ceil(ph_ref / 360.0)  # (-360°, 0°] at the reference frequency
+    fig = Figure(figsize=(7.5, 6), layout="constrained")
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     f = w / (2 * np.pi)
-    ax1.loglog(f, mag)
+    ax1.loglog(f, mag, color="C0", label="|L|")
     ax1.axhline(1.0, color="0.5", lw=0.8)
     ax1.set_ylabel("|L|")
-    ax2.semilogx(f, ph)
-    for k in range(-20, 1):
-        if ph.min() - 360 < -180 + 360 * k < ph.max() + 360:
-            ax2.axhline(-180 + 360 * k, color="0.5", lw=0.8)
+    ax1.set_ylim(bottom=max(float(mag.min()), 1e-3))  # |L| < 1e-3 cannot reach -1
+    ax2.semilogx(f, ph, color="C0", label="arg L")
+    for turn in range(-6, 3):
+        level = -180.0 + 360.0 * turn
+        if ph.min() - 30 < level < ph.max() + 30:
+            ax2.axhline(level, color="0.5", lw=0.8)
     ax2.set_ylabel("arg L (deg)")
     ax2.set_xlabel("frequency (Hz)")
-    if model.sample_period_s is not None:
-        for ax in (ax1, ax2):
-            ax.axvline(0.5 / model.sample_period_s, color="C3", ls=":", lw=0.8)
+    lines = []
+    if model.sample_period_s is not None and 0.5 / model.sample_period_s <= f[-1]:
+        lines.append((0.5 / model.sample_period_s, "C3", ":", "Nyquist frequency 1/(2T)"))
     if margins is not None:
-        for x in margins.crossovers_rad_s:
-            ax1.axvline(x / (2 * np.pi), color="C1", ls="--", lw=0.8)
-        ax1.set_title(margins.summary(), fontsize=7, wrap=True)
+        for i, x in enumerate(margins.crossovers_rad_s):
+            crit = i == k
+            name = (
+                f"{'critical ' if crit else ''}gain crossover {x / (2 * np.pi):.3g} Hz, "
+                f"PM {margins.phase_margins_deg[i]:+.1f}°"
+            )
+            lines.append((x / (2 * np.pi), "C1", "-" if crit else "--", name))
+        for x, g in zip(margins.phase_crossovers_rad_s, margins.phase_crossover_gains,
+                        strict=True):
+            if x > 0:
+                lines.append((x / (2 * np.pi), "C2", "-.",
+                              f"phase crossover {x / (2 * np.pi):.3g} Hz, |L| = {g:.3g}"))
+        fig.suptitle(margins.summary().split(" (delay")[0].rstrip(", "), fontsize=8)
+    for x, colour, style, name in lines:
+        ax1.axvline(x, color=colour, ls=style, lw=0.9, label=name)
+        ax2.axvline(x, color=colour, ls=style, lw=0.9)
+    ax1.legend(fontsize=7, loc="lower left")
     return fig
 
 
