@@ -215,7 +215,15 @@ def _crossings(
         if v.real < 0:
             wpc.append(float(root))
             gpc.append(abs(v))
-    return _Crossings(tuple(wc), pm, tuple(wpc), tuple(gpc))
+    # A grid point exactly on the negative real axis (no sign change to bracket).
+    on_axis = (im == 0.0) & (Lw.real < 0) & (w > 0) & (mag >= _SMALL_GAIN)
+    for i in np.nonzero(on_axis)[0]:
+        wpc.append(float(w[i]))
+        gpc.append(float(mag[i]))
+    order = np.argsort(wpc)
+    return _Crossings(
+        tuple(wc), pm, tuple(wpc[i] for i in order), tuple(gpc[i] for i in order)
+    )
 
 
 def _margins_from_crossings(cr: _Crossings) -> tuple[float, float, float, float, float, float]:
