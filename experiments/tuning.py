@@ -16,7 +16,8 @@ One closed-loop run of the measurement-model loop (``experiments.scenario``) cos
   effort is normalised by the run length so that λ does not depend on it;
 * ``n_lost``: number of processed frames on which the front end lost a marker (the loop's
   motion-induced loss model, or the seed's 20 px criterion);
-* ``diverged``: 1 if the loop stopped early because the error exceeded its divergence limit.
+* ``diverged``: 1 if the error exceeded the loop's divergence limit (the run still covers its
+  duration).
 
 Defaults, all our choice: **λ = 1000 deg/(N·m)²** (an RMS torque of 0.0316 N·m, 12 % of the
 0.264 N·m all-direction limit of controller/pid.py, costs as much as 1° of RMS error),
