@@ -256,38 +256,56 @@ def measure_latency(
     tracker: Annotated[
         str,
         typer.Option(
-            help="kcf or csrt (GK assistance on top), or orb (the textured rotor's ORB-AEKF)."
+            help="kcf or csrt (GK assistance on top), gk_transt, dual_transt (the shipped "
+            "TransT network), orb (the textured rotor's ORB-AEKF), or all of them."
         ),
     ] = "kcf",
     frames: Annotated[int, typer.Option(help="Frames to time.")] = 200,
-    out: Annotated[Path, typer.Option(help="Profile JSON to write.")] = Path("latency.json"),
+    out: Annotated[
+        Path, typer.Option(help="Profile JSON to write (with 'all': <stem>_<tracker>.json).")
+    ] = Path("latency.json"),
 ) -> None:
     """Measure the observer's per-frame latency on a rendered sequence; writes an empirical
     latency profile that a scenario can load (as pipeline.observer).
 
-    Example: pmspm measure-latency --tracker csrt --frames 200 --out csrt.json
+    Example: pmspm measure-latency --tracker all --frames 100 --out latency.json
     """
     import numpy as np
 
-    from latency.profile import measure_locator_latency, measure_orb_latency
+    from latency.profile import (
+        measure_locator_latency,
+        measure_orb_latency,
+        measure_pair_tracker_latency,
+    )
     from observer.frame_observer import MarkerLocator
     from observer.opencv_trackers import OpenCVTracker
+    from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
-    if tracker not in ("kcf", "csrt", "orb") or frames < 1:
-        _config_error(ValueError("tracker must be kcf, csrt or orb and frames >= 1"), "options")
+    names = ("kcf", "csrt", "gk_transt", "dual_transt", "orb")
+    if tracker not in (*names, "all") or frames < 1:
+        _config_error(
+            ValueError(f"tracker must be one of {', '.join(names)} or all, and frames >= 1"),
+            "options",
+        )
     p = PlantParams()
-    if tracker == "orb":
-        prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
-        label = "ORB-AEKF"
-    else:
-        locator = MarkerLocator(p, OpenCVTracker(tracker))
-        prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
-        label = f"{tracker}+GK"
-    prof.save(out)
-    s = np.asarray(prof.samples_s) * 1e3
-    typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
-    typer.echo(f"profile: {out}")
+    for name in names if tracker == "all" else (tracker,):
+        if name == "orb":
+            prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
+            label = "ORB-AEKF"
+        elif name in ("gk_transt", "dual_transt"):
+            prof = measure_pair_tracker_latency(p, make_pair_tracker(name, p), n_frames=frames,
+                                                progress=True)
+            label = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT"}[name]
+        else:
+            locator = MarkerLocator(p, OpenCVTracker(name))
+            prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
+            label = f"{name}+GK"
+        path = out if tracker != "all" else out.with_name(f"{out.stem}_{name}{out.suffix}")
+        prof.save(path)
+        s = np.asarray(prof.samples_s) * 1e3
+        typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
+        typer.echo(f"profile: {path}")
 
 
 def _names(values: list[str] | None) -> list[str] | None:

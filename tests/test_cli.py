@@ -128,3 +128,14 @@ def test_bench_trackers_default_folder_is_new_and_timestamped(tmp_path, monkeypa
     (folder,) = (tmp_path / "runs").iterdir()
     assert re.fullmatch(r"\d{8}-\d{6}-bench-trackers", folder.name)
     assert (folder / "tracking_metrics.csv").exists()
+
+
+def test_measure_latency_times_every_tracker(tmp_path):
+    out = tmp_path / "lat.json"
+    result = RUNNER.invoke(app, ["measure-latency", "--tracker", "all", "--frames", "2",
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    for name, label in (("kcf", "kcf+GK"), ("csrt", "csrt+GK"), ("gk_transt", "GK-TransT"),
+                        ("dual_transt", "dual TransT"), ("orb", "ORB-AEKF")):
+        assert f"{label}: median" in result.output
+        assert (tmp_path / f"lat_{name}.json").exists()
