@@ -41,6 +41,7 @@ def main() -> None:
         delays_ms=(0.0, 10.0, GK_MS, 20.0, 25.0, DUAL_MS, 40.0, 50.0, 60.0),
         max_rates_rad_s=(),
         duration_s=3.0,
+        n_seeds=1,
     )
     marks = {"GK-TransT": GK_MS, "dual TransT": DUAL_MS}
     margins = margins_table(PlantParams(), cfg)
@@ -77,9 +78,9 @@ def main() -> None:
         notes="Plots: benchmarks/results/pid_margins_vs_delay.png, pm_pid_vs_mpc.png, "
         "step_metrics_vs_delay.png. PID crossover 10 rad/s (PIDConfig default), MPC defaults "
         "(its 4.00 ms measured compute time in the delay, experiments.scenario); NaN margins "
-        "mean unstable; NaN settling means not settled (band ±0.1°) within the 3 s run. MPC margins are of "
-        "its linearised law without Coulomb friction (docs/margins.md); mpc_unaware = the same "
-        "law without the delay compensation.",
+        "mean unstable; NaN settling means not settled (band ±0.1°) within the 3 s run. MPC "
+        "margins are of its linearised law without Coulomb friction (docs/margins.md); "
+        "mpc_unaware = the same law without the delay compensation.",
     )
 
 
