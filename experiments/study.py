@@ -269,7 +269,9 @@ def _controller_spec(name: str, cfg: StudyConfig) -> PIDSpec | MPCSpec:
     return specs[name]()
 
 
-#: Controllers of the sweep: every variant on the step, PID and MPC on the random references.
+#: Controllers of the sweep: every variant on the step and on the fastest random reference (on
+#: the step the PID's feedforward is zero, on a moving reference it is not), PID and MPC on the
+#: other random references.
 STEP_CONTROLLERS = ("pid", "pid_noff", "pid_friction", "mpc", "mpc_nopreview")
 RANDOM_CONTROLLERS = ("pid", "mpc")
 
@@ -279,9 +281,10 @@ def sweep_configs(cfg: StudyConfig) -> list[dict]:
     out = []
     refs = [("tilt_step_5deg", {"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1}, 0.0,
              STEP_CONTROLLERS)]
+    fastest = max(cfg.max_rates_rad_s, default=None)
     refs += [
         (f"random_{w:g}rad_s", {"kind": "random", "args": {"max_rate_rad_s": w, "seed": 7}}, w,
-         RANDOM_CONTROLLERS)
+         STEP_CONTROLLERS if w == fastest else RANDOM_CONTROLLERS)
         for w in cfg.max_rates_rad_s
     ]
     for d in cfg.delays_ms:
@@ -401,11 +404,22 @@ def measure_here(params: PlantParams, cfg: StudyConfig, out: Path) -> dict[str, 
     return measured
 
 
+def _cpu_model() -> str:
+    """The CPU's model name as the operating system reports it ("unknown" if it does not)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def machine_facts(params: PlantParams) -> dict[str, str | float]:
     """What the report may say about the run: read from the machine and the parameters."""
     return {
         "machine": platform.machine(),
-        "processor": platform.processor() or "unknown",
+        "processor": _cpu_model(),
         "cpus": float(os.cpu_count() or 0),
         "python": platform.python_version(),
         "frame_rate_hz": params.camera.frame_rate_hz,
