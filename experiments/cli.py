@@ -414,7 +414,10 @@ def tune_kalman_cmd(
     delays_ms: Annotated[
         list[float] | None, typer.Option(help="Vision delays, ms (repeat the option).")
     ] = None,
-    grid_points: Annotated[int, typer.Option(help="Grid points per axis (log q x log r).")] = 5,
+    grid_points: Annotated[
+        int, typer.Option(help="Log-spaced grid points per axis (q, r); the seed's value is added "
+                          "when it is not one of them (an even count gets one more).")
+    ] = 5,
     trials: Annotated[int, typer.Option(help="Optuna TPE trials per delay.")] = 20,
     duration_s: Annotated[float, typer.Option(help="Simulated time per run, s.")] = 3.0,
     workers: Annotated[int | None, typer.Option(help="Local worker processes.")] = None,
@@ -431,13 +434,21 @@ def tune_kalman_cmd(
 
     Example: pmspm tune-kalman --delays-ms 16.33 --delays-ms 31.23 --trials 20 --workers 2
     """
-    from experiments.tuning import tune_kalman
+    from experiments.tuning import GRID_DECADES, SEED_Q_SCALE, SEED_R_SCALE, log_grid, tune_kalman
 
     if grid_points < 2 or trials < 0 or duration_s <= 0:
         _config_error(
             ValueError("need grid_points >= 2, trials >= 0 and duration_s > 0"), "options"
         )
     delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
+    nq = len(log_grid(SEED_Q_SCALE, grid_points, GRID_DECADES))
+    nr = len(log_grid(SEED_R_SCALE, grid_points, GRID_DECADES))
+    typer.echo(
+        f"grid: {nq} x {nr} (q, r) points per delay, {len(delays)} delay(s)"
+        + (" (the seed's q and r are added to the grid: they are not among the "
+           f"{grid_points} log-spaced values)" if (nq, nr) != (grid_points, grid_points) else "")
+        + f"; then {trials} optuna trial(s) per delay and the held-out comparison"
+    )
     result = tune_kalman(
         out,
         delays_s=delays,
