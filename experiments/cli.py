@@ -58,6 +58,10 @@ def study(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
+    n_seeds: Annotated[
+        int | None,
+        typer.Option(help="Seeds per closed-loop point (default 2; 95 % intervals want >= 32)."),
+    ] = None,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -67,7 +71,11 @@ def study(
     """
     from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study
 
-    cfg = StudyConfig(workers=workers, scheduler=scheduler)
+    try:
+        extra = {} if n_seeds is None else {"n_seeds": n_seeds}
+        cfg = StudyConfig(workers=workers, scheduler=scheduler, **extra)
+    except ValidationError as exc:
+        _config_error(exc, "options")
     if quick:
         cfg = cfg.model_copy(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
