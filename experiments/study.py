@@ -4,23 +4,26 @@
 folder (``runs/<timestamp>-study/``) with ``report.md``, ``report.html``, PNG plots and Parquet
 tables:
 
-1. **Margins against delay** (analysis, no simulation): phase, delay and jitter margins of the
-   per-axis PID loop against the vision delay 0–60 ms, for the sequential observer of the seed
-   (a frame that arrives while the observer is busy is dropped, so a slower observer also lowers
-   the update rate) and for a pipelined observer (no drops). GK-TransT's 16.33 ms, the dual
-   TransT's 31.23 ms (seed 000 Table 1) and the latency measured here are marked.
-2. **Closed-loop sweep** (measurement-model loop through ``experiments.sweep``): RMS attitude
-   error and lost-frame fraction against delay and against the reference's aggressiveness
-   (peak angular rate of a smooth random trajectory), for PID and MPC, with the motion-induced
-   tracking-loss model of ``latency.frontends.MeasurementConfig``; tilt-step overshoot and
-   settling against delay (the MPC's "margin" is read empirically from these step responses).
+1. **Margins against delay** (analysis, no simulation): critical phase margin, delay margin,
+   headroom and jitter margin of the per-axis PID loop as it runs (and of the MPC's linearised
+   law) against the vision delay 0–60 ms, for the sequential observer of the seed (a frame that
+   arrives while the observer is busy is dropped, so a slower observer also lowers the update
+   rate) and for a pipelined observer (no drops), with the timing of ``latency.pipeline``.
+   GK-TransT's 16.33 ms, the dual TransT's 31.23 ms (seed 000 Table 1) and both trackers'
+   latencies measured here are marked.
+2. **Closed-loop sweep** (measurement-model loop through ``experiments.sweep``), ``n_seeds``
+   seeds per point with 95 % intervals (``experiments.intervals``): RMS attitude error,
+   lost-frame fraction and probability of loss of control against delay and against the
+   reference's aggressiveness (peak angular rate of a smooth random trajectory), for PID and
+   MPC; tilt-step metrics against the commanded step for every controller variant (PID with and
+   without reference feedforward and with friction compensation, MPC with and without reference
+   preview); the predicted stability boundary over the simulated loss of control.
 3. **Time series** of a 5° tilt step at 16.33 ms and at 31.23 ms, PID and MPC side by side.
-4. A plain-language **summary** generated from the numbers.
+4. A plain-language **summary** generated from the numbers and the facts measured in the run.
 
 Delay convention: "vision delay" is the observer's processing latency (the seed's Table 1 figure);
 the loop's total delay adds half the exposure (mid-exposure time stamp).
 """
-
 from __future__ import annotations
 
 import datetime as dt
@@ -71,7 +74,7 @@ DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
 
 
 class StudyConfig(BaseModel):
-    """Size of the study. The defaults run in a few minutes on two cores."""
+    """Size of the study. The defaults run in minutes on two cores (docs/closed_loop.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
