@@ -190,20 +190,23 @@ def plot_boundary_overlay(
     control (sweep, all references pooled, 95 % Wilson intervals), PID and MPC."""
     fig = Figure(figsize=(11, 5), layout="constrained")
     ax = fig.subplots()
-    for ctrl in ("pid", "mpc"):
+    finite = [b for b in boundaries_ms.values() if np.isfinite(b)]
+    right = max([*intervals.vision_delay_ms, *finite, 0.0]) + 5.0
+    for ctrl, fmt, shift in (("pid", "o-", -0.3), ("mpc", "s--", 0.3)):
         colour, label = CONTROLLER_STYLE[ctrl]
         g = intervals[intervals.controller == ctrl]
         if not len(g):
             continue
-        x = g.vision_delay_ms.to_numpy()
+        x = g.vision_delay_ms.to_numpy() + shift  # side by side where the points coincide
         p = g.p_loss_of_control.to_numpy()
         err = np.vstack([p - g.p_loss_of_control_lo, g.p_loss_of_control_hi - p])
-        ax.errorbar(x, p, yerr=err, fmt="o-", color=colour, ms=4, capsize=3,
+        ax.errorbar(x, p, yerr=err, fmt=fmt, color=colour, ms=5, capsize=3, mfc="none",
                     label=f"{label}: P(loss of control), simulated")
         b = boundaries_ms.get(ctrl, np.nan)
         if np.isfinite(b):
-            ax.axvspan(b, max(x.max(), b) + 5, color=colour, alpha=0.08)
-            ax.axvline(b, color=colour, lw=2, label=f"{label}: predicted boundary {b:.1f} ms")
+            ax.axvspan(b, right, color=colour, alpha=0.08)
+            ax.axvline(b, color=colour, lw=2, label=f"{label}: predicted unstable from {b:.1f} ms")
+    ax.set_xlim(min(0.0, float(intervals.vision_delay_ms.min())) - 2.0, right)
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel("vision delay (ms), sequential observer")
     ax.set_ylabel("probability of loss of control")
