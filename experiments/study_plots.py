@@ -137,8 +137,9 @@ def plot_sweep(
     for j, ctrl in enumerate(("pid", "mpc")):
         for i, (ref, g) in enumerate(rnd[rnd.controller == ctrl].groupby("reference")):
             colour = f"C{i}"
-            _band(ax[0, j], g, "rms_error_deg", colour, ref.replace("_", " "))
-            _band(ax[1, j], g, "lost_frame_fraction", colour, ref.replace("_", " "), 100.0)
+            name = "peak rate " + ref.removeprefix("random_").replace("rad_s", " rad/s")
+            _band(ax[0, j], g, "rms_error_deg", colour, name)
+            _band(ax[1, j], g, "lost_frame_fraction", colour, name, 100.0)
             bad = failed[(failed.controller == ctrl) & (failed.reference == ref)]
             _mark_excluded(ax[0, j], bad.vision_delay_ms.to_numpy(), colour, "failed run")
         ax[0, j].set_title(CONTROLLER_STYLE[ctrl][1])
