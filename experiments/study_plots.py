@@ -27,11 +27,19 @@ def mark_delays(ax: Axes, marks: dict[str, float], zero_line: bool = True) -> No
     """Dotted vertical lines at the named delays (ms), each labelled with its name and value.
 
     Labels of marks closer than 6 % of the axis width are staggered in height so they do not
-    overlap."""
+    overlap; a mark beyond the axis is named at the edge with an arrow instead of a line."""
     lo, hi = ax.get_xlim()
     span = max(hi - lo, 1e-9)
+    inside = {k: v for k, v in marks.items() if lo <= v <= hi}
+    for edge, arrow, beyond in ((lo, "←", lambda v: v < lo), (hi, "→", lambda v: v > hi)):
+        names = [f"{k} {v:.2f} ms" for k, v in sorted(marks.items(), key=lambda kv: kv[1])
+                 if beyond(v)]
+        if names:  # one label at the edge for the marks off the axis
+            ax.text(edge, 0.02, f" {', '.join(names)} {arrow}", rotation=90, fontsize=7,
+                    va="bottom", ha="right" if edge == hi else "left",
+                    transform=ax.get_xaxis_transform(), color="0.25")
     level, last = 0, -np.inf
-    for name, ms in sorted(marks.items(), key=lambda kv: kv[1]):
+    for name, ms in sorted(inside.items(), key=lambda kv: kv[1]):
         level = level + 1 if (ms - last) / span < 0.06 else 0
         last = ms
         ax.axvline(ms, color="k", lw=0.8, ls=":")
