@@ -25,12 +25,11 @@ from experiments.study import (
     StudyConfig,
     margins_table,
     mpc_margins_table,
-    plot_margins,
-    plot_pm_pid_vs_mpc,
-    plot_steps,
     sweep_configs,
+    sweep_intervals,
     tidy_sweep,
 )
+from experiments.study_plots import plot_margins, plot_pm_pid_vs_mpc, plot_steps
 from experiments.sweep import run_sweep
 from plant.params import PlantParams
 
@@ -42,6 +41,7 @@ def main() -> None:
         delays_ms=(0.0, 10.0, GK_MS, 20.0, 25.0, DUAL_MS, 40.0, 50.0, 60.0),
         max_rates_rad_s=(),
         duration_s=3.0,
+        n_seeds=1,
     )
     marks = {"GK-TransT": GK_MS, "dual TransT": DUAL_MS}
     margins = margins_table(PlantParams(), cfg)
@@ -50,7 +50,7 @@ def main() -> None:
     plot_pm_pid_vs_mpc(margins, mpc, marks, HERE / "results" / "pm_pid_vs_mpc.png")
     out = HERE / "results" / "delay_curves_sweep"
     sweep = tidy_sweep(run_sweep("experiments.study:study_run", sweep_configs(cfg), out))
-    plot_steps(sweep, marks, HERE / "results" / "step_metrics_vs_delay.png")
+    plot_steps(sweep_intervals(sweep), marks, HERE / "results" / "step_metrics_vs_delay.png")
 
     figures: dict[str, float] = {}
     for d in (0.0, GK_MS, DUAL_MS, 45.0, 60.0):
@@ -70,7 +70,7 @@ def main() -> None:
         figures[f"{tag}_overshoot_pct"] = float(r.overshoot_pct)
         figures[f"{tag}_settling_time_s"] = float(r.settling_time_s)
         figures[f"{tag}_rms_error_deg"] = float(r.rms_error_deg)
-        figures[f"{tag}_diverged"] = float(r.diverged)
+        figures[f"{tag}_loss_of_control"] = float(r.loss_of_control)
     record(
         "bench_delay_curves",
         "Margins and step metrics against vision delay (PID analysis; PID and MPC simulation)",
@@ -78,9 +78,9 @@ def main() -> None:
         notes="Plots: benchmarks/results/pid_margins_vs_delay.png, pm_pid_vs_mpc.png, "
         "step_metrics_vs_delay.png. PID crossover 10 rad/s (PIDConfig default), MPC defaults "
         "(its 4.00 ms measured compute time in the delay, experiments.scenario); NaN margins "
-        "mean unstable; NaN settling means not settled within the 3 s run. MPC margins are of "
-        "its linearised law without Coulomb friction (docs/margins.md); mpc_unaware = the same "
-        "law without the delay compensation.",
+        "mean unstable; NaN settling means not settled (band ±0.1°) within the 3 s run. MPC "
+        "margins are of its linearised law without Coulomb friction (docs/margins.md); "
+        "mpc_unaware = the same law without the delay compensation.",
     )
 
 

@@ -82,7 +82,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Reference
+from controller.base import Reference, RefSample
 from controller.pid import (
     RateFromAttitude,
     estimate_usable,
@@ -165,6 +165,13 @@ class MPCConfig(BaseModel):
         "evaluation, the Gauss-Newton one 0.15 ms (docs/controllers.md).",
     )
     delay_aware: bool = Field(True, description="Predict the estimate forward (module docstring).")
+    reference_preview: bool = Field(
+        True,
+        description="Our choice: the horizon follows the reference's future (the MPC starts "
+        "moving before a step). False: the reference sampled at the call time is held over the "
+        "horizon with zero rate, as a controller that cannot see ahead (a fair comparison "
+        "with a PID).",
+    )
     compute_latency_s: float | None = Field(
         None, ge=0.0, description="None: median of the measured call durations (last 20)."
     )
@@ -563,11 +570,18 @@ class MPCController:
         t0 = t + self.expected_compute_s() + self.config.actuation_delay_s
         return self.predict(x, est.state_time, t0), t0
 
-    def _parameters(self, reference: Reference, t0: float, q0: NDArray) -> NDArray[np.float64]:
+    def _parameters(
+        self, reference: Reference, t0: float, q0: NDArray, t_call: float | None = None
+    ) -> NDArray[np.float64]:
         """The NLP parameters: reference attitude and rate at the N+1 nodes from ``t0`` (s) and
-        the feedforward torque of the N intervals (stator frame, N·m)."""
+        the feedforward torque of the N intervals (stator frame, N·m). Without
+        ``reference_preview`` the reference at ``t_call`` (s; default ``t0``) is held."""
         N, h, J = self.N, self.h, self.J
-        samples = [reference.sample(t0 + k * h) for k in range(N + 1)]
+        if self.config.reference_preview:
+            samples = [reference.sample(t0 + k * h) for k in range(N + 1)]
+        else:
+            held = RefSample(q=reference.sample(t0 if t_call is None else t_call).q)
+            samples = [held] * (N + 1)
         qr = attitude.normalize(np.array([s.q for s in samples]), "reference.q")
         wr = np.array([s.omega for s in samples], dtype=float)
         ar = np.array([s.alpha for s in samples[:N]], dtype=float)
@@ -634,7 +648,7 @@ class MPCController:
         if not estimate_usable(est):
             return self._safe(t)
         x0, t0 = self._initial_state(est, t)
-        p = self._parameters(reference, t0, x0[:4])
+        p = self._parameters(reference, t0, x0[:4], t)
         lbw, ubw = self._lbw.copy(), self._ubw.copy()
         lbw[:7] = x0
         ubw[:7] = x0

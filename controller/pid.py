@@ -263,6 +263,16 @@ class PIDConfig(BaseModel):
         None, gt=0.0, description="Back-calculation T_t; None: sqrt(Ti Td) (Åström & Murray)."
     )
     feedforward: bool = Field(True, description="Our choice: add J alpha_r + omega_r x J omega_r.")
+    friction_compensation_Nm: float = Field(
+        0.0,
+        ge=0.0,
+        description="Coulomb friction compensation: adds F tanh(e / w) per axis, the friction "
+        "torque F (N·m; e.g. PlantParams.rotor.coulomb_Nm) in the direction the error asks the "
+        "rotor to move, so the integral need not wind up to break the rotor free (0 = off).",
+    )
+    friction_compensation_width_deg: float = Field(
+        0.05, gt=0.0, description="Our choice: the error w (deg) over which tanh goes to ±1."
+    )
     invalid_command: Literal["zero", "hold"] = Field(
         "zero", description="Our choice: zero torque while the estimate is invalid."
     )
@@ -424,6 +434,9 @@ class PIDController:
         self.integral = self.integral + self._pending * dt
 
         tau = self.Kp * e + self.integral + self.Kd * self._d
+        if self.config.friction_compensation_Nm > 0.0:
+            width = np.radians(self.config.friction_compensation_width_deg)
+            tau = tau + self.config.friction_compensation_Nm * np.tanh(e / width)
         if self.config.feedforward:
             tau = tau + self.J * a_r + np.cross(w_r, self.J * w_r)
         R = attitude.to_matrix(q)

@@ -163,6 +163,10 @@ def study(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
+    n_seeds: Annotated[
+        int | None,
+        typer.Option(help="Seeds per closed-loop point (default 2; 95 % intervals want >= 32)."),
+    ] = None,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -174,7 +178,11 @@ def study(
 
     _check_workers_and_scheduler(workers, scheduler)
     _writable_folder(out)
-    cfg = StudyConfig(workers=workers, scheduler=scheduler)
+    try:
+        extra = {} if n_seeds is None else {"n_seeds": n_seeds}
+        cfg = StudyConfig(workers=workers, scheduler=scheduler, **extra)
+    except ValidationError as exc:
+        _config_error(exc, "options")
     if quick:
         cfg = cfg.model_copy(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
@@ -252,61 +260,68 @@ def _plot_run(steps, path: Path, title: str) -> None:
 @app.command()
 def margins(
     crossover_rad_s: Annotated[float, typer.Option(help="PID crossover, rad/s.")] = 10.0,
-    frame_rate_hz: Annotated[float, typer.Option(help="Observer update rate, Hz.")] = 36.0,
+    frame_rate_hz: Annotated[
+        float | None, typer.Option(help="Camera frame rate, Hz (default: PlantParams.camera).")
+    ] = None,
     delay_ms: Annotated[float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")] = 16.33,
+    observer: Annotated[
+        str,
+        typer.Option(help="sequential (drops frames while busy, as the study) or pipelined."),
+    ] = "sequential",
     out: OutOption = Path("runs"),
 ) -> None:
-    """Margins of the per-axis PID loop with the exact delay; Bode and Nyquist plots and the
-    margins against delay 0–60 ms.
+    """Margins of the per-axis PID loop as it runs (discrete C(z) at the observer's update
+    period, exact delay); Bode and Nyquist plots and the margins against delay 0–60 ms.
 
-    Example: pmspm margins --crossover-rad-s 10 --delay-ms 31.23
+    Example: pmspm margins --crossover-rad-s 10 --delay-ms 31.23 --observer sequential
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     from controller.pid import PIDConfig, PIDController, reach_warnings
-    from latency.margins import (
-        attitude_delay_sweep,
-        attitude_margins,
-        attitude_plant,
-        loop_model,
-        plot_bode,
-        plot_nyquist,
-    )
+    from experiments.study import StudyConfig, margins_table, pid_axis_margins, pid_headroom_s
+    from latency.margins import attitude_plant, loop_model, plot_bode, plot_nyquist
     from plant.params import PlantParams
 
     beyond = " (beyond it the margin computation does not finish)"
     _number("--crossover-rad-s", crossover_rad_s, low=MIN_CROSSOVER_RAD_S,
             high=MAX_CROSSOVER_RAD_S, why=beyond)
-    _number("--frame-rate-hz", frame_rate_hz, strict=True)
+    if frame_rate_hz is not None:
+        _number("--frame-rate-hz", frame_rate_hz, strict=True)
     _number("--delay-ms", delay_ms, high=MAX_DELAY_MS, why=beyond)
-    p = PlantParams()
-    if frame_rate_hz * p.camera.exposure_s > 1.0:
-        _fail(
-            f"--frame-rate-hz {frame_rate_hz:g} is more than the camera can reach with its "
-            f"{p.camera.exposure_s:g} s exposure (at most {1.0 / p.camera.exposure_s:g} Hz)"
-        )
-    cfg = PIDConfig(crossover_rad_s=crossover_rad_s)
-    folder = _writable_folder(Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms")
-    pid = PIDController(cfg, p)
-    for reason in reach_warnings(pid, frame_rate_hz):
-        _warn(reason)
-    J, b, T = float(pid.J[1]), p.rotor.viscous_Nms_per_rad, 1.0 / frame_rate_hz
-    tau = 0.5 * p.camera.exposure_s + delay_ms / 1e3
-    m = attitude_margins(
-        pid.transfer_function(1), inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T,
-        delay_s=tau,
+    if observer not in ("sequential", "pipelined"):
+        _fail(f"--observer must be sequential or pipelined, got {observer!r}")
+    try:
+        cfg = PIDConfig(crossover_rad_s=crossover_rad_s)
+        p = PlantParams()
+        if frame_rate_hz is not None:
+            camera = p.camera.model_dump() | {"frame_rate_hz": frame_rate_hz}
+            p = PlantParams.model_validate(p.model_dump() | {"camera": camera})
+    except ValidationError as exc:
+        _config_error(exc, "options")
+    folder = _writable_folder(
+        Path(out) / f"margins-{crossover_rad_s:g}rad_s-{delay_ms:g}ms-{observer}"
     )
+    for reason in reach_warnings(PIDController(cfg, p), p.camera.frame_rate_hz):
+        _warn(reason)
+    timing, m = pid_axis_margins(p, crossover_rad_s, delay_ms / 1e3, observer)
+    typer.echo(f"case: {timing.describe()}")
     typer.echo(m.summary())
+    for line in m.crossover_lines():
+        typer.echo(f"  {line}")
+    pid = PIDController(cfg, p)
     model = loop_model(
-        attitude_plant(J, b), pid.transfer_function(1), sample_period_s=T, delay_s=tau
+        attitude_plant(float(pid.J[1]), p.rotor.viscous_Nms_per_rad),
+        pid.discrete_transfer_function(timing.update_period_s, axis=1),
+        delay_s=timing.delay_s,
     )
     plot_bode(model, m).savefig(folder / "bode.png", dpi=110)
     plot_nyquist(model, m).savefig(folder / "nyquist.png", dpi=110)
-    sweep = attitude_delay_sweep(
-        pid.transfer_function(1), inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T
-    )
-    sweep.to_parquet(folder / "margins_vs_delay.parquet")
+    table = margins_table(p, StudyConfig(crossover_rad_s=crossover_rad_s), modes=(observer,))
+    table.to_parquet(folder / "margins_vs_delay.parquet")
+    head = pid_headroom_s(p, crossover_rad_s, delay_ms / 1e3, observer)
+    if head == head:  # NaN when the loop is already unstable
+        typer.echo(
+            f"headroom: {1e3 * head:.2f} ms more vision delay before the loop is unstable "
+            "(scanned through the pipeline)"
+        )
     typer.echo(f"plots and table: {folder}")
 
 
@@ -419,7 +434,8 @@ def measure_latency(
     tracker: Annotated[
         str,
         typer.Option(
-            help="kcf or csrt (GK assistance on top), or orb (the textured rotor's ORB-AEKF)."
+            help="kcf or csrt (GK assistance on top), gk_transt, dual_transt (the shipped "
+            "TransT network), orb (the textured rotor's ORB-AEKF), or all of them."
         ),
     ] = "kcf",
     frames: Annotated[int, typer.Option(help="Frames to time (1 to 100000).")] = 200,
@@ -429,36 +445,48 @@ def measure_latency(
     latency profile that a scenario can load (as pipeline.observer) into a new folder
     <out>/<timestamp>-measure-latency-<tracker>/latency.json.
 
-    Example: pmspm measure-latency --tracker csrt --frames 200 --out runs
+    Example: pmspm measure-latency --tracker all --frames 100 --out runs
     """
     import numpy as np
 
-    from latency.profile import measure_locator_latency, measure_orb_latency
+    from latency.profile import (
+        measure_locator_latency,
+        measure_orb_latency,
+        measure_pair_tracker_latency,
+    )
     from observer.frame_observer import MarkerLocator
     from observer.opencv_trackers import OpenCVTracker
+    from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
-    if tracker not in ("kcf", "csrt", "orb"):
-        _fail(f"--tracker must be kcf, csrt or orb, got {tracker!r}")
+    names = ("kcf", "csrt", "gk_transt", "dual_transt", "orb")
+    if tracker not in (*names, "all"):
+        _fail(f"--tracker must be one of {', '.join(names)} or all, got {tracker!r}")
     if not 1 <= frames <= 100_000:
         _fail(f"--frames must be between 1 and 100000, got {frames}")
     _writable_folder(out)
     p = PlantParams()
-    try:
-        if tracker == "orb":
-            prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
-            label = "ORB-AEKF"
-        else:
-            locator = MarkerLocator(p, OpenCVTracker(tracker))
-            prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
-            label = f"{tracker}+GK"
-    except KeyboardInterrupt:
-        _interrupted()
-    out = _new_folder(out, f"measure-latency-{tracker}") / "latency.json"
-    prof.save(out)
-    s = np.asarray(prof.samples_s) * 1e3
-    typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
-    typer.echo(f"profile: {out}")
+    folder = _new_folder(out, f"measure-latency-{tracker}")
+    for name in names if tracker == "all" else (tracker,):
+        try:
+            if name == "orb":
+                prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
+                label = "ORB-AEKF"
+            elif name in ("gk_transt", "dual_transt"):
+                prof = measure_pair_tracker_latency(p, make_pair_tracker(name, p),
+                                                    n_frames=frames, progress=True)
+                label = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT"}[name]
+            else:
+                locator = MarkerLocator(p, OpenCVTracker(name))
+                prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
+                label = f"{name}+GK"
+        except KeyboardInterrupt:
+            _interrupted()
+        path = folder / ("latency.json" if tracker != "all" else f"latency_{name}.json")
+        prof.save(path)
+        s = np.asarray(prof.samples_s) * 1e3
+        typer.echo(f"{label}: median {np.median(s):.2f} ms, p95 {np.percentile(s, 95):.2f} ms")
+        typer.echo(f"profile: {path}")
 
 
 def _names(values: list[str] | None) -> list[str] | None:
@@ -575,7 +603,10 @@ def tune_kalman_cmd(
     delays_ms: Annotated[
         list[float] | None, typer.Option(help="Vision delays, ms (repeat the option).")
     ] = None,
-    grid_points: Annotated[int, typer.Option(help="Grid points per axis (log q x log r).")] = 5,
+    grid_points: Annotated[
+        int, typer.Option(help="Log-spaced grid points per axis (q, r); the seed's value is added "
+                          "when it is not one of them (an even count gets one more).")
+    ] = 5,
     trials: Annotated[int, typer.Option(help="Optuna TPE trials per delay.")] = 20,
     duration_s: Annotated[float, typer.Option(help="Simulated time per run, s.")] = 3.0,
     workers: Annotated[int | None, typer.Option(help="Local worker processes.")] = None,
@@ -592,7 +623,14 @@ def tune_kalman_cmd(
 
     Example: pmspm tune-kalman --delays-ms 16.33 --delays-ms 31.23 --trials 20 --workers 2
     """
-    from experiments.tuning import SEED_Q_SCALE, SEED_R_SCALE, TuningObjective, tune_kalman
+    from experiments.tuning import (
+        GRID_DECADES,
+        SEED_Q_SCALE,
+        SEED_R_SCALE,
+        TuningObjective,
+        log_grid,
+        tune_kalman,
+    )
 
     if not (2 <= grid_points <= 100 and trials >= 0):
         _fail(f"need 2 <= --grid-points <= 100 and --trials >= 0, got {grid_points} and "
@@ -610,6 +648,14 @@ def tune_kalman_cmd(
     _writable_folder(out)
     if storage is not None:
         _check_storage(storage)
+    nq = len(log_grid(SEED_Q_SCALE, grid_points, GRID_DECADES))
+    nr = len(log_grid(SEED_R_SCALE, grid_points, GRID_DECADES))
+    typer.echo(
+        f"grid: {nq} x {nr} (q, r) points per delay, {len(delays)} delay(s)"
+        + (" (the seed's q and r are added to the grid: they are not among the "
+           f"{grid_points} log-spaced values)" if (nq, nr) != (grid_points, grid_points) else "")
+        + f"; then {trials} optuna trial(s) per delay and the held-out comparison"
+    )
     try:
         result = tune_kalman(
             out,

@@ -3,7 +3,6 @@ the plots beside them and the key numbers as tables taken from the Parquet files
 
 from __future__ import annotations
 
-import platform
 from datetime import datetime
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import markdown
 import numpy as np
 import pandas as pd
 
+from latency import loop
 from latency.models import SEED_LATENCY_S
 
 HTML_HEAD = """<!doctype html><html><head><meta charset="utf-8"><title>{title}</title>
@@ -38,18 +38,34 @@ def key_margins(margins: pd.DataFrame) -> pd.DataFrame:
     """The margin rows at the seed's two latencies, both observer semantics."""
     marks = [SEED_LATENCY_S["gk_transt"] * 1e3, SEED_LATENCY_S["dual_transt"] * 1e3]
     rows = margins[np.isclose(margins.vision_delay_ms.to_numpy()[:, None], marks).any(axis=1)]
-    out = rows[["vision_delay_ms", "observer", "update_period_s", "stable", "phase_margin_deg"]]
+    out = rows[["vision_delay_ms", "observer", "update_period_s", "stable", "phase_margin_deg",
+                "crossover_rad_s", "n_crossovers", "gain_margin", "conditionally_stable"]]
     out = out.assign(
-        delay_margin_ms=1e3 * rows.delay_margin_s, jitter_margin_ms=1e3 * rows.jitter_margin_s
+        delay_margin_ms=1e3 * rows.delay_margin_s, headroom_ms=1e3 * rows.headroom_s,
+        jitter_margin_ms=1e3 * rows.jitter_margin_s,
     )
     return out.reset_index(drop=True)
 
 
-def key_sweep(sweep: pd.DataFrame) -> pd.DataFrame:
-    """RMS error and lost-frame fraction by controller, reference and delay (seed means)."""
-    cols = ["rms_error_deg", "lost_frame_fraction", "dropped_frame_fraction", "diverged"]
-    g = sweep.groupby(["controller", "reference", "vision_delay_ms"], as_index=False)[cols].mean()
-    return g
+def key_sweep(intervals: pd.DataFrame) -> pd.DataFrame:
+    """Means over seeds with 95 % intervals by controller, reference and delay."""
+    cols = ["controller", "reference", "vision_delay_ms", "n_runs"]
+    for c in ("rms_error_deg", "lost_frame_fraction"):
+        cols += [c, f"{c}_lo", f"{c}_hi"]
+    cols += ["p_loss_of_control", "p_loss_of_control_lo", "p_loss_of_control_hi"]
+    return intervals[cols]
+
+
+def key_steps(intervals: pd.DataFrame) -> pd.DataFrame:
+    """Step metrics with 95 % intervals at the seed's two latencies, every controller."""
+    marks = [SEED_LATENCY_S["gk_transt"] * 1e3, SEED_LATENCY_S["dual_transt"] * 1e3]
+    st = intervals[(intervals.reference == "tilt_step_5deg")
+                   & np.isclose(intervals.vision_delay_ms.to_numpy()[:, None], marks).any(axis=1)]
+    cols = ["controller", "vision_delay_ms", "n_runs"]
+    for c in ("overshoot_pct", "settling_time_s", "steady_state_error_deg"):
+        cols += [c, f"{c}_lo", f"{c}_hi"]
+    cols += ["p_settled"]
+    return st[cols].reset_index(drop=True)
 
 
 def _mpc_section(mpc_margins) -> list[str]:
@@ -64,9 +80,10 @@ def _mpc_section(mpc_margins) -> list[str]:
         "of the real solver at rest by central differences, the backward-difference rate and the "
         "delay compensation with the commands already sent, analysed like the PID's exact "
         "discrete law; the delay includes the MPC's measured compute time. Coulomb friction is "
-        "left out of this analysis (for both controllers). Where a stable loop shows a negative "
-        "phase margin it has several gain crossovers and is only conditionally stable (the "
-        "encirclements cancel); its delay margin is then the number to read.",
+        "left out of this analysis (for both controllers). A loop may cross |L| = 1 more than "
+        "once: the phase margin reported is the critical crossover's, where L comes closest "
+        "to -1 (`n_crossovers` counts them); 'conditionally stable' is said only where a lower "
+        "gain margin exists (the loop would go unstable if its gain shrank).",
         "",
         "![PID vs MPC](pm_pid_vs_mpc.png)",
         "",
@@ -78,14 +95,19 @@ def _mpc_section(mpc_margins) -> list[str]:
 
 
 def write_report(
-    out: Path, cfg, findings, margins, sweep, ts: dict, measured_ms: float, mpc_margins=None
+    out: Path, cfg, findings, margins, intervals, loss, ts: dict, measured: dict[str, float],
+    facts: dict, mpc_margins=None,
 ) -> None:
-    """Write ``report.md`` and ``report.html`` into ``out``."""
+    """Write ``report.md`` and ``report.html`` into ``out``. Facts about the machine and the
+    camera come from ``facts`` (read in this run), latencies from ``measured``."""
+    n_seeds = int(getattr(cfg, "n_seeds", 1))
+    lat = "; ".join(f"{k} {v:.2f} ms median (`latency_{k}.json`)" for k, v in measured.items())
     md = [
         "# What vision delay does to the PMSpM attitude loop",
         "",
         f"Generated {datetime.now().isoformat(timespec='seconds')} on "
-        f"{platform.machine()} ({platform.python_version()}) by `pmspm study`.",
+        f"{facts['machine']} ({facts['processor']}, {facts['cpus']:.0f} CPUs seen by Python, "
+        f"Python {facts['python']}) by `pmspm study`.",
         "",
         "## Summary",
         "",
@@ -95,8 +117,12 @@ def write_report(
         "",
         "Per-axis loop 1/(J s² + b s) with the PID exactly as it runs (discrete, at the observer's "
         "update period), exact delay, stability from the closed-loop eigenvalues "
-        "(`latency.margins.sampled_margins`); jitter margin from the hybrid model (Kao & Lincoln). "
-        "Delay = observer latency; the loop adds half the exposure.",
+        "(`latency.margins.as_run_margins`); jitter margin (Kao & Lincoln) from the same "
+        "discrete C(z). Delay = observer latency; the loop adds half the exposure. The delay "
+        "margin is the extra constant delay at the row's fixed update period; the headroom is "
+        "the extra vision delay before instability found by scanning the delay through the "
+        "pipeline (a sequential observer's update period grows once the delay exceeds a frame "
+        "period).",
         "",
         "![margins](margins_vs_delay.png)",
         "",
@@ -107,18 +133,36 @@ def write_report(
         *_mpc_section(mpc_margins),
         "## 2. Closed-loop sweep (measurement-model loop)",
         "",
-        f"Sequential observer at 36 frames/s, pixel noise {cfg.sigma_px} px, tracker search window "
-        f"{cfg.search_radius_px:g} px with a constant-velocity prediction; "
-        f"{cfg.duration_s:g} s per run; per-frame least-squares attitude; the MPC predicts across "
-        "the delay itself, the PID does not.",
+        f"Sequential observer at {facts['frame_rate_hz']:g} frames/s, pixel noise "
+        f"{cfg.sigma_px} px, tracker search window {cfg.search_radius_px:g} px with a "
+        f"constant-velocity prediction; {cfg.duration_s:g} s per run, every run over the whole "
+        f"duration; {n_seeds} seed(s) per point. Bands and table columns `_lo`/`_hi` are 95 % "
+        "intervals over seeds: bootstrap of the mean for RMS error and lost frames, Wilson for "
+        "the probability of loss of control"
+        + (" (with a single seed there is no interval)" if n_seeds < 2 else "")
+        + f". Loss of control: the rotor rests on the tilt stop for {loop.LOC_TILT_STOP_S:g} s, "
+        f"the markers are lost for {loop.LOC_MARKER_LOSS_S:g} s or on "
+        f"{100 * loop.LOC_LOST_FRACTION:.0f} % of the frames, the error grows (last quarter's "
+        f"RMS at least {loop.LOC_GROWTH_RATIO:g} times the second quarter's and at least "
+        f"{loop.LOC_GROWTH_MIN_DEG:g}°), or the error exceeds the divergence limit. The step is "
+        "measured against the commanded 5° (overshoot in % of it; settling into the absolute "
+        f"band ±{loop.SETTLE_BAND_DEG:g}°; steady-state error: the mean over the final "
+        f"{loop.STEADY_STATE_WINDOW_S:g} s). The MPC previews the reference and "
+        "the PID feeds it forward; their variants without preview / feedforward are shown "
+        "on the step for a fair comparison.",
+        "",
+        "![boundary](boundary_vs_loss_of_control.png)",
         "",
         "![sweep](sweep_error_loss.png)",
         "",
         "![steps](step_vs_delay.png)",
         "",
-        md_table(key_sweep(sweep)),
+        md_table(key_steps(intervals)),
         "",
-        "Full table: `sweep.parquet` (one row per run; every run's own file is in `sweep/runs/`).",
+        md_table(key_sweep(intervals)),
+        "",
+        "Full tables: `sweep.parquet` (one row per run; every run's own file is in "
+        "`sweep/runs/`), `sweep_intervals.parquet`, `loss_of_control.parquet`.",
         "",
         "## 3. Time series: 16.33 ms against 31.23 ms",
         "",
@@ -132,14 +176,15 @@ def write_report(
                         "rms_error_deg": v["rms_error_deg"],
                         "overshoot_pct": v["overshoot_pct"],
                         "settling_time_s": v["settling_time_s"],
+                        "steady_state_error_deg": v["steady_state_error_deg"],
                     }
                     for k, v in ts.items()
                 ]
             )
         ),
         "",
-        f"Latency measured here: KCF + GK assistance, {measured_ms:.2f} ms median "
-        "(`latency_kcf_gk.json`, reusable as an empirical latency profile).",
+        f"Latency measured here: {lat or 'not measured (the TransT network could not be loaded)'}"
+        " (reusable as empirical latency profiles).",
         "",
     ]
     text = "\n".join(md)

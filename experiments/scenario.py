@@ -332,7 +332,28 @@ class Scenario(_Model):
         if _kind(data.get("observer")) in ORB_KINDS:
             data.setdefault("texture", TextureParams())
             data.setdefault("observer_latency", "measured")
+        plant, pipeline = data.get("plant"), data.get("pipeline", {})
+        camera = plant.get("camera") if isinstance(plant, dict) else None
+        if isinstance(camera, dict) and isinstance(pipeline, dict):
+            # One timing source: the camera's frame rate and exposure unless the pipeline
+            # names its own (then the check below requires them to agree).
+            data["pipeline"] = {
+                **{k: camera[k] for k in ("frame_rate_hz", "exposure_s") if k in camera},
+                **pipeline,
+            }
         return data
+
+    @model_validator(mode="after")
+    def _one_camera_timing(self) -> Scenario:
+        cam, pipe = self.plant.camera, self.pipeline
+        for key in ("frame_rate_hz", "exposure_s"):
+            if not np.isclose(getattr(cam, key), getattr(pipe, key), rtol=1e-12, atol=0.0):
+                raise ValueError(
+                    f"pipeline.{key} = {getattr(pipe, key)} differs from plant.camera.{key} = "
+                    f"{getattr(cam, key)}: motion blur and the frame timeline would use "
+                    "different cameras; set plant.camera only"
+                )
+        return self
 
     @field_validator("observer")
     @classmethod

@@ -34,6 +34,7 @@ sequences, metrics CSV, plots, tables, issue 4's targets): ``benchmarks/bench_tr
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
@@ -741,11 +742,15 @@ def run_tracking_benchmark(
     if "main_reacquire_frames" in summary.columns:
         sum_cols += ["main_reacquire_frames", "aux_reacquire_frames"]
     seed_list = sorted({s.seed for s in specs})
+    cam, binning = seqs[0].params.camera, seqs[0].binning
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     notes = "\n\n".join(x for x in [
         f"Validation seeds {seed_list}, cases {cases}, {frames} frames each (frames 1-"
-        f"{frames - 1} scored), 612 x 512 px; errors in full-sensor px. Wall time "
-        f"{wall:.0f} s; {_torch_note()}; the two cores are shared with other jobs (a background "
-        "network training may be running), so latencies are upper bounds and noisy.",
+        f"{frames - 1} scored), {cam.sensor_width_px // binning} x "
+        f"{cam.sensor_height_px // binning} px (binning {binning}); errors in full-sensor px. "
+        f"Wall time {wall:.0f} s; {_torch_note()}; {os.cpu_count()} CPUs seen by Python, load "
+        f"average {load:.1f} over the last minute at the end of the run (latencies are wall "
+        "time: other jobs on the machine lengthen them).",
         note_transt,
         f"Table 1 measured here ({'clean' if t1_cases else 'all'} sequences; FPS = 1/mean "
         "latency) beside the seed's (RTX 4060 laptop GPU):\n\n"

@@ -18,7 +18,8 @@ Simulated time only (s). Per run:
 Events are recorded with their times: tracking loss (the front end says so, or a centre is more
 than 20 px from the truth, seed 000 §4.2) and re-acquisition, dropped frames, invalid estimates
 (the controller then falls back to zero torque or holds its last command), current saturation,
-contact with the tilt stop, and divergence (the run stops early and says so).
+contact with the tilt stop, and divergence (noted; the run still covers its whole duration, so
+the metrics of every run cover the same time).
 
 Event times are exact: the physics advances to each event with a shortened last step
 (``MujocoPlant.advance``), so delays are not rounded to the physics grid.
@@ -88,8 +89,8 @@ class LoopConfig(BaseModel):
     divergence_deg: float = Field(
         60.0,
         gt=0.0,
-        description="Our choice: the run stops when the geodesic error between "
-        "truth and reference exceeds this.",
+        description="Our choice: a divergence event when the geodesic error between truth and "
+        "reference exceeds this (the run continues, so every run covers its duration).",
     )
     disturbance_psd_Nm2s: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="Body-frame white disturbance torque intensity per axis, "
@@ -287,10 +288,9 @@ class ClosedLoop:
                 if stop_now != state["stop"]:
                     events.append((t, "tilt_stop_contact" if stop_now else "tilt_stop_release", ""))
                     state["stop"] = stop_now
-            if state.get("diverged"):
-                stopped = state["diverged"]
+            if state.get("diverged") and not stopped:
+                stopped = state["diverged"]  # noted once; the run goes on to its full duration
                 events.append((t, "divergence", stopped))
-                break
             if t >= c.duration_s - 1e-12:
                 break
             if not queue or queue[0][0] > t + 1e-12:
@@ -321,9 +321,9 @@ class ClosedLoop:
         """A frame's mid-exposure: measure (unless the frame is dropped), schedule release."""
         c = self.config
         err = attitude.geodesic_angle(plant.q, self.reference.sample(t).q)
-        if not np.isfinite(err) or np.degrees(err) > c.divergence_deg:
+        far = not np.isfinite(err) or np.degrees(err) > c.divergence_deg
+        if far and not state.get("diverged"):
             state["diverged"] = f"divergence: geodesic error {np.degrees(err):.1f} deg"
-            return
         captured: dict = {}
 
         def measure(k: int) -> float:
@@ -511,6 +511,18 @@ class _StepLog:
         return df
 
 
+#: Loss of control (our choices, docs/closed_loop.md): any of these over a run.
+LOC_TILT_STOP_S = 0.25  # continuous contact with the tilt stop for this long, s
+LOC_MARKER_LOSS_S = 0.5  # markers lost on every processed frame for this long, s
+LOC_LOST_FRACTION = 0.5  # or this fraction of the processed frames lost
+LOC_GROWTH_RATIO = 2.0  # RMS error of the last quarter over that of the second quarter ...
+LOC_GROWTH_MIN_DEG = 2.0  # ... when the last quarter's RMS error is at least this, deg
+#: Absolute settling band around the commanded attitude, deg (2 % of the study's 5° step).
+SETTLE_BAND_DEG = 0.1
+#: Steady-state error: mean geodesic error over this final stretch of the run, s.
+STEADY_STATE_WINDOW_S = 0.5
+
+
 def summarize(
     steps: pd.DataFrame,
     frames: pd.DataFrame,
@@ -518,19 +530,23 @@ def summarize(
     duration_s: float,
     stopped: str = "",
 ) -> dict[str, float]:
-    """Scalar metrics of a run.
+    """Scalar metrics of a run (all over the run's whole duration).
 
     * ``rms_error_deg``, ``max_error_deg``: geodesic attitude error truth vs reference;
     * ``rms_{spin,tilt,yaw}_error_deg``, ``max_{spin,tilt,yaw}_error_deg``: per seed angle,
       wrapped; spin and yaw only where the reference tilt is above 1° (below it Z-Y-Z spin and
       yaw are not separable);
-    * ``settling_time_s``: time after the reference's last change until the geodesic error stays
-      within 2 % of that change (or 0.05°, whichever is larger); NaN if it never settles;
-    * ``overshoot_pct``: peak error on the far side of the target after the last change, in % of
-      the change (measured along the change's rotation axis);
+    * step metrics after the reference's last change, against the *commanded* step (from the
+      reference before the change to the one after, whatever the attitude was when it came):
+      ``step_size_deg``; ``overshoot_pct``, the peak progress beyond the target along the step's
+      rotation axis in % of the commanded step; ``settling_time_s``, from the change until the
+      geodesic error stays within ``SETTLE_BAND_DEG`` (NaN if it never does);
+      ``steady_state_error_deg``, the mean error over the final ``STEADY_STATE_WINDOW_S``;
     * ``control_effort_N2m2s``: ∫ |T_delivered|² dt; ``rms_torque_Nm``;
     * ``lost_frame_fraction``: lost / processed frames; ``dropped_frame_fraction``;
-    * ``mean_latency_s``; ``diverged`` (1.0 if the run stopped early).
+    * ``mean_latency_s``; ``diverged`` (1.0 if the error ever exceeded the divergence limit,
+      ``stopped`` non-empty);
+    * ``loss_of_control`` (1.0 or 0.0) and its criteria (:func:`loss_of_control`).
     """
     t = steps["t_s"].to_numpy()
     dt = np.diff(t, prepend=t[0])
@@ -556,6 +572,9 @@ def summarize(
     out["control_effort_N2m2s"] = float(np.sum(np.sum(T**2, axis=1) * dt))
     out["rms_torque_Nm"] = float(np.sqrt(np.mean(np.sum(T**2, axis=1))))
     out.update(_step_metrics(steps))
+    late = t >= t[-1] - STEADY_STATE_WINDOW_S
+    out["steady_state_error_deg"] = float(np.mean(err[late]))
+    out["lost_frame_fraction"] = 0.0
     if len(frames):
         processed = frames[~frames["dropped"]]
         out["dropped_frame_fraction"] = float(frames["dropped"].mean())
@@ -565,12 +584,66 @@ def summarize(
         out["mean_latency_s"] = (
             float(processed["latency_s"].mean()) if "latency_s" in processed else float("nan")
         )
+    out.update(loss_of_control(steps, frames, bool(stopped)))
     out["n_events"] = float(len(events))
     return out
 
 
+def _longest_run_s(flags: np.ndarray, t: np.ndarray, t_end: float) -> float:
+    """Longest time (s) ``flags`` stays True: from the first sample of a run of True to the
+    next False sample (or ``t_end``)."""
+    best, start = 0.0, None
+    for f, ti in zip(flags, t, strict=True):
+        if f and start is None:
+            start = ti
+        elif not f and start is not None:
+            best, start = max(best, ti - start), None
+    if start is not None:
+        best = max(best, t_end - start)
+    return float(best)
+
+
+def loss_of_control(steps: pd.DataFrame, frames: pd.DataFrame, diverged: bool) -> dict[str, float]:
+    """Whether the loop lost control of the rotor during a run, and why (1.0 = yes).
+
+    Any of (our thresholds, module constants): ``loc_tilt_stop``, the rotor rests against the
+    tilt stop for ``LOC_TILT_STOP_S`` without a break; ``loc_marker_loss``, the markers are lost
+    on every processed frame for ``LOC_MARKER_LOSS_S`` or on at least ``LOC_LOST_FRACTION`` of
+    them; ``loc_growing_oscillation``, the RMS error of the last quarter of the run is at
+    least ``LOC_GROWTH_RATIO`` times that of the second quarter and at least
+    ``LOC_GROWTH_MIN_DEG``; ``loc_divergence``, the error exceeded the loop's divergence
+    limit. Also returns ``longest_tilt_stop_s`` and ``longest_marker_loss_s``.
+    """
+    t = steps["t_s"].to_numpy()
+    t_end = float(t[-1])
+    stop_s = _longest_run_s(steps["tilt_stop"].to_numpy(bool), t, t_end)
+    loss_s, lost_frac = 0.0, 0.0
+    if len(frames) and "lost" in frames:
+        processed = frames[~frames["dropped"]]
+        lost = processed["lost"].fillna(False).to_numpy(bool)
+        loss_s = _longest_run_s(lost, processed["t_exposure_s"].to_numpy(), t_end)
+        lost_frac = float(lost.mean()) if len(lost) else 0.0
+    err = steps["error_deg"].to_numpy()
+    q2 = err[(t >= 0.25 * t_end) & (t < 0.5 * t_end)]
+    q4 = err[t >= 0.75 * t_end]
+    rms2 = float(np.sqrt(np.mean(q2**2))) if len(q2) else 0.0
+    rms4 = float(np.sqrt(np.mean(q4**2))) if len(q4) else 0.0
+    flags = {
+        "loc_tilt_stop": stop_s >= LOC_TILT_STOP_S,
+        "loc_marker_loss": loss_s >= LOC_MARKER_LOSS_S or lost_frac >= LOC_LOST_FRACTION,
+        "loc_growing_oscillation": rms4 >= LOC_GROWTH_MIN_DEG and rms4 >= LOC_GROWTH_RATIO * rms2,
+        "loc_divergence": bool(diverged),
+    }
+    out = {k: float(v) for k, v in flags.items()}
+    out["loss_of_control"] = float(any(flags.values()))
+    out["longest_tilt_stop_s"] = stop_s
+    out["longest_marker_loss_s"] = float(loss_s)
+    return out
+
+
 def _step_metrics(steps: pd.DataFrame) -> dict[str, float]:
-    nan = {"settling_time_s": float("nan"), "overshoot_pct": float("nan")}
+    nan = {"settling_time_s": float("nan"), "overshoot_pct": float("nan"),
+           "step_size_deg": float("nan")}
     qr = steps[["ref_qw", "ref_qx", "ref_qy", "ref_qz"]].to_numpy()
     changes = np.flatnonzero(attitude.geodesic_angle(qr[:-1], qr[1:]) > 1e-9)
     if len(changes) == 0:
@@ -578,7 +651,7 @@ def _step_metrics(steps: pd.DataFrame) -> dict[str, float]:
     i0 = changes[-1] + 1
     t = steps["t_s"].to_numpy()
     q = steps[["qw", "qx", "qy", "qz"]].to_numpy()
-    q_from, q_to = q[i0 - 1], qr[i0]
+    q_from, q_to = qr[i0 - 1], qr[i0]  # the commanded step: reference before and after
     size = attitude.geodesic_angle(q_from, q_to)
     if size < 1e-6:
         return nan
@@ -591,8 +664,7 @@ def _step_metrics(steps: pd.DataFrame) -> dict[str, float]:
     rotvec = rel[:, 1:] * np.where(s_half > 1e-12, angle / np.maximum(s_half, 1e-300), 2.0)[:, None]
     prog = rotvec @ axis / size
     err = np.degrees(attitude.geodesic_angle(q[i0:], q_to))
-    band = max(0.02 * np.degrees(size), 0.05)
-    outside = np.flatnonzero(err > band)
+    outside = np.flatnonzero(err > SETTLE_BAND_DEG)
     if len(outside) == 0:
         settle = 0.0
     elif outside[-1] == len(err) - 1:

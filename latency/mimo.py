@@ -67,17 +67,8 @@ import control as ct
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from latency.margins import (
-    Margins,
-    _as_factor,
-    _check_delay,
-    _common_period,
-    _Factor,
-    _features,
-    _zoh,
-    attitude_margins,
-    nyquist_count,
-)
+from latency.margins import Margins, attitude_margins, nyquist_count
+from latency.margins.model import _as_factor, _check_delay, _common_period, _Factor, _features, _zoh
 from plant import attitude
 from plant.params import PlantParams
 

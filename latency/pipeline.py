@@ -3,7 +3,7 @@
 Stages of one frame k (all times in s of simulated time):
 
 * exposure from ``k T_f`` to ``k T_f + t_exp``; its measurement belongs to mid-exposure
-  ``t_exposure = k T_f + t_exp/2`` (DESIGN.md);
+  ``t_exposure = k T_f + t_exp/2``;
 * readout: the frame is in memory at ``t_ready = k T_f + t_exp + t_readout``;
 * processing by the observer, with a latency drawn from its model; released at ``t_release``.
 
@@ -18,6 +18,7 @@ Two explicit semantics:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -26,6 +27,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from latency.models import Constant, LatencyModel
+from plant.params import CameraParams
 
 PipelineMode = Literal["sequential", "pipelined"]
 
@@ -36,9 +38,17 @@ class PipelineConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     frame_rate_hz: float = Field(
-        36.0, gt=0.0, description="Seed 000 §5: 90 frames in 2.5 s."
+        CameraParams.model_fields["frame_rate_hz"].default,
+        gt=0.0,
+        description="The camera's, PlantParams.camera.frame_rate_hz (a scenario checks that "
+        "they agree).",
     )
-    exposure_s: float = Field(2e-3, gt=0.0, description="Our choice (PlantParams.camera).")
+    exposure_s: float = Field(
+        CameraParams.model_fields["exposure_s"].default,
+        gt=0.0,
+        description="The camera's, PlantParams.camera.exposure_s (a scenario checks that "
+        "they agree).",
+    )
     readout_s: float = Field(
         0.0, ge=0.0, description="Our choice: transfer to host memory; 0 = counted in the "
         "observer's latency, as seed 000 Table 1's per-frame figures are end to end."
@@ -52,6 +62,109 @@ class PipelineConfig(BaseModel):
     @property
     def frame_period_s(self) -> float:
         return 1.0 / self.frame_rate_hz
+
+    @classmethod
+    def from_camera(
+        cls, camera: CameraParams, observer: LatencyModel | None = None,
+        mode: PipelineMode = "sequential", readout_s: float = 0.0,
+    ) -> PipelineConfig:
+        """The pipeline of ``camera`` (its frame rate and exposure) with this observer."""
+        extra = {} if observer is None else {"observer": observer}
+        return cls(frame_rate_hz=camera.frame_rate_hz, exposure_s=camera.exposure_s,
+                   readout_s=readout_s, mode=mode, **extra)
+
+    def timing(
+        self, controller_compute_s: float = 0.0, vision_delay_s: float | None = None
+    ) -> LoopTiming:
+        """:func:`loop_timing` of this pipeline with the observer's mean latency, or with
+        ``vision_delay_s`` (s) in its place."""
+        d = self.observer.mean_s if vision_delay_s is None else vision_delay_s
+        return loop_timing(
+            d, mode=self.mode, frame_rate_hz=self.frame_rate_hz,
+            exposure_s=self.exposure_s, readout_s=self.readout_s,
+            controller_compute_s=controller_compute_s,
+        )
+
+
+@dataclass(frozen=True)
+class LoopTiming:
+    """The loop's constant delay and update period for one observer latency.
+
+    Attributes
+    ----------
+    vision_delay_s : float
+        Observer processing latency (s).
+    mode : {"sequential", "pipelined"}
+        Observer semantics.
+    frames_per_update : int
+        Camera frames per processed frame (1, or more when a sequential observer drops frames).
+    update_period_s : float
+        Interval between processed frames (s): the period at which the observer and the
+        controller run.
+    delay_s : float
+        Mid-exposure to command applied (s): half the exposure, the readout, the observer's
+        latency and the controller's compute time.
+    """
+
+    vision_delay_s: float
+    mode: PipelineMode
+    frames_per_update: int
+    update_period_s: float
+    delay_s: float
+
+    def describe(self) -> str:
+        """One line naming the case, e.g. for a command's output."""
+        drop = (
+            f", 1 frame in {self.frames_per_update} processed"
+            if self.frames_per_update > 1 else ", every frame processed"
+        )
+        return (
+            f"{self.mode} observer, vision delay {self.vision_delay_s * 1e3:.2f} ms{drop}: "
+            f"update period {self.update_period_s * 1e3:.2f} ms, loop delay "
+            f"{self.delay_s * 1e3:.2f} ms"
+        )
+
+
+def loop_timing(
+    vision_delay_s: float,
+    *,
+    mode: PipelineMode,
+    frame_rate_hz: float,
+    exposure_s: float,
+    readout_s: float = 0.0,
+    controller_compute_s: float = 0.0,
+) -> LoopTiming:
+    """Loop delay and update period of the pipeline for a constant observer latency.
+
+    A frame is ready ``exposure + readout`` after its exposure starts. A sequential observer
+    busy for ``d`` takes the next frame that is ready once it is idle, i.e. every
+    ``m = max(1, ceil(d / T_f))``-th frame (``T_f`` the frame period; :class:`FrameScheduler`
+    accepts a frame ready exactly when the observer becomes idle); a pipelined one takes every
+    frame. The delay runs from mid-exposure (the measurement's time stamp) to the command:
+    ``exposure/2 + readout + d + controller compute``.
+
+    Parameters
+    ----------
+    vision_delay_s : float
+        Observer latency ``d`` (s), >= 0.
+    mode : {"sequential", "pipelined"}
+    frame_rate_hz : float
+        Camera frame rate (Hz).
+    exposure_s, readout_s : float
+        Exposure and readout times (s).
+    controller_compute_s : float
+        Controller compute time between the estimate and the command (s).
+    """
+    if not np.isfinite(vision_delay_s) or vision_delay_s < 0.0:
+        raise ValueError(f"vision_delay_s must be finite and >= 0, got {vision_delay_s}")
+    if frame_rate_hz <= 0.0:
+        raise ValueError(f"frame_rate_hz must be > 0, got {frame_rate_hz}")
+    if mode not in ("sequential", "pipelined"):
+        raise ValueError(f"mode must be 'sequential' or 'pipelined', got {mode!r}")
+    T_f = 1.0 / frame_rate_hz
+    m = max(1, math.ceil(vision_delay_s / T_f - 1e-9)) if mode == "sequential" else 1
+    delay = 0.5 * exposure_s + readout_s + vision_delay_s + controller_compute_s
+    return LoopTiming(float(vision_delay_s), mode, m, m * T_f, float(delay))
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,8 @@ with motion blur) and the wall-clock time of each frame's processing is recorded
 
 * ``measure_locator_latency``: the marker rotor; a locator (tracker + GK assistance) started on
   the first frame's true box, timed per ``locate`` call.
+* ``measure_pair_tracker_latency``: the marker rotor; a pair tracker (GK-TransT, the dual
+  TransT, ...) started on the first frame's true boxes, timed per ``step`` call.
 * ``measure_orb_latency``: the textured rotor (issue 8); an ``OrbObserver`` (ORB alone, ORB-EKF
   or ORB-AEKF) on a reference view at rest, timed per frame over its front end (ORB, matching,
   RANSAC, refinement) and back end (solve or filter update), as ``OrbObserver.update`` reports.
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -28,6 +31,10 @@ from plant import attitude
 from plant.params import PlantParams
 from plant.texture import TextureParams
 
+if TYPE_CHECKING:
+    from observer.trackers import MarkerPairTracker
+    from plant.scene import Frame
+
 
 def cone_attitude(t: float, tilt_rad: float = np.deg2rad(8.0), rate_rad_s: float = 1.5):
     """A cone: ``tilt_rad`` toward an azimuth turning at ``rate_rad_s`` (no turn about the
@@ -37,6 +44,36 @@ def cone_attitude(t: float, tilt_rad: float = np.deg2rad(8.0), rate_rad_s: float
     R = attitude.to_matrix(q)
     omega_body = R.T @ (rate_rad_s * (np.array([0.0, 0.0, 1.0]) - R[:, 2]))
     return q, omega_body
+
+
+def _time_frames(
+    params: PlantParams,
+    start: Callable[[Frame], None],
+    step: Callable[[Frame], float],
+    n_frames: int,
+    warmup: int,
+    seed: int,
+    progress: bool,
+) -> list[float]:
+    """Render the cone sequence; ``start`` on the first frame, ``step`` on every frame
+    (returning its compute time, s); the times after ``warmup`` frames."""
+    if n_frames < 1 or warmup < 0:
+        raise ValueError(f"need n_frames >= 1 and warmup >= 0, got {n_frames}, {warmup}")
+    from plant.render_analytic import AnalyticRenderer
+
+    renderer = AnalyticRenderer(params, seed=seed)
+    period = 1.0 / params.camera.frame_rate_hz
+    times = []
+    for k in tqdm(range(n_frames + warmup), disable=not progress, desc="latency", unit="frame"):
+        t = k * period
+        q, omega = cone_attitude(t)
+        frame = renderer.render(q, t_exposure=t, omega=omega)
+        if k == 0:
+            start(frame)
+        dt = step(frame)
+        if k >= warmup:
+            times.append(dt)
+    return times
 
 
 def measure_locator_latency(
@@ -54,24 +91,36 @@ def measure_locator_latency(
     it as ``PipelineConfig.observer``). Frames whose markers are lost still count: the time is
     what the observer spends, as the locator's ``clock`` measures it.
     """
-    if n_frames < 1 or warmup < 0:
-        raise ValueError(f"need n_frames >= 1 and warmup >= 0, got {n_frames}, {warmup}")
-    from plant.render_analytic import AnalyticRenderer
-
-    renderer = AnalyticRenderer(params, seed=seed)
-    period = 1.0 / params.camera.frame_rate_hz
-    times = []
-    for k in tqdm(range(n_frames + warmup), disable=not progress, desc="latency", unit="frame"):
-        t = k * period
-        q, omega = cone_attitude(t)
-        frame = renderer.render(q, t_exposure=t, omega=omega)
-        if k == 0:
-            locator.start(frame.image, frame.binning, frame.boxes_px[0])
-        located = locator.locate(frame.image, frame.binning)
-        if k >= warmup:
-            times.append(located.compute_time_s)
+    times = _time_frames(
+        params,
+        lambda f: locator.start(f.image, f.binning, f.boxes_px[0]),
+        lambda f: locator.locate(f.image, f.binning).compute_time_s,
+        n_frames, warmup, seed, progress,
+    )
     name = source or f"{type(locator.tracker).__name__} + GK assistance"
     return Empirical.from_measurements(times, source=f"{name}, {n_frames} analytic frames")
+
+
+def measure_pair_tracker_latency(
+    params: PlantParams,
+    tracker: MarkerPairTracker,
+    n_frames: int = 200,
+    warmup: int = 5,
+    seed: int = 0,
+    progress: bool = False,
+) -> Empirical:
+    """Per-frame compute time (s) of a marker-pair tracker (e.g. GK-TransT or the dual TransT
+    of seed 000 §3.2, ``observer.trackers.make_pair_tracker``) on ``n_frames`` rendered frames,
+    started on the first frame's true boxes; timed per ``step`` as the tracker reports it."""
+    times = _time_frames(
+        params,
+        lambda f: tracker.start(f.image, f.boxes_px, f.binning),
+        lambda f: tracker.step(f.image).compute_time_s,
+        n_frames, warmup, seed, progress,
+    )
+    return Empirical.from_measurements(
+        times, source=f"{tracker.name}, {n_frames} analytic frames"
+    )
 
 
 def measure_orb_latency(

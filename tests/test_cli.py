@@ -1,6 +1,8 @@
 """The command line: the headline study's report, scenario validation, sweeps, margins."""
 
+import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -10,6 +12,7 @@ from typer.testing import CliRunner
 from experiments.cli import _expand, app
 
 RUNNER = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +47,65 @@ def test_report_numbers_match_the_parquet_tables(quick_study):
     mpc = sweep[(sweep.controller == "mpc") & (sweep.reference == "tilt_step_5deg")
                 & np.isclose(sweep.vision_delay_ms, 16.33)]
     assert f"{float(mpc.rms_error_deg.mean()):.3f}" in html
+    # the summary's numbers are the tables' (and the measured profiles')
+    md = (quick_study / "report.md").read_text()
+    summary = md.split("## 1.")[0]
+    gk = margins[(margins.observer == "sequential") & np.isclose(margins.vision_delay_ms, 16.33)]
+    assert f"tolerates {1e3 * float(gk.headroom_s.iloc[0]):.1f} ms more" in summary
+    jm = 1e3 * float(row.jitter_margin_s.iloc[0])
+    assert f"jitter margin of the PID as it runs is {jm:.1f}" in summary
+    assert f"leaves {pm:.1f}°" in summary
+    for name, label in (("gk_transt", "GK-TransT"), ("dual_transt", "dual TransT")):
+        samples = json.loads((quick_study / f"latency_{name}.json").read_text())["samples_s"]
+        assert f"{label} {1e3 * np.median(samples):.2f} ms (seed" in summary
+    loss = pd.read_parquet(quick_study / "loss_of_control.parquet")
+    pid_loss = loss[(loss.controller == "pid") & np.isclose(loss.vision_delay_ms, 31.23)].iloc[0]
+    # independent: the fraction of the sweep's PID runs at 31.23 ms that lost control
+    runs = sweep[(sweep.controller == "pid") & np.isclose(sweep.vision_delay_ms, 31.23)]
+    assert pid_loss.p_loss_of_control == pytest.approx(runs.loss_of_control.mean())
+    assert (f"{pid_loss.p_loss_of_control:.2f} ({pid_loss.p_loss_of_control_lo:.2f}–"
+            f"{pid_loss.p_loss_of_control_hi:.2f}) at 31.23 ms") in summary
+    steps = pd.read_parquet(quick_study / "sweep_intervals.parquet")
+    st = steps[(steps.controller == "mpc") & (steps.reference == "tilt_step_5deg")
+               & np.isclose(steps.vision_delay_ms, 31.23)].iloc[0]
+    runs = sweep[(sweep.controller == "mpc") & (sweep.reference == "tilt_step_5deg")
+                 & np.isclose(sweep.vision_delay_ms, 31.23)]
+    assert st.overshoot_pct == pytest.approx(runs.overshoot_pct.mean())
+    assert (f"MPC: overshoot {st.overshoot_pct:.1f} ({st.overshoot_pct_lo:.1f}–"
+            f"{st.overshoot_pct_hi:.1f}) %") in summary.split("31.23 ms** (")[1]
+
+
+def test_jitter_margin_never_exceeds_the_delay_margin_on_the_study_grid(quick_study):
+    margins = pd.read_parquet(quick_study / "margins.parquet")
+    stable = margins[margins.stable]
+    assert len(stable) > 100 and stable.jitter_margin_s.notna().all()
+    assert (stable.jitter_margin_s <= stable.delay_margin_s).all()
+
+
+def test_cli_study_and_notebook_give_the_same_margins(quick_study, tmp_path):
+    """The same scenario (PID, 10 rad/s crossover, 31.23 ms, sequential observer) in the CLI's
+    output, the study's table and the call the notebook makes."""
+    from experiments.study import pid_axis_margins
+    from plant.params import PlantParams
+
+    result = RUNNER.invoke(app, ["margins", "--delay-ms", "31.23", "--observer", "sequential",
+                                 "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "case: sequential observer" in result.output and "55.56 ms" in result.output
+    cli_pm = float(re.search(r"PM ([-0-9.]+) deg", result.output).group(1))
+    cli_dm = float(re.search(r"delay margin ([0-9.]+) ms", result.output).group(1))
+    cli_jm = float(re.search(r"jitter margin ([0-9.]+) ms", result.output).group(1))
+    margins = pd.read_parquet(quick_study / "margins.parquet")
+    row = margins[(margins.observer == "sequential")
+                  & np.isclose(margins.vision_delay_ms, 31.23)].iloc[0]
+    _, nb = pid_axis_margins(PlantParams(), 10.0, 31.23e-3, "sequential")
+    for value, study, notebook in ((cli_pm, row.phase_margin_deg, nb.phase_margin_deg),
+                                   (cli_dm, 1e3 * row.delay_margin_s, 1e3 * nb.delay_margin_s),
+                                   (cli_jm, 1e3 * row.jitter_margin_s, 1e3 * nb.jitter_margin_s)):
+        assert value == pytest.approx(study, abs=1e-2) and notebook == pytest.approx(study)
+    source = (ROOT / "experiments" / "notebooks" / "bode_phase_margin.ipynb").read_text()
+    assert "pid_axis_margins(params, CROSSOVER_RAD_S, latency, OBSERVER" in source
+    assert "OBSERVER = 'sequential'" in source
 
 
 def test_simulate_rejects_a_bad_field_by_name(tmp_path):
@@ -136,3 +198,14 @@ def test_bench_trackers_default_folder_is_new_and_timestamped(tmp_path, monkeypa
     (folder,) = (tmp_path / "runs").iterdir()
     assert re.fullmatch(r"\d{8}-\d{6}-bench-trackers", folder.name)
     assert (folder / "tracking_metrics.csv").exists()
+
+
+def test_measure_latency_times_every_tracker(tmp_path):
+    result = RUNNER.invoke(app, ["measure-latency", "--tracker", "all", "--frames", "2",
+                                 "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    (folder,) = tmp_path.glob("*-measure-latency-all")
+    for name, label in (("kcf", "kcf+GK"), ("csrt", "csrt+GK"), ("gk_transt", "GK-TransT"),
+                        ("dual_transt", "dual TransT"), ("orb", "ORB-AEKF")):
+        assert f"{label}: median" in result.output
+        assert (folder / f"latency_{name}.json").exists()

@@ -118,10 +118,12 @@ CASES = [
     scenario("frame-rate-zero", "pipeline: {frame_rate_hz: 0}\n", "frame_rate_hz"),
     scenario("frame-rate-inf", "pipeline: {frame_rate_hz: .inf}\n",
              "pipeline.frame_rate_hz must be a finite number"),
-    scenario("frame-rate-unreachable", "pipeline: {frame_rate_hz: 1000}\n",
-             "more than the camera can reach"),
-    scenario("exposure-longer-than-frame", "pipeline: {exposure_s: 0.05}\n",
-             "more than the camera can reach"),
+    scenario("frame-rate-unreachable", "plant: {camera: {frame_rate_hz: 1000}}\n",
+             "exceeds the frame period"),
+    scenario("exposure-longer-than-frame", "plant: {camera: {exposure_s: 0.05}}\n",
+             "exceeds the frame period"),
+    scenario("pipeline-contradicts-camera", "pipeline: {frame_rate_hz: 72}\n",
+             "differs from plant.camera.frame_rate_hz"),
     scenario("negative-readout", "pipeline: {readout_s: -1}\n", "readout_s"),
     scenario("bad-pipeline-mode", "pipeline: {mode: parallel}\n", "pipeline.mode"),
     scenario("delay-longer-than-run",
@@ -348,15 +350,17 @@ CASES = [
             "margins", "--frame-rate-hz", "0"),
     command("margins-frame-rate-negative", "--frame-rate-hz must be a finite number > 0",
             "margins", "--frame-rate-hz", "-36"),
-    command("margins-frame-rate-unreachable", "more than the camera can reach", "margins",
+    command("margins-frame-rate-unreachable", "exceeds the frame period", "margins",
             "--frame-rate-hz", "1000"),
+    command("margins-bad-observer", "--observer must be sequential or pipelined", "margins",
+            "--observer", "parallel"),
     command("margins-delay-nan", DELAY_RANGE, "margins", "--delay-ms", "nan"),
     command("margins-delay-inf", DELAY_RANGE, "margins", "--delay-ms", "inf"),
     command("margins-delay-negative", DELAY_RANGE, "margins", "--delay-ms", "-5"),
     command("margins-out-under-a-file", "cannot write results there", "margins", "--out",
             "{d}/f.txt/sub", files={"f.txt": "x"}),
     # --- measure-latency ------------------------------------------------------------------
-    command("latency-bad-tracker", "--tracker must be kcf, csrt or orb", "measure-latency",
+    command("latency-bad-tracker", "--tracker must be one of kcf, csrt, gk_transt, dual_transt, orb or all", "measure-latency",
             "--tracker", "sift"),
     command("latency-frames-zero", "--frames must be between 1 and 100000", "measure-latency",
             "--frames", "0"),
@@ -465,7 +469,10 @@ def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
         (experiments.sequences, "validation_suite"),
         (latency.profile, "measure_locator_latency"),
         (latency.profile, "measure_orb_latency"),
+        (latency.profile, "measure_pair_tracker_latency"),
         (latency.margins, "attitude_margins"),
+        (experiments.study, "pid_axis_margins"),
+        (experiments.study, "margins_table"),
     ]:
         monkeypatch.setattr(module, name, work)
 
@@ -514,7 +521,7 @@ def test_the_nyquist_warning_sits_at_pi_times_the_frame_rate(
     s = Scenario.model_validate(
         {
             "controller": {"kind": "pid", "config": {"crossover_rad_s": crossover_rad_s}},
-            "pipeline": {"frame_rate_hz": frame_rate_hz},
+            "plant": {"camera": {"frame_rate_hz": frame_rate_hz}},
         }
     )
     assert any("Nyquist" in w for w in s.reach_warnings()) == warned

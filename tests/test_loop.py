@@ -94,12 +94,11 @@ def test_no_measurements_at_all_gives_the_safe_command():
     assert r.summary["lost_frame_fraction"] == 1.0
 
 
-def test_destabilising_controller_stops_the_run_and_says_so():
+def test_destabilising_controller_is_flagged_and_the_run_covers_its_duration():
     r = measurement_loop(duration=3.0, controller=PD(sign=-1.0)).run()
-    assert r.summary["diverged"] == 1.0
-    assert "divergence" in set(r.events.kind)
-    assert r.summary["simulated_s"] < 3.0
-    assert len(r.steps) > 0  # the table is still returned
+    assert r.summary["diverged"] == 1.0 and r.summary["loss_of_control"] == 1.0
+    assert list(r.events.kind).count("divergence") == 1
+    assert r.summary["simulated_s"] == pytest.approx(3.0)  # metrics over the same duration
 
 
 def test_saturation_and_tilt_stop_events():

@@ -22,6 +22,7 @@ from latency.margins import (
     attitude_delay_sweep,
     attitude_margins,
     bode_data,
+    first_unstable_delay,
     jitter_margin,
     loop_frd,
     loop_margins,
@@ -365,6 +366,9 @@ def test_delay_sweep_table() -> None:
         "crossover_rad_s",
         "delay_margin_s",
         "jitter_margin_s",
+        "gain_margin_lower",
+        "n_crossovers",
+        "conditionally_stable",
         "stable",
     ]
     st = df[df.stable]
@@ -428,3 +432,75 @@ def test_nyquist_verdict_agrees_with_sampled_eigenvalues_on_random_loops() -> No
         unstable += rho > 1
         assert loop_margins(loop_model(P, Cd, delay_s=tau)).stable == (rho < 1)
     assert checked >= 30 and 5 <= unstable <= checked - 5
+
+
+# --- several gain crossovers, the critical one, conditional stability ---------------------------
+# L(s) = K (s/z + 1) / (s (s²/wn² + 2 zeta s/wn + 1)): a lightly damped resonance above the first
+# crossover lifts |L| through 1 twice more. Stable (Routh on the closed loop, checked below).
+RES_K, RES_Z, RES_WN, RES_ZETA = 1.0, 2.0, 10.0, 0.05
+
+
+def _resonant_loop() -> ct.TransferFunction:
+    num = np.polymul([RES_K], [1.0 / RES_Z, 1.0])
+    den = np.polymul([1.0, 0.0], [1.0 / RES_WN**2, 2 * RES_ZETA / RES_WN, 1.0])
+    return ct.tf(num, den)
+
+
+def _resonant_crossovers() -> tuple[np.ndarray, np.ndarray]:
+    """Crossovers and phase margins by hand: |L|² = 1 is a cubic in x = w²,
+    K² (1 + x/z²) = x ((1 - x/wn²)² + 4 zeta² x/wn²); arg L = atan(w/z) - 90° - arg(resonance)."""
+    a = 1.0 / RES_WN**2
+    resonance_sq = np.polyadd(np.polymul([-a, 1.0], [-a, 1.0]), [4 * RES_ZETA**2 * a, 0.0])
+    cubic = np.polysub(np.polymul([1.0, 0.0], resonance_sq), [RES_K**2 / RES_Z**2, RES_K**2])
+    roots = np.roots(cubic)
+    x = np.sort(roots.real[np.abs(roots.imag) < 1e-9])
+    w = np.sqrt(x[x > 0])
+    resonance = np.arctan2(2 * RES_ZETA * w / RES_WN, 1 - (w / RES_WN) ** 2)
+    phase = np.arctan(w / RES_Z) - np.pi / 2 - resonance
+    pm = np.degrees(np.angle(np.exp(1j * (np.pi + phase))))
+    return w, pm
+
+
+def test_every_crossover_is_reported_and_the_critical_one_is_closest_to_minus_one() -> None:
+    L = _resonant_loop()
+    cl = np.roots(np.polyadd(L.den[0][0], np.polyadd(np.zeros(4), L.num[0][0])))
+    assert np.all(cl.real < 0)  # the closed loop is stable (independent of the code)
+    w_ref, pm_ref = _resonant_crossovers()
+    assert len(w_ref) == 3
+    m = loop_margins(loop_model(L, 1.0))
+    assert m.stable
+    assert m.crossovers_rad_s == pytest.approx(tuple(w_ref), rel=1e-9)
+    assert m.phase_margins_deg == pytest.approx(tuple(pm_ref), abs=1e-7)
+    k = int(np.argmin(np.abs(pm_ref)))  # closest to -1: |1 + L| = 2 sin(|PM|/2) is smallest
+    assert m.critical_crossover == k and k == 2
+    assert m.phase_margin_deg == pytest.approx(pm_ref[k], abs=1e-7)
+    assert m.crossover_rad_s == pytest.approx(w_ref[k], rel=1e-9)
+    assert m.delay_margin_s == pytest.approx(
+        min(math.radians(p % 360.0) / x for p, x in zip(pm_ref, w_ref, strict=True)), rel=1e-7
+    )
+    assert not m.conditionally_stable
+    lines = m.crossover_lines()
+    assert len(lines) == 3 and "critical" in lines[2] and "critical" not in lines[0] + lines[1]
+
+
+def test_conditionally_stable_only_with_a_lower_gain_margin() -> None:
+    """L = K (s + 1)² / s³: closed loop s³ + K s² + 2K s + K is stable iff K > 1/2 (Routh); the
+    phase is -180° at w = 1 where |L| = 2K, so the gain may shrink by 1/(2K) before instability."""
+    K = 2.0
+    m = loop_margins(loop_model(ct.tf(K * np.array([1.0, 2.0, 1.0]), [1.0, 0.0, 0.0, 0.0]), 1.0))
+    assert m.stable and m.conditionally_stable
+    assert m.gain_margin_lower == pytest.approx(1.0 / (2.0 * K), rel=1e-9)
+    assert math.isinf(m.gain_margin)
+    assert "conditionally stable" in m.summary()
+    # the double-integrator PD loop has no lower gain margin: not conditionally stable
+    pd = loop_margins(pd_model(0.2))
+    assert pd.stable and not pd.conditionally_stable
+    assert "conditionally" not in pd.summary()
+
+
+def test_first_unstable_delay_finds_the_closed_form_delay_margin() -> None:
+    dm = pd_closed_forms(0.0)["dm"]  # the PD loop is stable for every delay below dm
+    found = first_unstable_delay(lambda d: loop_margins(pd_model(d)).stable, 0.1, step_s=0.05,
+                                 limit_s=3.0, tol_s=1e-7)
+    assert found == pytest.approx(dm, abs=2e-7)
+    assert first_unstable_delay(lambda d: True, 0.0, limit_s=0.01) == math.inf

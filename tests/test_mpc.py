@@ -180,3 +180,16 @@ def test_invalid_estimate_gives_the_configured_safe_command(mode):
     assert mpc.invalid_count == 1
     # The safe command enters the history used by the delay compensation.
     assert np.allclose(mpc._history[-1][1], T1)
+
+
+def test_without_reference_preview_the_mpc_does_not_move_before_a_step():
+    """A step 30 ms ahead lies inside the 50 ms horizon: the previewing MPC starts towards it,
+    the one without preview regulates to the reference it sees now, where it already rests, so
+    its optimal torque is zero."""
+    ref = Steps(times_s=(0.0, 0.03), attitudes=((1.0, 0.0, 0.0, 0.0), tuple(pure_tilt(0.05))))
+    est = truth_estimate([1, 0, 0, 0], [0, 0, 0], 0.0)
+    cfg = {"horizon_steps": 5, "compute_latency_s": 0.0}
+    preview = MPCController(MPCConfig(**cfg), PARAMS).command(est, ref, 0.0)
+    held = MPCController(MPCConfig(**cfg, reference_preview=False), PARAMS).command(est, ref, 0.0)
+    assert np.linalg.norm(preview) > 1e-4
+    assert np.linalg.norm(held) < 1e-6

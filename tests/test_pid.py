@@ -247,3 +247,18 @@ def test_invalid_estimate_gives_the_configured_safe_command(mode):
     ctl.command(truth_estimate([1, 0, 0, 0], [0, 0, 0], 0.05), ref, 0.05)
     assert np.array_equal(ctl.integral, integral)
     assert len(ctl.compute_times_s) == 6 and ctl.last_compute_time_s > 0
+
+
+@pytest.mark.parametrize("tilt_rad", [2e-4, 0.05])
+def test_friction_compensation_adds_the_friction_torque_towards_the_target(tilt_rad):
+    """The option adds F tanh(e/w) per body axis: F near the target's full value far from it,
+    proportionally less within the width w (no chattering switch at e = 0)."""
+    F, w_deg = 2e-3, 0.05
+    ref = Steps(times_s=(0.0,), attitudes=(tuple(pure_tilt(tilt_rad)),))
+    est = truth_estimate([1, 0, 0, 0], [0, 0, 0], 0.0)
+    plain = PIDController(PIDConfig(crossover_rad_s=20.0))
+    comp = PIDController(PIDConfig(crossover_rad_s=20.0, friction_compensation_Nm=F,
+                                   friction_compensation_width_deg=w_deg))
+    diff = comp.command(est, ref, 0.0) - plain.command(est, ref, 0.0)  # stator = body at rest
+    e = A.to_rotvec(A.normalize(np.asarray(pure_tilt(tilt_rad), dtype=float)))
+    assert diff == pytest.approx(F * np.tanh(e / np.radians(w_deg)), abs=1e-12)

@@ -1,0 +1,126 @@
+"""Margins of the hybrid exact-delay loop, confirmed by the Nyquist count, and the jitter margin
+(Kao & Lincoln, Automatica 40(8), 2004)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+from numpy.typing import ArrayLike
+
+from latency.margins.model import LoopModel
+from latency.margins.nyquist import _grid, nyquist_count
+from latency.margins.result import Margins, _crossings, _margins_from_crossings, _scalar
+
+
+def jitter_margin(model: LoopModel, omega: ArrayLike | None = None) -> tuple[float, float]:
+    """Kao & Lincoln's jitter margin of a loop that is stable with its constant delay.
+
+    Kao & Lincoln (Automatica 40(8), 2004): if the loop ``L`` is closed-loop stable, it stays
+    stable when the plant input is delayed by a further time-varying ``delta(t)`` with
+    ``0 <= delta(t) <= delta_max`` (any rate of change: the operator
+    ``v -> int_{t-delta(t)}^t v`` has L2 gain at most ``delta_max``), provided
+
+        |T(jw)| < 1 / (delta_max w)   for all w > 0,   T = L / (1 + L),
+
+    here with ``L`` already containing the constant delay ``tau``. So
+
+        delta_max = 1 / sup_w (w |T(jw)|).
+
+    The supremum is taken on the refined grid and polished with a bounded scalar search around
+    each local maximum. The condition is sufficient, not necessary: ``delta_max`` is never larger
+    than the constant-delay margin.
+
+    Returns
+    -------
+    delta_max_s : float
+        The jitter margin (s).
+    w_peak : float
+        The frequency (rad/s) of the supremum.
+    """
+    w = _grid(model) if omega is None else np.asarray(omega, dtype=float)
+    Lw = model.response(w)
+    h = w * np.abs(Lw / (1.0 + Lw))
+    best_h, best_w = -1.0, math.nan
+    peaks = [i for i in range(1, len(w) - 1) if h[i] >= h[i - 1] and h[i] >= h[i + 1]]
+    peaks = sorted(peaks, key=lambda i: -h[i])[:5] or [int(np.argmax(h))]
+    for i in peaks:
+        lo, hi = np.log(w[max(i - 1, 0)]), np.log(w[min(i + 1, len(w) - 1)])
+
+        def neg(lw: float) -> float:
+            x = math.exp(lw)
+            v = _scalar(model.response, x)
+            return -x * abs(v / (1.0 + v))
+
+        res = scipy.optimize.minimize_scalar(
+            neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-10}
+        )
+        cand = max((-float(res.fun), math.exp(float(res.x))), (float(h[i]), float(w[i])))
+        if cand[0] > best_h:
+            best_h, best_w = cand
+    if h[-1] >= best_h:  # still rising at the top of the grid: supremum at w -> inf
+        best_h, best_w = float(h[-1]), float(w[-1])
+    return 1.0 / best_h, best_w
+
+
+def loop_margins(model: LoopModel, omega: ArrayLike | None = None) -> Margins:
+    """Margins of the hybrid exact-delay loop, confirmed by the Nyquist encirclement count.
+
+    Gain crossovers ``|L(jw_c)| = 1`` and phase crossovers (``L`` on the negative real axis) are
+    located on a dense logarithmic grid (refined where the phase of ``L`` moves fast or ``L``
+    comes near -1) and polished with Brent's method on the analytic ``L(jw)``. See
+    :class:`Margins` for the definitions and :func:`nyquist_count` for the stability test.
+
+    Parameters
+    ----------
+    model : LoopModel
+        From :func:`loop_model`.
+    omega : array_like, optional
+        Starting frequency grid (rad/s); refined automatically.
+
+    Returns
+    -------
+    Margins
+        With ``formulation`` "hybrid" (sampled) or "continuous".
+    """
+    Z, N, w, Lw = nyquist_count(model, omega)
+    cr = _crossings(model.response, w, Lw)
+    stable = Z == 0
+    notes: list[str] = []
+    conf = (
+        f"Nyquist on the exact-delay response: P={model.open_loop_rhp_poles} open-loop RHP "
+        f"pole(s), {model.origin_poles} at the origin (indented), N={N} clockwise "
+        f"encirclement(s) of -1, Z={Z}"
+    )
+    formulation = "continuous" if model.sample_period_s is None else "hybrid"
+    if any(x > model.nyquist_rad_s for x in cr.wc):
+        notes.append("a gain crossover lies above the Nyquist frequency pi/T: hybrid model invalid")
+    if stable:
+        pm_deg, wc, gm, wpc, gm_lower, dm = _margins_from_crossings(cr)
+        jm, wj = jitter_margin(model, w)
+    else:
+        pm_deg = gm = gm_lower = dm = jm = math.nan
+        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
+        wpc = wj = math.nan
+    return Margins(
+        stable=stable,
+        unstable_poles=max(Z, 0),
+        phase_margin_deg=pm_deg,
+        gain_margin=gm,
+        gain_margin_lower=gm_lower,
+        crossover_rad_s=wc,
+        phase_crossover_rad_s=wpc,
+        delay_margin_s=dm,
+        delay_s=model.delay_s,
+        jitter_margin_s=jm,
+        jitter_frequency_rad_s=wj,
+        crossovers_rad_s=cr.wc,
+        phase_margins_deg=tuple(math.degrees(p) for p in cr.pm),
+        phase_crossovers_rad_s=cr.wpc,
+        phase_crossover_gains=cr.gpc,
+        formulation=formulation,
+        confirmation=conf,
+        notes=tuple(notes),
+    )

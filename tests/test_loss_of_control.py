@@ -1,0 +1,104 @@
+"""Run metrics on constructed trajectories whose answers are known by construction: the step
+metrics against the commanded step, and the loss-of-control criteria of ``latency.loop``."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from latency import loop
+from latency.loop import _StepLog, loss_of_control, summarize
+
+H = 1e-3  # s, the physics step of the constructed runs
+
+
+def _tilt_q(deg: np.ndarray) -> np.ndarray:
+    a = np.radians(deg) / 2
+    return np.stack([np.cos(a), np.zeros_like(a), np.sin(a), np.zeros_like(a)], axis=1)
+
+
+def _steps(theta_deg: np.ndarray, ref_deg: np.ndarray, stop: np.ndarray | None = None):
+    n = len(theta_deg)
+    log = _StepLog(n)
+    q, qr = _tilt_q(theta_deg), _tilt_q(ref_deg)
+    for k in range(n):
+        log.write(k, k * H, q[k], np.zeros(3), qr[k], np.zeros(3), np.zeros(3), np.zeros(16),
+                  None, False, bool(stop[k]) if stop is not None else False)
+    return log.frame(n)
+
+
+def _frames(t_exp: np.ndarray, lost: np.ndarray) -> pd.DataFrame:
+    return pd.DataFrame({"t_exposure_s": t_exp, "dropped": False, "lost": lost,
+                         "latency_s": 0.02})
+
+
+def test_step_metrics_are_measured_against_the_commanded_step():
+    """A controller that previews the reference has moved 1.5° when the 5° step comes; then
+    theta = 5 - 3.5 e^{-3 s} cos(8 s), s = t - 0.1. The overshoot is the peak beyond 5° in %
+    of the commanded 5° (not of the 3.5° left to go), settling the last exit from ±0.1°."""
+    t = np.arange(0, 3.0 + H / 2, H)
+    ref = np.where(t >= 0.1, 5.0, 0.0)
+    s = t - 0.1
+    theta = np.where(t < 0.05, 0.0, np.where(t < 0.1, 1.5 * (t - 0.05) / 0.05,
+                                             5.0 - 3.5 * np.exp(-3 * s) * np.cos(8 * s)))
+    r = summarize(_steps(theta, ref), _frames(np.arange(0, 3, 1 / 36), np.zeros(108, bool)),
+                  pd.DataFrame(), 3.0)
+    after = t >= 0.1
+    assert r["step_size_deg"] == pytest.approx(5.0, abs=1e-9)
+    assert r["overshoot_pct"] == pytest.approx(100 * (theta[after].max() - 5.0) / 5.0, abs=1e-6)
+    outside = np.flatnonzero(np.abs(theta[after] - 5.0) > loop.SETTLE_BAND_DEG)
+    assert r["settling_time_s"] == pytest.approx(t[after][outside[-1] + 1] - 0.1, abs=1e-9)
+    late = t >= 3.0 - loop.STEADY_STATE_WINDOW_S
+    assert r["steady_state_error_deg"] == pytest.approx(np.mean(np.abs(theta[late] - 5.0)),
+                                                        abs=1e-9)
+    assert r["loss_of_control"] == 0.0
+
+
+def test_an_error_that_never_enters_the_band_never_settles_and_shows_its_steady_state_error():
+    t = np.arange(0, 2.0 + H / 2, H)
+    ref = np.where(t >= 0.1, 5.0, 0.0)
+    theta = np.where(t >= 0.1, 5.0 - 0.3 - 0.2 * np.sin(2 * np.pi * 3 * t) ** 2, 0.0)  # hunting
+    r = summarize(_steps(theta, ref), _frames(np.arange(0, 2, 1 / 36), np.zeros(72, bool)),
+                  pd.DataFrame(), 2.0)
+    assert np.isnan(r["settling_time_s"])
+    assert 0.3 <= r["steady_state_error_deg"] <= 0.5
+
+
+def _flat_run(duration: float = 4.0, stop=None, theta=None):
+    t = np.arange(0, duration + H / 2, H)
+    th = np.full(len(t), 1.0) if theta is None else theta(t)
+    return _steps(th, np.zeros(len(t)), None if stop is None else stop(t))
+
+
+def test_sustained_tilt_stop_contact_is_a_loss_of_control_and_brief_touches_are_not():
+    frames = _frames(np.arange(0, 4, 1 / 36), np.zeros(144, bool))
+    held = _flat_run(stop=lambda t: (t >= 2.0) & (t < 2.3))
+    touches = _flat_run(stop=lambda t: ((t >= 1.0) & (t < 1.2)) | ((t >= 1.25) & (t < 1.45)))
+    r_held = loss_of_control(held, frames, False)
+    r_touch = loss_of_control(touches, frames, False)
+    assert r_held["loc_tilt_stop"] == 1.0 and r_held["loss_of_control"] == 1.0
+    assert r_held["longest_tilt_stop_s"] == pytest.approx(0.3, abs=1.5 * H)
+    assert r_touch["loss_of_control"] == 0.0
+    assert r_touch["longest_tilt_stop_s"] == pytest.approx(0.2, abs=1.5 * H)
+
+
+def test_losing_the_markers_is_a_loss_of_control():
+    t_exp = np.arange(0, 4, 1 / 36)
+    steps = _flat_run()
+    blind = (t_exp >= 1.0) & (t_exp < 1.7)  # 0.7 s without the markers
+    sparse = np.arange(len(t_exp)) % 3 == 0  # a third lost, never two in a row
+    most = np.arange(len(t_exp)) % 100 < 54  # the run with 54 % lost frames
+    assert loss_of_control(steps, _frames(t_exp, blind), False)["loc_marker_loss"] == 1.0
+    assert loss_of_control(steps, _frames(t_exp, sparse), False)["loss_of_control"] == 0.0
+    r = loss_of_control(steps, _frames(t_exp, most), False)
+    assert r["loc_marker_loss"] == 1.0
+
+
+def test_a_growing_oscillation_is_a_loss_of_control_and_a_decaying_one_is_not():
+    frames = _frames(np.arange(0, 4, 1 / 36), np.zeros(144, bool))
+    growing = _flat_run(theta=lambda t: 0.2 * np.exp(0.9 * t) * np.sin(2 * np.pi * 2 * t))
+    decaying = _flat_run(theta=lambda t: 8.0 * np.exp(-0.9 * t) * np.sin(2 * np.pi * 2 * t))
+    small = _flat_run(theta=lambda t: 0.02 * np.exp(0.9 * t) * np.sin(2 * np.pi * 2 * t))
+    assert loss_of_control(growing, frames, False)["loc_growing_oscillation"] == 1.0
+    assert loss_of_control(decaying, frames, False)["loss_of_control"] == 0.0
+    assert loss_of_control(small, frames, False)["loss_of_control"] == 0.0  # below 2°
+    assert loss_of_control(decaying, frames, True)["loc_divergence"] == 1.0
