@@ -360,8 +360,8 @@ CASES = [
     command("margins-out-under-a-file", "cannot write results there", "margins", "--out",
             "{d}/f.txt/sub", files={"f.txt": "x"}),
     # --- measure-latency ------------------------------------------------------------------
-    command("latency-bad-tracker", "--tracker must be one of kcf, csrt, gk_transt, dual_transt, orb or all", "measure-latency",
-            "--tracker", "sift"),
+    command("latency-bad-tracker", "--tracker must be one of kcf, csrt, gk_transt",
+            "measure-latency", "--tracker", "sift"),
     command("latency-frames-zero", "--frames must be between 1 and 100000", "measure-latency",
             "--frames", "0"),
     command("latency-frames-negative", "--frames must be between 1 and 100000",
