@@ -29,12 +29,14 @@ from __future__ import annotations
 import heapq
 import itertools
 import time
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tqdm import tqdm
 
@@ -47,7 +49,30 @@ from plant import attitude
 from plant.dynamics import MujocoPlant
 from plant.estimate import Estimate
 from plant.params import PlantParams
-from plant.torque import N_COILS
+from plant.torque import N_COILS, Allocation
+
+
+class PlantState(Protocol):
+    """What a run's timeline reads and sets on its plant (``plant.dynamics.MujocoPlant``, or a
+    run of the batched engine): the state, the allocation at an attitude, the stop contact,
+    and the disturbance hook. ``delayed_q`` only for ``mujoco_sensor_delay_s``."""
+
+    disturbance: Callable[[float], NDArray[np.float64]] | None
+
+    @property
+    def q(self) -> NDArray[np.float64]: ...
+
+    @property
+    def omega(self) -> NDArray[np.float64]: ...
+
+    @property
+    def currents(self) -> NDArray[np.float64]: ...
+
+    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation: ...
+
+    def tilt_stop_active(self) -> bool: ...
+
+    def delayed_q(self) -> NDArray[np.float64]: ...
 
 
 class LoopConfig(BaseModel):
@@ -185,12 +210,31 @@ class ClosedLoop:
 
     # --- the run ---------------------------------------------------------------------------
     def run(self, progress: bool = False) -> LoopResult:
+        c = self.config
+        plant = MujocoPlant(
+            self.params, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s
+        )
+        timeline = self.timeline(plant, progress)
+        try:
+            currents, dt = next(timeline)
+            while True:
+                plant.advance(currents, dt)
+                currents, dt = timeline.send(None)
+        except StopIteration as done:
+            return done.value
+
+    def timeline(
+        self, plant: PlantState, progress: bool = False
+    ) -> Generator[tuple[NDArray[np.float64], float], None, LoopResult]:
+        """The run's events on ``plant`` (state at t = 0, the config's ``q0`` and
+        ``omega0_rad_s``), as a generator: it yields ``(currents (16,) A, dt s)`` whenever the
+        physics must advance by dt with those currents held, and returns the ``LoopResult``.
+        ``run`` advances a ``MujocoPlant``; ``latency.batched`` advances many runs at once."""
         c, p = self.config, self.params
         rng = np.random.default_rng(c.seed)
         rng_pipe, rng_ctrl, rng_dist = (
             np.random.default_rng(s) for s in rng.integers(2**32, size=3)
         )
-        plant = MujocoPlant(p, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s)
         native = c.mujoco_sensor_delay_s is not None
         psd = np.asarray(c.disturbance_psd_Nm2s)
         if np.any(psd > 0):
@@ -252,7 +296,7 @@ class ClosedLoop:
             t_next_grid = (k_log + 1) * h
             t_target = min(t_next_event, t_next_grid, c.duration_s)
             if t_target > t:
-                plant.advance(state["currents"], t_target - t)
+                yield state["currents"], t_target - t
                 t = t_target
             if abs(t - t_next_grid) < 1e-12 and k_log + 1 <= n_steps:
                 k_log += 1
