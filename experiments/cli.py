@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -24,6 +25,24 @@ app = typer.Typer(
 )
 
 OutOption = Annotated[Path, typer.Option(help="Folder for the results.")]
+
+
+class EngineChoice(str, Enum):
+    """The closed-loop engine (``experiments.scenario.Engine``)."""
+
+    batched = "batched"
+    event = "event"
+
+
+EngineOption = Annotated[
+    EngineChoice | None,
+    typer.Option(help="batched (measurement-model runs advanced together) or event (one run "
+                 "at a time; image-in-the-loop needs it). Default: batched for measurement-model "
+                 "scenarios, event for image-in-the-loop ones."),
+]
+#: Runs per batch of the batched engine in a sweep (our choice: past the knee of the engine's
+#: throughput curve, benchmarks/bench_engine.py).
+SWEEP_BATCH = 256
 
 
 def _config_error(exc: ValidationError | ValueError, source: str) -> None:
@@ -93,18 +112,21 @@ def demo(out: OutOption = Path("runs")) -> None:
 def simulate(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML (experiments.scenario).")],
     out: OutOption = Path("runs"),
+    engine: EngineOption = None,
 ) -> None:
     """One closed-loop run: writes its tables (Parquet) and a plot, prints the summary.
 
-    Example: pmspm simulate examples/scenario.yaml --out runs
+    Example: pmspm simulate examples/scenario.yaml --out runs --engine event
     """
-    from experiments.scenario import Scenario, run
+    from experiments.scenario import Scenario, check_engine, run
 
     try:
         s = Scenario.model_validate(_load_yaml(scenario))
+        if engine is not None:
+            check_engine(s, engine.value)
     except (ValidationError, ValueError) as exc:
         _config_error(exc, str(scenario))
-    result = run(s, progress=True)
+    result = run(s, progress=True, engine=None if engine is None else engine.value)
     folder = result.save(Path(out) / f"simulate-{s.name}")
     _plot_run(result.steps, folder / "run.png", s.name)
     for k, v in result.summary.items():
@@ -213,6 +235,7 @@ def sweep(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local'.")
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """A grid of scenarios, resumable (finished runs are skipped), local or on Dask.
 
@@ -225,7 +248,7 @@ def sweep(
 
     Example: pmspm sweep examples/sweep.yaml --out runs/sweep --scheduler tcp://host:8786
     """
-    from experiments.scenario import Scenario
+    from experiments.scenario import Scenario, check_engine
     from experiments.sweep import run_sweep
 
     data = _load_yaml(spec)
@@ -236,10 +259,16 @@ def sweep(
     configs = _expand(data.get("base", {}), data.get("grid", {}))
     for c in configs:
         try:
-            Scenario.model_validate(c)
-        except ValidationError as exc:
+            s = Scenario.model_validate(c)
+            if engine is not None:
+                check_engine(s, engine.value)
+        except (ValidationError, ValueError) as exc:
             _config_error(exc, str(spec))
-    df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+    if engine == EngineChoice.event:
+        df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+    else:
+        df = run_sweep("experiments.scenario:run_summaries", configs, out, scheduler, workers,
+                       batch_size=SWEEP_BATCH)
     df.to_parquet(Path(out) / "sweep.parquet")
     failed = int((df.error != "").sum()) if "error" in df else 0
     typer.echo(f"{len(df)} runs ({failed} failed): {Path(out) / 'sweep.parquet'}")
