@@ -77,6 +77,7 @@ def study(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -87,6 +88,8 @@ def study(
     from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study
 
     cfg = StudyConfig(workers=workers, scheduler=scheduler)
+    if engine is not None:
+        cfg = cfg.model_copy(update={"engine": engine.value})
     if quick:
         cfg = cfg.model_copy(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
@@ -429,6 +432,7 @@ def tune_kalman_cmd(
     storage: Annotated[
         str | None, typer.Option(help="Optuna storage URL (default: SQLite in the output).")
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """Tune the pixel Kalman filter's Q/R against closed-loop cost (not pixel error), grid +
     optuna, and compare with the seed's Q = 0.01·I4, R = 0.1·I2 on held-out seeds, with the phase
@@ -452,6 +456,7 @@ def tune_kalman_cmd(
         scheduler=scheduler,
         workers=workers,
         storage=storage,
+        engine="batched" if engine is None else engine.value,
     )
     typer.echo("\n".join(result.summary_lines()))
     typer.echo(f"results: {out}")
