@@ -2,14 +2,16 @@
 
 Each run is a ``latency.loop.ClosedLoop`` (its own seed, delays, observer settings, gains and
 reference). Its events (frames, releases, commands) run through the loop's own timeline
-(``ClosedLoop.timeline``), which yields each time the physics must advance by some dt with held
-currents. The engine collects one such request from every unfinished run and serves all of
-them with one call of the vectorised rigid-body step (``plant.rigid_body.RigidBody``) over the
-batch: whole physics steps and the shortened steps that put events on their exact times, each
-run with its own length. The physics is therefore the same code as the event loop's
-(``plant.dynamics.MujocoPlant`` advances one rotor with the same step), and so are the event
-handlers and the random streams: run by run, the two engines compute the same trajectory to
-rounding (tests/test_batched.py).
+(``ClosedLoop.timeline``), which, between two events, asks for the physics to move to the next
+event with its currents held (an ``Advance``). The engine serves the open requests of all runs
+together: each round moves every such run to its next physics grid point or its event, with one
+call of the vectorised rigid-body step (``plant.rigid_body.RigidBody``) over the batch, each run
+with its own step length (whole physics steps, and the shortened steps that put events on their
+exact times); it stores the states at the grid points and hands them back (a ``Segment``) when a
+run reaches its event. Between events nothing runs per run in Python. The physics is the same
+code as the event loop's (``plant.dynamics.MujocoPlant`` advances one rotor with the same step),
+and so are the event handlers and the random streams: run by run, the two engines compute the
+same trajectory to rounding (tests/test_batched.py).
 
 Where the time goes (docs/closed_loop.md): the batched physics costs about as much per rotor as
 CasADi-generated C called per rotor, and a run's events and per-step bookkeeping stay Python per
@@ -27,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from latency.loop import ClosedLoop, LoopResult
+from latency.loop import Advance, ClosedLoop, LoopResult, Segment
 from plant import attitude
 from plant.params import PlantParams
 from plant.rigid_body import RigidBody
@@ -109,9 +111,6 @@ class _RunPlant:
         K = self.batch.torque_map(self.q if q is None else q)
         return allocate(torque, K, float(self.batch.params.motor.i_max_A))
 
-    def tilt_stop_active(self) -> bool:
-        return bool(self.batch.body.tilt_stop_active(self.batch.q[self.row][None])[0])
-
     def delayed_q(self) -> NDArray[np.float64]:
         raise ValueError("the batched engine has no MuJoCo sensors; use the event loop")
 
@@ -140,29 +139,63 @@ def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[Loo
 
 
 def _run_group(loops: Sequence[ClosedLoop]) -> list[LoopResult]:
-    """Loops that share their ``PlantParams``: lockstep over the physics requests."""
+    """Loops that share their ``PlantParams``, in lockstep: each round moves every run with an
+    open ``Advance`` to its next grid point or its target (``latency.loop._advance_segment``
+    for many runs), stores the state at the grid points, and resumes the runs whose target is
+    reached with their ``Segment``."""
+    B = len(loops)
     batch = _Batch(loops[0].params, loops)
-    plants = [_RunPlant(batch, i) for i in range(len(loops))]
+    h = batch.params.physics_dt_s
+    plants = [_RunPlant(batch, i) for i in range(B)]
     timelines = [lp.timeline(pl) for lp, pl in zip(loops, plants, strict=True)]
-    results: list[LoopResult | None] = [None] * len(loops)
-    cmd = np.zeros((len(loops), N_COILS))
-    dt = np.zeros(len(loops))
-    live = np.ones(len(loops), dtype=bool)
+    results: list[LoopResult | None] = [None] * B
+    n_steps = np.array([lp.n_steps for lp in loops])
+    cmd = np.zeros((B, N_COILS))
+    t, t_target = np.zeros(B), np.zeros(B)
+    k = np.zeros(B, dtype=int)
+    open_ = np.zeros(B, dtype=bool)  # an Advance is being served
+    # The state at the grid points of each open Advance (grown when a segment is longer).
+    cap = 64
+    buf = np.zeros((B, cap, 4 + 3 + N_COILS))
+    filled = np.zeros(B, dtype=int)
 
-    def resume(i: int, first: bool) -> None:
+    def take(i: int, req: Advance) -> None:
+        cmd[i], t[i], t_target[i], k[i] = req.currents, req.t_s, req.t_target_s, req.k_log
+        filled[i] = 0
+        open_[i] = True
+
+    def resume(i: int, seg: Segment | None) -> None:
         try:
-            c, step = next(timelines[i]) if first else timelines[i].send(None)
-            cmd[i], dt[i] = c, step
+            take(i, next(timelines[i]) if seg is None else timelines[i].send(seg))
         except StopIteration as done:
             results[i] = done.value
-            live[i] = False
+            open_[i] = False
 
-    for i in range(len(loops)):
-        resume(i, True)
+    for i in range(B):
+        resume(i, None)
     disturbances = [pl.disturbance for pl in plants]  # set by each timeline at its start
-    while live.any():
-        rows = np.flatnonzero(live)
-        batch.advance(rows, cmd[rows], dt[rows], disturbances)
-        for i in rows:
-            resume(int(i), False)
+    while open_.any():
+        rows = np.flatnonzero(open_)
+        t_grid = (k[rows] + 1) * h
+        t_to = np.minimum(t_target[rows], t_grid)
+        move = t_to > t[rows]
+        if move.any():
+            mv = rows[move]
+            batch.advance(mv, cmd[mv], t_to[move] - t[mv], disturbances)
+            t[mv] = t_to[move]
+        on_grid = (np.abs(t[rows] - t_grid) < 1e-12) & (k[rows] + 1 <= n_steps[rows])
+        if on_grid.any():
+            g = rows[on_grid]
+            k[g] += 1
+            if filled[g].max() >= cap:
+                buf = np.concatenate([buf, np.zeros_like(buf)], axis=1)
+                cap = buf.shape[1]
+            buf[g, filled[g]] = np.concatenate(
+                [batch.q[g], batch.omega[g], batch.currents[g]], axis=1
+            )
+            filled[g] += 1
+        for i in rows[t[rows] >= t_target[rows] - 1e-12]:
+            seg = buf[i, : filled[i]]
+            resume(int(i), Segment(float(t[i]), seg[:, :4].copy(), seg[:, 4:7].copy(),
+                                   seg[:, 7:].copy()))
     return [r for r in results if r is not None]

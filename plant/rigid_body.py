@@ -113,6 +113,12 @@ def dexpinv(phi: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.
     return omega + 0.5 * pxw + c[:, None] * _cross(phi, pxw)
 
 
+def tilt_stop_contact(q: NDArray[np.float64], params: PlantParams) -> NDArray[np.bool_]:
+    """(B,) True where the attitudes q (B, 4) tilt beyond the stop's limit (in contact)."""
+    cos_b = 1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2)
+    return cos_b < np.cos(np.deg2rad(params.rotor.tilt_stop_deg))
+
+
 class RigidBody:
     """The rotor's dynamics for a batch of rotors with the same ``PlantParams``.
 
@@ -191,8 +197,7 @@ class RigidBody:
 
     def tilt_stop_active(self, q: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(B,) True where the tilt is beyond the stop's limit."""
-        cos_b = 1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2)
-        return cos_b < self.cos_tilt_max
+        return tilt_stop_contact(q, self.params)
 
     def acceleration(
         self,
