@@ -113,6 +113,16 @@ def dexpinv(phi: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.
     return omega + 0.5 * pxw + c[:, None] * _cross(phi, pxw)
 
 
+def stop_gains(params: PlantParams) -> tuple[float, float, float]:
+    """The tilt stop's stiffness k (N·m/rad), damping c (N·m·s/rad) and limit (rad): critically
+    damped with time constant ``STOP_TIMECONST_S`` for the largest inertia about a horizontal
+    axis (the tilt axis)."""
+    J = inertia_about_centre(params)
+    j_tilt = float(np.max(np.linalg.eigvalsh(J[:2, :2])))
+    rate = 1.0 / STOP_TIMECONST_S
+    return j_tilt * rate * rate, 2.0 * j_tilt * rate, float(np.deg2rad(params.rotor.tilt_stop_deg))
+
+
 def tilt_stop_contact(q: NDArray[np.float64], params: PlantParams) -> NDArray[np.bool_]:
     """(B,) True where the attitudes q (B, 4) tilt beyond the stop's limit (in contact)."""
     cos_b = 1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2)
@@ -142,14 +152,8 @@ class RigidBody:
         self.gain_scaled = (
             motor.k_T_Nm_per_A * magnet_polarity() / (1.0 - self.cos_cutoff) ** 2
         )[:, None]
-        self.tilt_max_rad = float(np.deg2rad(r.tilt_stop_deg))
+        self.stop_k, self.stop_c, self.tilt_max_rad = stop_gains(p)
         self.cos_tilt_max = float(np.cos(self.tilt_max_rad))
-        # Stop stiffness and damping: critically damped for the largest inertia about a
-        # horizontal axis (the tilt axis), time constant STOP_TIMECONST_S.
-        j_tilt = float(np.max(np.linalg.eigvalsh(self.J[:2, :2])))
-        rate = 1.0 / STOP_TIMECONST_S
-        self.stop_k = j_tilt * rate * rate  # N·m/rad
-        self.stop_c = 2.0 * j_tilt * rate  # N·m·s/rad
 
     # --- torques ---------------------------------------------------------------------------
     def _windows(self, R: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
