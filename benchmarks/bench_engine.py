@@ -90,6 +90,39 @@ def sweep_walls(n_runs: int, n_event: int, duration_s: float, batch: int) -> tup
     return event, batched
 
 
+def torque_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
+    """Wall time (s) of one evaluation of K(q) I over ``batch`` rotors, the batched step's
+    dominant kernel (``RigidBody.em_torque``), in numpy and in torch on the CPU (one thread),
+    the same operations: the technique choice of docs/closed_loop.md."""
+    import numpy as np
+    import torch
+
+    from plant.params import PlantParams
+    from plant.rigid_body import RigidBody, quat_matrix
+
+    torch.set_num_threads(1)
+    body = RigidBody(PlantParams())
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(batch, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R, current = quat_matrix(q), rng.uniform(-1, 1, (batch, 16))
+    Rt, It = torch.from_numpy(R), torch.from_numpy(current)
+    mags, coils = torch.from_numpy(body.magnets), torch.from_numpy(body.coils)
+    gain = torch.from_numpy(body.gain_scaled)
+
+    def torch_torque():
+        r = torch.matmul(mags, Rt.transpose(1, 2))
+        x = torch.clamp(torch.matmul(r, coils.T) - body.cos_cutoff, min=0.0)
+        a = torch.matmul(x * x * gain * It[:, None, :], coils)
+        return torch.linalg.cross(a, r, dim=-1).sum(dim=1)
+
+    assert np.allclose(torch_torque().numpy(), body.em_torque(R, current), atol=1e-12)
+    out = {}
+    for name, fn in (("numpy", lambda: body.em_torque(R, current)), ("torch", torch_torque)):
+        out[name] = min(_wall(fn) for _ in range(repeats))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, a smoke test")
@@ -102,6 +135,9 @@ def main() -> None:
     for b in sizes:
         figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
     figures["event_loop_realtime_factor"] = event_loop_speed(duration)
+    for b in (1, 256):
+        for name, wall in torque_kernel_times(b).items():
+            figures[f"torque_kernel_{name}_B{b}_s"] = wall
     ref = 4 if quick else 256
     figures[f"batched_B{ref}_over_event_loop"] = (
         figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]
