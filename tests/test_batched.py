@@ -115,3 +115,23 @@ def test_cli_engine_option(tmp_path):
     res = runner.invoke(app, ["simulate", str(path), "--engine", "batched"])
     assert res.exit_code == 2
     assert "batched engine runs measurement-model" in res.output
+
+
+def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
+    """``execute_batch`` with the batched entry point: one row per config, the same summary as
+    the event loop's entry point for the same config, and an invalid config's error in its
+    own row while the others run."""
+    from experiments import sweep
+    from experiments.scenario import run_summary
+
+    good = [{"duration_s": 0.3, "seed": s, "observer": {"kind": "solver"}} for s in (0, 1)]
+    bad = {"duration_s": -1.0}
+    ids = sweep.execute_batch("experiments.scenario:run_summaries", [*good, bad], str(tmp_path))
+    table = sweep.table(tmp_path).set_index("run_id")
+    assert len(table) == 3
+    assert "duration_s" in table.loc[ids[2], "error"]
+    for rid, config in zip(ids[:2], good, strict=True):
+        assert table.loc[rid, "error"] == ""
+        event = run_summary(config)
+        assert table.loc[rid, "result.rms_error_deg"] == pytest.approx(event["rms_error_deg"],
+                                                                       rel=1e-9)
