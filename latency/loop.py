@@ -22,6 +22,10 @@ contact with the tilt stop, and divergence (the run stops early and says so).
 
 Event times are exact: the physics advances to each event with a shortened last step
 (``MujocoPlant.advance``), so delays are not rounded to the physics grid.
+
+A run's events live in a generator (``ClosedLoop.timeline``) that asks for the physics between
+events (``Advance``) and gets the states at the grid points back (``Segment``): ``run`` serves it
+with one ``MujocoPlant``, ``latency.batched`` serves many runs' requests together.
 """
 
 from __future__ import annotations
