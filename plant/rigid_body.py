@@ -30,7 +30,7 @@ about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
@@ -168,16 +168,9 @@ class RigidBody:
         x *= self.gain_scaled
         return r, x
 
-    def torque_maps(self, R: NDArray[np.float64]) -> NDArray[np.float64]:
-        """K (B, 3, 16), N·m/A, for rotation matrices R (B, 3, 3) (``plant.torque.TorqueMap``):
-        column i is c_i x sum_j g_ij r_j."""
-        r, g = self._windows(R)
-        v = np.matmul(np.swapaxes(g, 1, 2), r)  # (B, 16, 3)
-        return np.swapaxes(_cross(self.coils, v), 1, 2)
-
     def em_torque(self, R: NDArray[np.float64], currents: NDArray[np.float64]) -> NDArray:
-        """K(q) I (B, 3), stator frame, N·m, as sum_j a_j x r_j with a_j = sum_i g_ij I_i c_i
-        (the same sum as ``torque_maps`` without forming K)."""
+        """K(q) I (B, 3), stator frame, N·m (``plant.torque.TorqueMap``: column i of K is
+        c_i x sum_j g_ij r_j), summed as sum_j a_j x r_j with a_j = sum_i g_ij I_i c_i."""
         r, g = self._windows(R)
         a = np.matmul(g * currents[:, None, :], self.coils)  # (B, 18, 3)
         return np.sum(_cross(a, r), axis=1)
@@ -201,10 +194,6 @@ class RigidBody:
         out[hit] = -force[:, None] * u
         return out
 
-    def tilt_stop_active(self, q: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """(B,) True where the tilt is beyond the stop's limit."""
-        return tilt_stop_contact(q, self.params)
-
     def acceleration(
         self,
         q: NDArray[np.float64],
@@ -225,12 +214,6 @@ class RigidBody:
         if disturbance is not None:
             tau += disturbance
         return tau @ self.J_inv.T
-
-    def electromagnetic_torque(
-        self, q: NDArray[np.float64], currents: NDArray[np.float64]
-    ) -> NDArray[np.float64]:
-        """K(q) I (B, 3), stator frame, N·m."""
-        return self.em_torque(quat_matrix(q), currents)
 
     # --- time ------------------------------------------------------------------------------
     def step(
@@ -268,8 +251,3 @@ class RigidBody:
         q_next = quat_multiply(q, quat_exp(phi))
         q_next /= np.linalg.norm(q_next, axis=-1, keepdims=True)
         return q_next, omega_next
-
-
-def as_batch(x: ArrayLike, width: int) -> NDArray[np.float64]:
-    """``x`` as a float array (B, width) (a single row becomes B = 1)."""
-    return np.asarray(x, dtype=float).reshape(-1, width)

@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 from plant import attitude as A
 from plant.dynamics import MujocoPlant
 from plant.params import PlantParams
-from plant.rigid_body import RigidBody
+from plant.rigid_body import RigidBody, tilt_stop_contact
 from plant.torque import TorqueMap
 from plant.twin import CasadiTwin
 from tests.test_dynamics import balanced_currents
@@ -148,4 +148,4 @@ def test_tilt_stop_leaves_spin_and_yaw_free():
     dist = np.array([[0.0, 0.0, 0.05]])  # body frame: along the shaft
     acc = body.acceleration(q, w, np.zeros((1, 16)), dist)
     assert acc[0, 2] == pytest.approx(0.05 / body.J[2, 2], rel=1e-12)
-    assert body.tilt_stop_active(q)[0]
+    assert tilt_stop_contact(q, p)[0]
