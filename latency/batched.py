@@ -118,8 +118,9 @@ class _RunPlant:
 def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[LoopResult]:
     """Run the closed loops together and return their results, in order.
 
-    Runs with different ``PlantParams`` are batched separately. Each result is what
-    ``loop.run()`` returns (the same tables and ``summarize`` metrics).
+    Runs with different ``PlantParams`` are batched separately; a run alone in its batch runs on
+    the event loop. Each result is what ``loop.run()`` returns (the same tables and
+    ``summarize`` metrics).
     """
     for lp in loops:
         if lp.config.mujoco_sensor_delay_s is not None:
@@ -131,7 +132,10 @@ def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[Loo
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
     for members in groups.values():
         group = [loops[i] for i in members]
-        for i, res in zip(members, _run_group(group), strict=True):
+        # A batch of one gains nothing from the batch code: the event loop's single-rotor step
+        # (the CasADi plant step) is about five times faster, with the same results.
+        done = [group[0].run()] if len(group) == 1 else _run_group(group)
+        for i, res in zip(members, done, strict=True):
             results[i] = res
             bar.update(1)
     bar.close()
