@@ -131,6 +131,9 @@ class Steps(_Model):
     attitudes: tuple[tuple[float, float, float, float], ...] = Field(
         min_length=1, description="Unit quaternions (w, x, y, z), one per switching time."
     )
+    # The attitudes normalised and the times as arrays, once (sample runs at every grid point).
+    _unit: NDArray[np.float64] = PrivateAttr()
+    _times: NDArray[np.float64] = PrivateAttr()
 
     @model_validator(mode="after")
     def _check(self) -> Steps:
@@ -140,14 +143,16 @@ class Steps(_Model):
             )
         if not np.all(np.isfinite(self.times_s)) or np.any(np.diff(self.times_s) <= 0):
             raise ValueError(f"times_s must be finite and strictly increasing, got {self.times_s}")
-        for k, q in enumerate(self.attitudes):
-            attitude.normalize(q, f"attitudes[{k}]")
+        self._unit = np.array(
+            [attitude.normalize(q, f"attitudes[{k}]") for k, q in enumerate(self.attitudes)]
+        )
+        self._times = np.asarray(self.times_s, dtype=float)
         return self
 
     def sample(self, t: float) -> RefSample:
         """The attitude active at ``t`` (s); zero rate and acceleration."""
-        k = max(int(np.searchsorted(self.times_s, t, side="right")) - 1, 0)
-        return RefSample(q=attitude.normalize(self.attitudes[k]))
+        k = max(int(np.searchsorted(self._times, t, side="right")) - 1, 0)
+        return RefSample(q=self._unit[k].copy())
 
     @property
     def duration_s(self) -> float:

@@ -18,6 +18,7 @@ import math
 import os
 import re
 import tempfile
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -36,6 +37,24 @@ app = typer.Typer(
 )
 
 OutOption = Annotated[Path, typer.Option(help="Folder for the results.")]
+
+
+class EngineChoice(str, Enum):
+    """The closed-loop engine (``experiments.scenario.Engine``)."""
+
+    batched = "batched"
+    event = "event"
+
+
+EngineOption = Annotated[
+    EngineChoice | None,
+    typer.Option(help="batched (measurement-model runs advanced together) or event (one run "
+                 "at a time; image-in-the-loop needs it). Default: batched for measurement-model "
+                 "scenarios, event for image-in-the-loop ones."),
+]
+#: Runs per batch of the batched engine in a sweep (our choice: past the knee of the engine's
+#: throughput curve, benchmarks/bench_engine.py).
+SWEEP_BATCH = 256
 
 
 def _config_error(exc: ValidationError | ValueError, source: str) -> NoReturn:
@@ -167,6 +186,7 @@ def study(
         int | None,
         typer.Option(help="Seeds per closed-loop point (default 2; 95 % intervals want >= 32)."),
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -180,6 +200,8 @@ def study(
     _writable_folder(out)
     try:
         extra = {} if n_seeds is None else {"n_seeds": n_seeds}
+        if engine is not None:
+            extra["engine"] = engine.value
         cfg = StudyConfig(workers=workers, scheduler=scheduler, **extra)
     except ValidationError as exc:
         _config_error(exc, "options")
@@ -211,23 +233,26 @@ def demo(out: OutOption = Path("runs")) -> None:
 def simulate(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML (experiments.scenario).")],
     out: OutOption = Path("runs"),
+    engine: EngineOption = None,
 ) -> None:
     """One closed-loop run: writes its tables (Parquet) and a plot into a new folder
     <out>/<timestamp>-simulate-<name>/, prints the summary.
 
-    Example: pmspm simulate examples/scenario.yaml --out runs
+    Example: pmspm simulate examples/scenario.yaml --out runs --engine event
     """
-    from experiments.scenario import Scenario, run
+    from experiments.scenario import Scenario, check_engine, run
 
     try:
         s = Scenario.model_validate(_load_yaml(scenario))
+        if engine is not None:
+            check_engine(s, engine.value)
     except (ValidationError, ValueError) as exc:
         _config_error(exc, str(scenario))
     for reason in s.reach_warnings():
         _warn(reason)
     _writable_folder(out)
     try:
-        result = run(s, progress=True)
+        result = run(s, progress=True, engine=None if engine is None else engine.value)
     except KeyboardInterrupt:
         _interrupted()
     folder = result.save(_new_folder(out, f"simulate-{s.name}"))
@@ -381,6 +406,7 @@ def sweep(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local'.")
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """A grid of scenarios, resumable (finished runs are skipped), local or on Dask. The table
     <out>/sweep-<id>.parquet holds exactly this grid's runs (the id is the grid's content), also
@@ -395,7 +421,7 @@ def sweep(
 
     Example: pmspm sweep examples/sweep.yaml --out runs/sweep --scheduler tcp://host:8786
     """
-    from experiments.scenario import Scenario
+    from experiments.scenario import Scenario, check_engine
     from experiments.sweep import SchedulerUnreachable, run_sweep, sweep_id
 
     _check_workers_and_scheduler(workers, scheduler)
@@ -412,13 +438,19 @@ def sweep(
     for i, c in enumerate(configs):
         try:
             scenarios.append(Scenario.model_validate(c))
-        except ValidationError as exc:
+            if engine is not None:
+                check_engine(scenarios[-1], engine.value)
+        except (ValidationError, ValueError) as exc:
             _config_error(exc, f"{spec} (run {i + 1} of {len(configs)})")
     for reason in dict.fromkeys(r for s in scenarios for r in s.reach_warnings()):
         _warn(reason)
     _writable_folder(out)
     try:
-        df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+        if engine == EngineChoice.event:
+            df = run_sweep("experiments.scenario:run_summary", configs, out, scheduler, workers)
+        else:
+            df = run_sweep("experiments.scenario:run_summaries", configs, out, scheduler,
+                           workers, batch_size=SWEEP_BATCH)
     except SchedulerUnreachable as exc:
         _fail(str(exc))
     except KeyboardInterrupt:
@@ -616,6 +648,7 @@ def tune_kalman_cmd(
     storage: Annotated[
         str | None, typer.Option(help="Optuna storage URL (default: SQLite in the output).")
     ] = None,
+    engine: EngineOption = None,
 ) -> None:
     """Tune the pixel Kalman filter's Q/R against closed-loop cost (not pixel error), grid +
     optuna, and compare with the seed's Q = 0.01·I4, R = 0.1·I2 on held-out seeds, with the phase
@@ -666,6 +699,7 @@ def tune_kalman_cmd(
             scheduler=scheduler,
             workers=workers,
             storage=storage,
+            engine="batched" if engine is None else engine.value,
         )
     except KeyboardInterrupt:
         _interrupted()

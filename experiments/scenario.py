@@ -39,6 +39,7 @@ from controller.pid import PIDConfig, PIDController
 from controller.pid import reach_warnings as pid_reach_warnings
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
 from experiments.config_files import load_mapping
+from latency.batched import run_batched
 from latency.frontends import (
     ImageFrontEnd,
     MeasurementConfig,
@@ -565,11 +566,67 @@ def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> C
     return ClosedLoop(p, controller, s.reference.build(), front, observer, s.loop_config(), clock)
 
 
-def run(s: Scenario, progress: bool = False) -> LoopResult:
-    """Run a scenario."""
-    return build_loop(s).run(progress=progress)
+#: The two engines: ``latency.batched`` (many measurement-model runs advanced together) and the
+#: event loop (``ClosedLoop.run``, one run at a time).
+Engine = Literal["batched", "event"]
+
+
+def default_engine(s: Scenario) -> Engine:
+    """Measurement-model work runs batched, image-in-the-loop work on the event loop."""
+    return "batched" if s.mode == "measurement" else "event"
+
+
+def check_engine(s: Scenario, engine: Engine) -> None:
+    """``ValueError`` if ``engine`` cannot run ``s`` (the batched engine needs mode:
+    measurement)."""
+    if engine == "batched" and s.mode != "measurement":
+        raise ValueError(
+            f"scenario {s.name!r} has mode {s.mode!r}: the batched engine runs measurement-model "
+            "scenarios only (rendering and tracking dominate image runs); use --engine event"
+        )
+
+
+def run(s: Scenario, progress: bool = False, engine: Engine | None = None) -> LoopResult:
+    """Run a scenario on ``engine`` (default ``default_engine(s)``)."""
+    return run_many([s], progress, engine)[0]
+
+
+def run_many(
+    scenarios: list[Scenario], progress: bool = False, engine: Engine | None = None
+) -> list[LoopResult]:
+    """Run scenarios, in order: those on the batched engine together, the others one by one
+    on the event loop. ``engine`` None: each scenario's ``default_engine``."""
+    engines = [engine or default_engine(s) for s in scenarios]
+    for s, e in zip(scenarios, engines, strict=True):
+        check_engine(s, e)
+    out: list[LoopResult | None] = [None] * len(scenarios)
+    batched = [i for i, e in enumerate(engines) if e == "batched"]
+    for i, res in zip(batched, run_batched([build_loop(scenarios[i]) for i in batched],
+                                           progress), strict=True):
+        out[i] = res
+    for i, e in enumerate(engines):
+        if e == "event":
+            out[i] = build_loop(scenarios[i]).run(progress=progress)
+    return [r for r in out if r is not None]
 
 
 def run_summary(config: dict) -> dict:
-    """Sweep entry point: run the scenario given as a dict, return its summary metrics."""
-    return run(Scenario.model_validate(config)).summary
+    """Sweep entry point: run the scenario given as a dict on the event loop, return its
+    summary metrics."""
+    return run(Scenario.model_validate(config), engine="event").summary
+
+
+def run_summaries(configs: list[dict]) -> list[dict | Exception]:
+    """Batched sweep entry point: the summaries of the scenarios given as dicts, each on its
+    default engine (measurement-model runs together); an invalid config gives its exception
+    in its place."""
+    scenarios: list[Scenario] = []
+    out: list[dict | Exception] = []
+    for c in configs:
+        try:
+            scenarios.append(Scenario.model_validate(c))
+            out.append({})
+        except ValidationError as exc:
+            out.append(exc)
+    results = iter(run_many(scenarios))
+    return [o if isinstance(o, Exception) else next(results).summary for o in out]

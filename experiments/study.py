@@ -43,7 +43,15 @@ from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
 from experiments.intervals import seed_intervals
 from experiments.report import write_report
-from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, PIDSpec, Scenario, run
+from experiments.scenario import (
+    MPC_CALL_MEDIAN_S,
+    Engine,
+    MPCSpec,
+    PIDSpec,
+    Scenario,
+    run,
+    run_summaries,
+)
 from experiments.study_plots import (
     CONTROLLER_STYLE,
     plot_boundary_overlay,
@@ -71,6 +79,9 @@ from plant.params import PlantParams
 
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
 DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
+#: Most runs per batch of the batched engine in the study's sweep (the runs are spread evenly
+#: over the workers first).
+STUDY_BATCH = 256
 
 
 class StudyConfig(BaseModel):
@@ -107,6 +118,10 @@ class StudyConfig(BaseModel):
     )
     workers: int | None = None
     scheduler: str | None = None
+    engine: Engine = Field(
+        "batched", description="Closed-loop engine of the sweep and the time series (both "
+        "measurement-model): batched, or the event loop."
+    )
 
 
 # --- 1. margins -----------------------------------------------------------------------------
@@ -315,9 +330,18 @@ def sweep_configs(cfg: StudyConfig) -> list[dict]:
 
 
 def study_run(config: dict) -> dict:
-    """Sweep entry point: the scenario's summary (the ``study`` block is bookkeeping)."""
-    config = {k: v for k, v in config.items() if k != "study"}
-    return run(Scenario.model_validate(config)).summary
+    """Sweep entry point, event loop: the scenario's summary (the ``study`` block is
+    bookkeeping)."""
+    return run(Scenario.model_validate(_scenario_part(config)), engine="event").summary
+
+
+def study_runs(configs: list[dict]) -> list[dict | Exception]:
+    """Batched sweep entry point: the summaries of ``study_run``, the runs advanced together."""
+    return run_summaries([_scenario_part(c) for c in configs])
+
+
+def _scenario_part(config: dict) -> dict:
+    return {k: v for k, v in config.items() if k != "study"}
 
 
 def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
@@ -379,7 +403,7 @@ def time_series(cfg: StudyConfig, out: Path) -> tuple[dict[str, pd.DataFrame], d
                 pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
                 measurement={"sigma_px": cfg.sigma_px},
             )
-            r = run(s)
+            r = run(s, engine=cfg.engine)
             key = f"{ctrl}_{d:.2f}ms"
             series[key] = r.steps
             summaries[key] = r.summary
@@ -574,12 +598,14 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     mpc_margins.to_parquet(out / "mpc_margins.parquet")
     plot_pm_pid_vs_mpc(margins, mpc_margins, marks, out / "pm_pid_vs_mpc.png")
 
+    batched = cfg.engine == "batched"
     raw = run_sweep(
-        "experiments.study:study_run",
+        f"experiments.study:{'study_runs' if batched else 'study_run'}",
         sweep_configs(cfg),
         out / "sweep",
         scheduler=cfg.scheduler,
         workers=cfg.workers,
+        batch_size=STUDY_BATCH if batched else None,
     )
     sweep = tidy_sweep(raw)
     sweep.to_parquet(out / "sweep.parquet")

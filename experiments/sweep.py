@@ -39,6 +39,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
@@ -123,17 +124,35 @@ def _flatten(prefix: str, value, out: dict) -> None:
 def execute(target: str, config: dict, out_dir: str) -> str:
     """Run one config and write its row atomically. Returns the run id. Never raises for an
     error inside the run: the row then carries ``error`` and ``traceback``."""
+    try:
+        result: dict | Exception = _resolve(target)(config)
+    except Exception as exc:  # noqa: BLE001 (a failed run is data, not a crash of the sweep)
+        result = exc
+    return _write_row(config, result, out_dir)
+
+
+def execute_batch(target: str, configs: list[dict], out_dir: str) -> list[str]:
+    """Run configs together with a batch run function (configs -> one result dict, or the
+    exception, per config, in order) and write each row as ``execute`` does. If the batch
+    function itself raises, every config of the batch gets that error."""
+    try:
+        results: list[dict | Exception] = list(_resolve(target)(configs))
+    except Exception as exc:  # noqa: BLE001
+        results = [exc] * len(configs)
+    return [_write_row(c, r, out_dir) for c, r in zip(configs, results, strict=True)]
+
+
+def _write_row(config: dict, result: dict | Exception, out_dir: str) -> str:
     rid = run_id(config)
     row: dict = {"run_id": rid}
     _flatten("config", config, row)
-    try:
-        result = _resolve(target)(config)
+    if isinstance(result, Exception):
+        row["error"] = f"{type(result).__name__}: {result}"
+        row["traceback"] = "".join(traceback.format_exception(result))
+    else:
         row.update({f"result.{k}": v for k, v in result.items()})
         row["error"] = ""
         row["traceback"] = ""
-    except Exception as exc:  # noqa: BLE001 (a failed run is data, not a crash of the sweep)
-        row["error"] = f"{type(exc).__name__}: {exc}"
-        row["traceback"] = traceback.format_exc()
     folder = Path(out_dir) / "runs"
     folder.mkdir(parents=True, exist_ok=True)
     tmp = folder / f".{rid}.{os.getpid()}.tmp"
@@ -175,6 +194,7 @@ def run_sweep(
     scheduler: str | None = None,
     workers: int | None = None,
     progress: bool = True,
+    batch_size: int | None = None,
 ) -> pd.DataFrame:
     """Run every config not yet done and return the sweep's table.
 
@@ -186,6 +206,9 @@ def run_sweep(
     scheduler : None for a local process pool; ``"local"`` for a Dask ``LocalCluster``; or a
         Dask scheduler address such as ``"tcp://host:8786"``.
     workers : local processes or LocalCluster workers (default: this machine's cores).
+    batch_size : None: ``target`` runs one config. A number: ``target`` is a batch run function
+        (``execute_batch``) and gets up to this many configs at a time, spread evenly over the
+        workers.
 
     Returns
     -------
@@ -203,15 +226,21 @@ def run_sweep(
     if not todo:
         bar.close()
         return table(out, ids)
+    if batch_size is None:
+        jobs = [(execute, target, c, out) for c in todo]
+    else:
+        n_chunks = max(n_workers, -(-len(todo) // batch_size))
+        jobs = [(execute_batch, target, list(chunk), out)
+                for chunk in np.array_split(np.array(todo, dtype=object), n_chunks) if len(chunk)]
     if scheduler is None:
         pool = ProcessPoolExecutor(
             max_workers=n_workers, initializer=_watch_parent, initargs=(os.getpid(),)
         )
         try:
-            futures = [pool.submit(execute, target, c, out) for c in todo]
+            futures = {pool.submit(*job): job for job in jobs}
             for f in as_completed(futures):
                 f.result()
-                bar.update(1)
+                bar.update(_n_runs(futures[f][2]))
         except BaseException:
             # Ctrl-C or a failure of the pool: stop now; the runs in flight are lost and
             # recomputed on resume. (Python < 3.14 has no public way to end the workers.)
@@ -248,13 +277,17 @@ def run_sweep(
                     f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
                 ) from None
         try:
-            futures = [client.submit(execute, target, c, out, pure=False) for c in todo]
-            for f in dask_completed(futures):
+            futures = {client.submit(*job, pure=False): job for job in jobs}
+            for f in dask_completed(list(futures)):
                 f.result()
-                bar.update(1)
+                bar.update(_n_runs(futures[f][2]))
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
     bar.close()
     return table(out, ids)
+
+
+def _n_runs(job_configs: dict | list[dict]) -> int:
+    return len(job_configs) if isinstance(job_configs, list) else 1

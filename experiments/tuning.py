@@ -73,12 +73,13 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from tqdm import tqdm
 
 from controller.pid import PIDController
 from experiments import sweep
-from experiments.scenario import PIDSpec, Scenario, run
+from experiments.scenario import Engine, PIDSpec, Scenario, run, run_many
+from latency.loop import LoopResult
 from latency.margins import Margins, attitude_plant, loop_margins, loop_model, sampled_margins
 from latency.models import SEED_LATENCY_S
 from latency.pipeline import FrameScheduler, PipelineConfig
@@ -89,8 +90,12 @@ SEED_R_SCALE = 0.1
 GRID_DECADES = 2.0  # our choice: the grid spans 10^-2 .. 10^2 times the seed's q and r
 #: Seed 000 Table 1: GK-TransT and dual TransT latency on an RTX 4060 laptop, s.
 DEFAULT_DELAYS_S = (SEED_LATENCY_S["gk_transt"], SEED_LATENCY_S["dual_transt"])
-#: The sweep runner's entry point for one run of the objective.
+#: The sweep runner's entry point for one run of the objective (event loop).
 RUN_TARGET = "experiments.tuning:run_cost"
+#: The sweep runner's entry point for many runs of the objective (batched engine).
+BATCH_TARGET = "experiments.tuning:run_costs"
+#: Most runs per batch of the batched engine (spread evenly over the workers first).
+BATCH_SIZE = 256
 
 # The constant-velocity model of one pixel coordinate (u, u̇), Δt = 1 frame (seed 000 §3.2.1).
 _F1 = np.array([[1.0, 1.0], [0.0, 1.0]])
@@ -250,9 +255,30 @@ def run_cost(config: dict) -> dict:
     ``config`` is one element of ``TuningObjective.configs``. Returns ``cost`` (deg), its terms,
     ``rms_error_deg``, ``mean_square_torque_N2m2``, ``control_effort_N2m2s``, ``n_lost_frames``,
     ``n_processed_frames``, ``lost_frame_fraction`` and ``diverged``."""
-    scenario = Scenario.model_validate(config["scenario"])
+    return _cost(run(Scenario.model_validate(config["scenario"]), engine="event"), config)
+
+
+def run_costs(configs: list[dict]) -> list[dict | Exception]:
+    """Batched sweep entry point: ``run_cost`` of each config, the runs advanced together by
+    the batched engine (measurement-model scenarios)."""
+    out: list[dict | Exception] = []
+    scenarios = []
+    for c in configs:
+        try:
+            scenarios.append(Scenario.model_validate(c["scenario"]))
+            out.append({})
+        except (ValidationError, KeyError) as exc:
+            out.append(exc)
+    results = iter(run_many(scenarios))
+    return [
+        o if isinstance(o, Exception) else _cost(next(results), c)
+        for o, c in zip(out, configs, strict=True)
+    ]
+
+
+def _cost(result: LoopResult, config: dict) -> dict:
+    """The cost and metrics of ``run_cost`` from a run's result."""
     weights = CostWeights.model_validate(config.get("weights", {}))
-    result = run(scenario)
     s = result.summary
     frames = result.frames
     if len(frames) and "lost" in frames:
@@ -330,18 +356,28 @@ def _run_configs(
     scheduler: str | None,
     workers: int | None,
     progress: bool,
+    engine: Engine = "batched",
 ) -> None:
     """Run the configs not yet done into ``out_dir/runs``: through ``sweep.run_sweep`` (a
     process pool or Dask), or, for ``workers == 1`` without a scheduler, in this process with
-    the sweep's own ``execute`` (the same files and run ids, without starting a worker)."""
+    the sweep's own ``execute`` / ``execute_batch`` (the same files and run ids, without
+    starting a worker). ``engine``: the batched engine (``run_costs``) or the event loop
+    (``run_cost``)."""
+    batched = engine == "batched"
     if scheduler is None and workers == 1:
         out_dir.mkdir(parents=True, exist_ok=True)
         todo = sweep.pending(configs, out_dir)
-        for c in tqdm(todo, desc=f"runs ({out_dir.name})", unit="run", disable=not progress):
-            sweep.execute(RUN_TARGET, c, str(out_dir))
+        if batched:
+            for k in tqdm(range(0, len(todo), BATCH_SIZE), desc=f"batches ({out_dir.name})",
+                          unit="batch", disable=not progress):
+                sweep.execute_batch(BATCH_TARGET, todo[k : k + BATCH_SIZE], str(out_dir))
+        else:
+            for c in tqdm(todo, desc=f"runs ({out_dir.name})", unit="run", disable=not progress):
+                sweep.execute(RUN_TARGET, c, str(out_dir))
         return
     sweep.run_sweep(
-        RUN_TARGET, list(configs), out_dir, scheduler=scheduler, workers=workers, progress=progress
+        BATCH_TARGET if batched else RUN_TARGET, list(configs), out_dir, scheduler=scheduler,
+        workers=workers, progress=progress, batch_size=BATCH_SIZE if batched else None,
     )
 
 
@@ -351,25 +387,34 @@ def evaluate(
     r: float,
     cache_dir: str | Path | None = None,
     seeds: Iterable[int] | None = None,
+    engine: Engine = "batched",
 ) -> dict[str, float]:
     """Mean cost (deg) and metrics of (q, r) over the objective's seeds × references, run in
     this process. With ``cache_dir`` the runs are read from / written to ``cache_dir/runs`` as
     the sweep runner does (same run ids), so finished runs are never recomputed."""
     configs = objective.configs(q, r, seeds)
     if cache_dir is None:
+        if engine == "batched":
+            results = run_costs(configs)
+        else:
+            results = []
+            for c in configs:
+                try:
+                    results.append(run_cost(c))
+                except Exception as exc:  # noqa: BLE001 (a failed run is a failed point)
+                    results.append(exc)
         rows = []
-        for c in configs:
+        for c, res in zip(configs, results, strict=True):
             row = {f"config.tag.{k}": v for k, v in c["tag"].items()}
-            try:
-                row.update({f"result.{k}": v for k, v in run_cost(c).items()}, error="")
-            except Exception as exc:  # noqa: BLE001 (a failed run is a failed point)
-                row["error"] = f"{type(exc).__name__}: {exc}"
+            if isinstance(res, Exception):
+                row["error"] = f"{type(res).__name__}: {res}"
+            else:
+                row.update({f"result.{k}": v for k, v in res.items()}, error="")
             rows.append(row)
         runs = pd.DataFrame(rows)
     else:
         out = Path(cache_dir)
-        for c in sweep.pending(configs, out):
-            sweep.execute(RUN_TARGET, c, str(out))
+        _run_configs(configs, out, None, 1, False, engine)
         runs = _rows_of(configs, out)
     return aggregate(runs).iloc[0].to_dict()
 
@@ -545,6 +590,7 @@ def grid_search(
     workers: int | None = None,
     progress: bool = True,
     margins: bool = True,
+    engine: Engine = "batched",
 ) -> pd.DataFrame:
     """Mean closed-loop cost on the grid ``q_values × r_values`` for each objective (delay).
 
@@ -559,7 +605,7 @@ def grid_search(
     objs = [objectives] if isinstance(objectives, TuningObjective) else list(objectives)
     configs = [c for o in objs for q in q_values for r in r_values for c in o.configs(q, r)]
     out = Path(out_dir)
-    _run_configs(configs, out, scheduler, workers, progress)
+    _run_configs(configs, out, scheduler, workers, progress, engine)
     table = aggregate(_rows_of(configs, out))
     table["is_seed"] = np.isclose(table.q, SEED_Q_SCALE) & np.isclose(table.r, SEED_R_SCALE)
     if margins:
@@ -753,6 +799,7 @@ def _optuna_worker(
     bounds: tuple[float, float, float, float],
     cache_dir: str | None,
     progress: bool = False,
+    engine: Engine = "batched",
 ) -> int:
     """Run trials of one study until it has ``n_trials`` complete ones; returns how many this
     worker ran."""
@@ -773,7 +820,7 @@ def _optuna_worker(
         ran += 1
         q = trial.suggest_float("q", q_lo, q_hi, log=True)
         r = trial.suggest_float("r", r_lo, r_hi, log=True)
-        res = evaluate(objective, q, r, cache_dir)
+        res = evaluate(objective, q, r, cache_dir, engine=engine)
         for k in (
             "rms_error_deg",
             "mean_square_torque_N2m2",
@@ -810,6 +857,7 @@ def optuna_search(
     workers: int = 1,
     enqueue_seed_point: bool = True,
     progress: bool = False,
+    engine: Engine = "batched",
 ):
     """TPE search of (q, r) on the objective; returns the ``optuna.Study``.
 
@@ -833,11 +881,12 @@ def optuna_search(
     bounds = (*q_bounds, *r_bounds)
     args = (objective.model_dump_json(), url, name, n_trials)
     if workers <= 1:
-        _optuna_worker(*args, sampler_seed, bounds, str(out), progress)
+        _optuna_worker(*args, sampler_seed, bounds, str(out), progress, engine)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futs = [
-                pool.submit(_optuna_worker, *args, sampler_seed + i, bounds, str(out))
+                pool.submit(_optuna_worker, *args, sampler_seed + i, bounds, str(out), False,
+                            engine)
                 for i in range(workers)
             ]
             for f in futs:
@@ -872,6 +921,7 @@ def compare_on_seeds(
     scheduler: str | None = None,
     workers: int | None = None,
     progress: bool = True,
+    engine: Engine = "batched",
 ) -> pd.DataFrame:
     """Each named (q, r) setting evaluated on ``seeds`` (e.g. held-out ones) with its margins.
 
@@ -884,7 +934,7 @@ def compare_on_seeds(
     out = Path(out_dir)
     per = {k: objective.configs(q, r, seeds) for k, (q, r) in settings.items()}
     configs = [c for v in per.values() for c in v]
-    _run_configs(configs, out, scheduler, workers, progress)
+    _run_configs(configs, out, scheduler, workers, progress, engine)
     costs: dict[str, NDArray[np.float64]] = {}
     rows = []
     for name, cfgs in per.items():
@@ -1003,6 +1053,7 @@ def tune_kalman(
     objective: TuningObjective | None = None,
     tie_tolerance: float = 1e-3,
     progress: bool = True,
+    engine: Engine = "batched",
 ) -> TuningResult:
     """Tune (q, r) of the pixel Kalman filter at each vision delay and write the results.
 
@@ -1062,7 +1113,8 @@ def tune_kalman(
         qs = log_grid(SEED_Q_SCALE, grid_points, grid_decades)
         rs = log_grid(SEED_R_SCALE, grid_points, grid_decades)
         grid = grid_search(
-            objs, qs, rs, out, scheduler=scheduler, workers=workers, progress=progress
+            objs, qs, rs, out, scheduler=scheduler, workers=workers, progress=progress,
+            engine=engine,
         )
 
     trials = []
@@ -1078,13 +1130,14 @@ def tune_kalman(
                 r_bounds=r_bounds,
                 workers=optuna_workers,
                 progress=progress,
+                engine=engine,
             )
             trials.append(trials_table(study, o.delay_s))
     trials_df = pd.concat(trials, ignore_index=True) if trials else pd.DataFrame()
 
     comparisons, verdicts = [], {}
     for o in objs:
-        seed_cost = evaluate(o, SEED_Q_SCALE, SEED_R_SCALE, out)["cost"]
+        seed_cost = evaluate(o, SEED_Q_SCALE, SEED_R_SCALE, out, engine=engine)["cost"]
         candidates: dict[str, tuple[float, float, float]] = {}
         if len(grid):
             g = grid[np.isclose(grid.delay_s, o.delay_s) & grid.cost.notna()]
@@ -1113,6 +1166,7 @@ def tune_kalman(
             scheduler=scheduler,
             workers=workers,
             progress=progress,
+            engine=engine,
         )
         tuning_cost = {"seed": seed_cost, **{k: v[2] for k, v in candidates.items()}}
         cmp.insert(cmp.columns.get_loc("cost"), "cost_tuning", cmp.setting.map(tuning_cost))

@@ -23,6 +23,10 @@ the metrics of every run cover the same time).
 
 Event times are exact: the physics advances to each event with a shortened last step
 (``MujocoPlant.advance``), so delays are not rounded to the physics grid.
+
+A run's events live in a generator (``ClosedLoop.timeline``) that asks for the physics between
+events (``Advance``) and gets the states at the grid points back (``Segment``): ``run`` serves it
+with one ``MujocoPlant``, ``latency.batched`` serves many runs' requests together.
 """
 
 from __future__ import annotations
@@ -30,13 +34,14 @@ from __future__ import annotations
 import heapq
 import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tqdm import tqdm
 
@@ -49,7 +54,29 @@ from plant import attitude
 from plant.dynamics import MujocoPlant
 from plant.estimate import Estimate
 from plant.params import PlantParams
-from plant.torque import N_COILS
+from plant.rigid_body import tilt_stop_contact
+from plant.torque import N_COILS, Allocation
+
+
+class PlantState(Protocol):
+    """What a run's timeline reads and sets on its plant (``plant.dynamics.MujocoPlant``, or a
+    run of the batched engine): the state, the allocation at an attitude and the disturbance
+    hook. ``delayed_q`` only for ``mujoco_sensor_delay_s``."""
+
+    disturbance: Callable[[float], NDArray[np.float64]] | None
+
+    @property
+    def q(self) -> NDArray[np.float64]: ...
+
+    @property
+    def omega(self) -> NDArray[np.float64]: ...
+
+    @property
+    def currents(self) -> NDArray[np.float64]: ...
+
+    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation: ...
+
+    def delayed_q(self) -> NDArray[np.float64]: ...
 
 
 class LoopConfig(BaseModel):
@@ -211,12 +238,40 @@ class ClosedLoop:
 
     # --- the run ---------------------------------------------------------------------------
     def run(self, progress: bool = False) -> LoopResult:
+        c = self.config
+        plant = MujocoPlant(
+            self.params, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s
+        )
+        h, n_steps = self.params.physics_dt_s, self.n_steps
+        native = c.mujoco_sensor_delay_s is not None
+        timeline = self.timeline(plant, progress)
+        try:
+            req = next(timeline)
+            while True:
+                req = timeline.send(_advance_segment(plant, req, h, n_steps, native))
+        except StopIteration as done:
+            return done.value
+
+    @property
+    def n_steps(self) -> int:
+        """Physics steps in the run (rows of the steps table after the first)."""
+        return int(np.floor(self.config.duration_s / self.params.physics_dt_s + 1e-9))
+
+    def timeline(
+        self, plant: PlantState, progress: bool = False
+    ) -> Generator[Advance, Segment, LoopResult]:
+        """The run's events on ``plant`` (state at t = 0, the config's ``q0`` and
+        ``omega0_rad_s``), as a generator. Between events it yields an ``Advance``: the physics
+        must move from ``t_s`` to the next event at ``t_target_s`` with the currents held,
+        stopping at every physics grid point on the way; it is sent back the ``Segment`` (the
+        time reached and the state at each grid point passed). It returns the ``LoopResult``.
+        ``run`` advances a ``MujocoPlant`` (``_advance_segment``); ``latency.batched``
+        advances many runs at once."""
         c, p = self.config, self.params
         rng = np.random.default_rng(c.seed)
         rng_pipe, rng_ctrl, rng_dist = (
             np.random.default_rng(s) for s in rng.integers(2**32, size=3)
         )
-        plant = MujocoPlant(p, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s)
         native = c.mujoco_sensor_delay_s is not None
         psd = np.asarray(c.disturbance_psd_Nm2s)
         if np.any(psd > 0):
@@ -225,8 +280,7 @@ class ClosedLoop:
         self.front_end.reset()
         self.observer.reset(c.q0, 0.0)
         scheduler = FrameScheduler(c.pipeline, rng_pipe)
-        h = p.physics_dt_s
-        n_steps = int(np.floor(c.duration_s / h + 1e-9))
+        n_steps = self.n_steps
 
         log = _StepLog(n_steps + 1)
         frames: list[dict] = []
@@ -254,43 +308,35 @@ class ClosedLoop:
         stopped = ""
         bar = tqdm(total=n_steps, disable=not progress, desc="closed loop", unit="step")
 
-        def record(t_now: float) -> None:
-            q_ref = self.reference.sample(t_now).q
+        def record(k0: int, seg: Segment) -> None:
+            """Rows k0, k0 + 1, ... of the steps table from the states at the grid points;
+            tilt-stop contact and release events where the flag changes (each row shows the
+            flag of the row before)."""
+            n = len(seg.q)
+            times = (k0 + np.arange(n)) * p.physics_dt_s
+            q_ref = np.array([self.reference.sample(float(tk)).q for tk in times])
+            stop = tilt_stop_contact(seg.q, p)
+            before = np.r_[state["stop"], stop[:-1]]
             est = state["estimate"]
-            log.write(
-                k_log,
-                t_now,
-                plant.q,
-                plant.omega,
-                q_ref,
-                state["torque_cmd"],
-                state["delivered"],
-                plant.currents,
-                est.q if est is not None else None,
-                state["saturated"],
-                state["stop"],
-                plant.delayed_q() if native else None,
-            )
+            log.write_rows(k0, times, seg, q_ref, state["torque_cmd"], state["delivered"],
+                           est.q if est is not None else None, state["saturated"], before)
+            for k in np.flatnonzero(stop != before):
+                events.append((float(times[k]),
+                               "tilt_stop_contact" if stop[k] else "tilt_stop_release", ""))
+            state["stop"] = bool(stop[-1])
 
-        record(0.0)
+        record(0, Segment(0.0, plant.q[None], plant.omega[None], plant.currents[None],
+                          plant.delayed_q()[None] if native else None))
         while True:
             t_next_event = queue[0][0] if queue else np.inf
-            t_next_grid = (k_log + 1) * h
-            t_target = min(t_next_event, t_next_grid, c.duration_s)
+            t_target = min(t_next_event, c.duration_s)
             if t_target > t:
-                plant.advance(state["currents"], t_target - t)
-                t = t_target
-            if abs(t - t_next_grid) < 1e-12 and k_log + 1 <= n_steps:
-                k_log += 1
-                record(t)
-                bar.update(1)
-                stop_now = plant.tilt_stop_active()
-                if stop_now != state["stop"]:
-                    events.append((t, "tilt_stop_contact" if stop_now else "tilt_stop_release", ""))
-                    state["stop"] = stop_now
-            if state.get("diverged") and not stopped:
-                stopped = state["diverged"]  # noted once; the run goes on to its full duration
-                events.append((t, "divergence", stopped))
+                seg = yield Advance(state["currents"], t, t_target, k_log)
+                t = seg.t_s
+                if len(seg.q):
+                    record(k_log + 1, seg)
+                    k_log += len(seg.q)
+                    bar.update(len(seg.q))
             if t >= c.duration_s - 1e-12:
                 break
             if not queue or queue[0][0] > t + 1e-12:
@@ -308,6 +354,9 @@ class ClosedLoop:
                 if est is None:
                     est = _no_estimate(t)
                 self._control(t, est, None, push, frames, events, state, rng_ctrl)
+            if state.get("diverged") and not stopped:
+                stopped = state["diverged"]  # noted once; the run goes on to its full duration
+                events.append((t, "divergence", stopped))
         bar.close()
 
         steps = log.frame(k_log + 1, native)
@@ -454,6 +503,58 @@ class ClosedLoop:
         self.observer.record_torque(t, alloc.delivered)
 
 
+@dataclass(frozen=True)
+class Advance:
+    """A timeline's request: move the physics from ``t_s`` to ``t_target_s`` (s) with the coil
+    currents ``currents`` (16,), A, held, stopping at each physics grid point; ``k_log`` is the
+    index of the last grid point recorded."""
+
+    currents: NDArray[np.float64]
+    t_s: float
+    t_target_s: float
+    k_log: int
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The answer to an ``Advance``: the time reached ``t_s`` and, at each grid point passed
+    (``k_log + 1``, ``k_log + 2``, ...), the attitude (n, 4), body rate (n, 3), rad/s, actual
+    currents (n, 16), A, and MuJoCo's delayed-sensor reading (n, 4) or None."""
+
+    t_s: float
+    q: NDArray[np.float64]
+    omega: NDArray[np.float64]
+    currents: NDArray[np.float64]
+    q_native: NDArray[np.float64] | None = None
+
+
+def _advance_segment(
+    plant: MujocoPlant, req: Advance, h: float, n_steps: int, native: bool
+) -> Segment:
+    """Serve an ``Advance`` on one plant: step to the next grid point or the target, whichever
+    is first (``MujocoPlant.advance`` puts the target on its exact time), record the state at
+    each grid point up to ``n_steps``, until within 1e-12 s of the target."""
+    t, k = req.t_s, req.k_log
+    rows: list[tuple] = []
+    while True:
+        t_grid = (k + 1) * h
+        t_to = min(req.t_target_s, t_grid)
+        if t_to > t:
+            plant.advance(req.currents, t_to - t)
+            t = t_to
+        if abs(t - t_grid) < 1e-12 and k + 1 <= n_steps:
+            k += 1
+            rows.append((plant.q, plant.omega, plant.currents,
+                         plant.delayed_q() if native else None))
+        if t >= req.t_target_s - 1e-12:
+            break
+    if not rows:
+        empty = np.zeros((0, 4))
+        return Segment(t, empty, np.zeros((0, 3)), np.zeros((0, N_COILS)))
+    q, w, cur, nat = zip(*rows, strict=True)
+    return Segment(t, np.array(q), np.array(w), np.array(cur), np.array(nat) if native else None)
+
+
 def _no_estimate(t: float) -> Estimate:
     """An invalid estimate for a controller clock tick before the first release."""
     nan = np.full(4, np.nan)
@@ -468,22 +569,23 @@ class _StepLog:
     def __init__(self, n: int) -> None:
         self.a = np.full((n, 48), np.nan)
 
-    def write(self, k, t, q, w, q_ref, T_cmd, T_del, currents, q_est, sat, stop,
-              q_native=None) -> None:
-        row = self.a[k]
-        row[0] = t
-        row[1:5] = q
-        row[5:8] = w
-        row[8:12] = q_ref
-        row[12:15] = T_cmd
-        row[15:18] = T_del
-        row[18:34] = currents
+    def write_rows(self, k0, t, seg, q_ref, T_cmd, T_del, q_est, sat, stop) -> None:
+        """Rows k0 ... k0 + n - 1: times t (n,), the states of ``seg``, the references
+        q_ref (n, 4), the held command, estimate and flags, the stop flags (n,)."""
+        rows = self.a[k0 : k0 + len(t)]
+        rows[:, 0] = t
+        rows[:, 1:5] = seg.q
+        rows[:, 5:8] = seg.omega
+        rows[:, 8:12] = q_ref
+        rows[:, 12:15] = T_cmd
+        rows[:, 15:18] = T_del
+        rows[:, 18:34] = seg.currents
         if q_est is not None:
-            row[34:38] = q_est
-        row[38] = sat
-        row[39] = stop
-        if q_native is not None:
-            row[40:44] = q_native
+            rows[:, 34:38] = q_est
+        rows[:, 38] = sat
+        rows[:, 39] = stop
+        if seg.q_native is not None:
+            rows[:, 40:44] = seg.q_native
 
     def frame(self, n: int, native: bool = False) -> pd.DataFrame:
         a = self.a[:n]

@@ -1,22 +1,29 @@
-"""The rotor's rigid-body dynamics in MuJoCo, driven by coil currents through K(q).
+"""The rotor's rigid-body dynamics, driven by coil currents through K(q), in a MuJoCo model.
 
 Equations (body frame, about the fixed centre O), shared with the CasADi twin
-(``plant.twin``):
+(``plant.twin``) and the batched engine (``latency.batched``):
 
     q_dot = 1/2 q ⊗ (0, omega)
     J_O omega_dot = R^T K(q) I + d x (R^T m g) - b omega - tau_c omega/sqrt(|omega|^2 + omega_s^2)
-                    - omega x J_O omega  (+ the tilt-stop constraint force, MuJoCo only)
+                    - omega x J_O omega + R^T T_stop
 
-with J_O the inertia about O (parallel-axis from the centre-of-mass inertia and offset d). The
-coil currents follow their commands through an optional first-order lag (L/R), and the
-electromagnetic and Coulomb torques are held over each physics step (zero-order hold), evaluated at
-the step's start; damping, gravity and the gyroscopic term are integrated by MuJoCo's RK4.
+with J_O the inertia about O (parallel-axis from the centre-of-mass inertia and offset d) and
+T_stop the tilt stop's contact torque. A fourth-order Runge-Kutta-Munthe-Kaas step on the
+rotation group with every torque, K(q) I included, evaluated at each stage
+(``PHYSICS_SUBSTEPS`` of them per physics step) integrates them: ``plant.rigid_body`` for a
+batch of rotors in numpy, ``plant.twin.CasadiTwin.plant_step`` for this one rotor. The coil
+currents follow their commands through an optional first-order lag (L/R), exact at the step
+start, and are held over the step. MuJoCo holds the model of the scene, the state, the clock
+and the sensors: its natively delayed attitude sensor records the state at the start of each
+step.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 
+import casadi as ca
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,12 +31,15 @@ from numpy.typing import ArrayLike, NDArray
 from plant import attitude
 from plant.mjcf import build_mjcf
 from plant.params import PlantParams
+from plant.rigid_body import tilt_stop_contact
 from plant.torque import N_COILS, Allocation, TorqueMap, allocate
+from plant.twin import CasadiTwin
 
 
-def coulomb_torque(omega: NDArray[np.float64], tau_c: float, omega_s: float) -> NDArray:
-    """Smooth isotropic Coulomb friction torque (N·m) at body rate ``omega`` (rad/s)."""
-    return -tau_c * omega / np.sqrt(omega @ omega + omega_s * omega_s)
+@lru_cache(maxsize=8)
+def _plant_step(params_json: str) -> ca.Function:
+    """``CasadiTwin.plant_step`` for these parameters (built once per process)."""
+    return CasadiTwin(PlantParams.model_validate_json(params_json)).plant_step
 
 
 def _is_real_scalar(x: object) -> bool:
@@ -69,6 +79,8 @@ class MujocoPlant:
         self.params = params or PlantParams()
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params, sensor_delay_s))
         self.data = mujoco.MjData(self.model)
+        self._step = _plant_step(self.params.model_dump_json())
+        self._native_sensor = sensor_delay_s is not None
         self.torque_map = TorqueMap(self.params.motor)
         self.currents = np.zeros(N_COILS)
         #: Optional disturbance: called with each physics step's length h (s), returns a
@@ -144,14 +156,6 @@ class MujocoPlant:
         K = self.torque_map(self.q if q is None else q)
         return allocate(torque, K, float(i_max))
 
-    def applied_torque(self) -> NDArray[np.float64]:
-        """Body-frame torque (N·m) held over the next physics step: electromagnetic K(q) I plus
-        the smooth Coulomb friction."""
-        r = self.params.rotor
-        R = attitude.to_matrix(self.data.qpos)
-        tau = R.T @ (self.torque_map.from_matrix(R) @ self.currents)
-        return tau + coulomb_torque(self.data.qvel, r.coulomb_Nm, r.coulomb_smoothing_rad_s)
-
     # --- time --------------------------------------------------------------------------------
     def step(self, currents: ArrayLike, dt: float) -> None:
         """Advance ``dt`` seconds with the coil-current command ``currents`` (16,), A, held.
@@ -210,17 +214,22 @@ class MujocoPlant:
     def _integrate(self, cmd: NDArray[np.float64], steps: list[float]) -> None:
         tau_L = self.params.motor.coil_time_constant_s
         h0 = self.model.opt.timestep
+        x = np.r_[self.data.qpos, self.data.qvel]
+        no_torque = np.zeros(3)
         for h in steps:
             decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
             self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
-            tau = self.applied_torque()
-            if self.disturbance is not None:
-                tau = tau + self.disturbance(h)
-            self.data.qfrc_applied[:] = tau
-            self.model.opt.timestep = h
-            mujoco.mj_step(self.model, self.data)
+            dist = no_torque if self.disturbance is None else self.disturbance(h)
+            x_next = self._step(x, self.currents, h, dist).full().ravel()
+            if self._native_sensor:  # MuJoCo's step records the sensors at the step start
+                self.model.opt.timestep = h
+                mujoco.mj_step(self.model, self.data)
+            else:
+                self.data.time += h
+            x = x_next
+            self.data.qpos[:], self.data.qvel[:] = x[:4], x[4:]
         self.model.opt.timestep = h0
 
     def tilt_stop_active(self) -> bool:
-        """True when the tilt-stop constraint is engaged."""
-        return bool(self.data.ten_length[0] >= self.model.tendon_range[0, 1] - 1e-6)
+        """True when the rotor is in contact with the tilt stop (beyond its limit)."""
+        return bool(tilt_stop_contact(self.data.qpos[None], self.params)[0])

@@ -2,12 +2,11 @@
 
 * Rotor: one body on a ball joint at the motor centre O, with the inertia, mass and centre-of-mass
   offset of ``RotorParams`` (gravity acts when the offset is non-zero), viscous damping as joint
-  ``damping``. Coil torques and the smooth Coulomb friction enter through ``qfrc_applied``
-  (see ``plant.dynamics``), because K(q) is not a MuJoCo actuator model.
-* Tilt stop: a spatial tendon from a stator site on the +Z axis (height H) to a site on the output
-  shaft (distance a from O). Its length l^2 = H^2 + a^2 - 2 H a cos(beta) depends on the tilt beta
-  alone, so a tendon length limit at l(15°) stops tilt and leaves spin and yaw free. (A ball-joint
-  ``range`` would limit the total rotation angle, spin included.)
+  ``damping``. The model carries the scene, the state and the sensors; ``plant.rigid_body``
+  integrates the motion (with K(q) I, the Coulomb friction and the tilt stop, none of which is a
+  MuJoCo actuator or constraint model), see ``plant.dynamics``.
+* Tilt stop: not in the model; ``plant.rigid_body`` applies its contact torque, about the axis
+  along which the tilt grows, so spin and yaw stay free.
 * Scene: the bottom camera of ``plant.camera`` (MuJoCo cameras look along their -z with +y up in
   the image, so ``xyaxes = (1 0 0, 0 -1 0)`` gives image u along +X and v along +Y), a ring of
   lights around it, the dark VFC plate at the bottom pole with the red and yellow marker discs.
@@ -26,13 +25,6 @@ from plant.geometry import marker_points
 from plant.params import PlantParams
 from plant.texture import Texture, encode_png
 
-#: Stop tendon anchor height H above O and shaft-site distance a from O (m): our choice.
-STOP_ANCHOR_M = 0.20
-STOP_SHAFT_M = 0.10
-#: Time constant of the tilt stop's soft constraint (MuJoCo solreflimit), s: our choice, at
-#: MuJoCo's recommended minimum of two physics steps for the default 1 ms step. An impact at
-#: tilt rate w penetrates about w*STOP_TIMECONST_S/e (critically damped).
-STOP_TIMECONST_S = 0.002
 #: Marker colours (RGB in [0, 1]); inside the seed's HSV gates (000 §3.2.1) after shading.
 RED_RGB = (0.86, 0.08, 0.06)
 YELLOW_RGB = (0.95, 0.80, 0.08)
@@ -48,12 +40,6 @@ TEXTURE_FILE = "rotor_print.png"
 HEADLIGHT_AMBIENT = 0.42
 HEADLIGHT_DIFFUSE = 0.30
 RING_DIFFUSE = 0.06
-
-
-def stop_tendon_length(tilt_rad: float) -> float:
-    """Length (m) of the tilt-stop tendon at tilt ``tilt_rad``."""
-    H, a = STOP_ANCHOR_M, STOP_SHAFT_M
-    return float(np.sqrt(H * H + a * a - 2.0 * H * a * np.cos(tilt_rad)))
 
 
 def _v(x) -> str:
@@ -140,9 +126,7 @@ def build_mjcf(
         asset, geom = _print_mesh(texture)
         markers = "\n" + geom
         half_plate = max(half_plate, texture.half_size_m)  # the dark plate backs the print
-    l_max = stop_tendon_length(np.deg2rad(r.tilt_stop_deg))
     dt = p.physics_dt_s
-    stop_tc = max(STOP_TIMECONST_S, 2 * dt)
     return f"""<mujoco model="pmspm">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{dt:.9g}" integrator="RK4" gravity="0 0 {-r.gravity_m_s2:.9g}"/>
@@ -155,7 +139,6 @@ def build_mjcf(
 {asset}  <worldbody>
 {lights}
     <camera name="bottom" pos="{_v(cam.center_m)}" xyaxes="1 0 0 0 -1 0" fovy="{fovy_deg:.9g}"/>
-    <site name="stop_anchor" pos="0 0 {STOP_ANCHOR_M:.9g}" size="0.002"/>
     <body name="rotor">
       <joint name="ball" type="ball" damping="{r.viscous_Nms_per_rad:.9g}"/>
       <inertial pos="{_v(r.com_offset_m)}" mass="{r.mass_kg:.9g}"
@@ -167,15 +150,8 @@ def build_mjcf(
       <geom name="vfc_plate" type="box" pos="0 0 {plate_z:.9g}"
             size="{half_plate:.9g} {half_plate:.9g} {plate_half:.9g}" rgba="{_v(PLATE_RGB)} 1"
             contype="0" conaffinity="0" mass="0"/>{markers}
-      <site name="shaft_tip" pos="0 0 {STOP_SHAFT_M:.9g}" size="0.002"/>
     </body>
   </worldbody>
-  <tendon>
-    <spatial name="tilt_stop" limited="true" range="0 {l_max:.9g}" solreflimit="{stop_tc:.9g} 1">
-      <site site="stop_anchor"/>
-      <site site="shaft_tip"/>
-    </spatial>
-  </tendon>
   <sensor>
     <ballquat name="rotor_quat" joint="ball"/>
     <ballangvel name="rotor_angvel" joint="ball"/>{delayed}

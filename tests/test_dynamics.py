@@ -92,12 +92,13 @@ def test_constant_torque_gives_the_angular_acceleration_of_euler_equations():
     alloc = plant.allocate(T)
     plant.step(alloc.currents, 0.1)
     Jz = p.rotor.inertia_com_kgm2[2]
-    # K(q) changes as the rotor spins, so held currents give a drifting torque: the exact
-    # Euler-equation value holds over the first physics step,
+    # K(q) changes as the rotor spins, so held currents give a drifting torque: over the first
+    # physics step the rotor turns by 0.5 (T/Jz) h^2 = 2.3e-5 rad, so the Euler-equation value
+    # holds to that order and the torque's direction turns by as little,
     plant2 = MujocoPlant(p)
     plant2.step(alloc.currents, p.physics_dt_s)
     assert plant2.omega[2] == pytest.approx(0.1 / Jz * p.physics_dt_s, rel=1e-6)
-    assert np.allclose(plant2.omega[:2], 0.0, atol=1e-12)
+    assert np.linalg.norm(plant2.omega[:2]) < 2.3e-5 * plant2.omega[2]
     # and the whole 0.1 s run matches the twin fed the same currents.
     Q, W = CasadiTwin(p).simulate([1, 0, 0, 0], [0, 0, 0], np.tile(alloc.currents, (100, 1)))
     assert np.allclose(plant.omega, W[-1], atol=1e-9)

@@ -1,0 +1,182 @@
+"""Speed of the batched closed-loop engine against the event loop, on one core.
+
+On the default measurement-model scenario with PID and the per-frame least-squares observer (a
+5° tilt step, GK-TransT's seed latency), in one process with one BLAS/OpenMP thread:
+
+* aggregate simulated seconds per wall second of the batched engine (``latency.batched``) for
+  B = 1, 2, 4, ..., 1024 runs (different seeds) advanced together, and of the event loop
+  (``ClosedLoop.run``) in the same process: ``batched_B<B>_realtime_factor``,
+  ``event_loop_realtime_factor`` and their ratio at B = 256;
+* wall time of the study's closed-loop sweep (``experiments.study.sweep_configs``), of a small
+  ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
+  loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
+  key).
+
+Run: python benchmarks/bench_engine.py          (the full benchmark; a quiet machine, hours)
+     python benchmarks/bench_engine.py --quick --out /tmp/bench_engine.json
+                                                  (a smoke test in seconds; writes only --out)
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # one core: before numpy is imported
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from experiments import study, tuning  # noqa: E402
+from experiments.scenario import Scenario, build_loop, run_summaries, run_summary  # noqa: E402
+from latency.batched import run_batched  # noqa: E402
+
+#: The benchmark's scenario: measurement model, PID, per-frame least squares, 5° tilt step.
+CASE = {"observer": {"kind": "solver"}}
+#: Event-loop runs timed for the 10,000-run sweep's extrapolated figure.
+EVENT_SAMPLE_RUNS = 100
+
+
+def _configs(n: int, duration_s: float) -> list[dict]:
+    return [{**CASE, "duration_s": duration_s, "seed": s} for s in range(n)]
+
+
+def _wall(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def throughput(batch: int, duration_s: float) -> float:
+    """Aggregate simulated s per wall s of ``batch`` runs on the batched engine."""
+    loops = [build_loop(Scenario.model_validate(c)) for c in _configs(batch, duration_s)]
+    return batch * duration_s / _wall(lambda: run_batched(loops))
+
+
+def event_loop_speed(duration_s: float) -> float:
+    """Simulated s per wall s of one run on the event loop."""
+    loop = build_loop(Scenario.model_validate(_configs(1, duration_s)[0]))
+    return duration_s / _wall(loop.run)
+
+
+def study_sweep_walls(cfg: study.StudyConfig) -> tuple[float, float]:
+    """Wall time (s) of the study's sweep in this process: (event loop, batched)."""
+    configs = study.sweep_configs(cfg)
+    event = _wall(lambda: [study.study_run(c) for c in configs])
+    batched = _wall(lambda: study.study_runs(configs))
+    return event, batched
+
+
+def tune_kalman_walls(**kw) -> tuple[float, float]:
+    """Wall time (s) of ``tuning.tune_kalman`` in this process: (event loop, batched)."""
+    walls = []
+    for engine in ("event", "batched"):
+        with tempfile.TemporaryDirectory() as tmp:
+            walls.append(_wall(lambda e=engine, d=tmp: tuning.tune_kalman(
+                d, workers=1, progress=False, engine=e, **kw)))
+    return walls[0], walls[1]
+
+
+def sweep_walls(n_runs: int, n_event: int, duration_s: float, batch: int) -> tuple[float, float]:
+    """Wall time (s) of ``n_runs`` runs: the event loop's extrapolated from ``n_event`` runs,
+    and the batched engine's measured in batches of ``batch``."""
+    configs = _configs(n_runs, duration_s)
+    event = _wall(lambda: [run_summary(c) for c in configs[:n_event]]) * n_runs / n_event
+    batched = _wall(lambda: [run_summaries(configs[k : k + batch])
+                             for k in range(0, n_runs, batch)])
+    return event, batched
+
+
+def torque_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
+    """Wall time (s) of one evaluation of K(q) I over ``batch`` rotors, the batched step's
+    dominant kernel (``RigidBody.em_torque``), in numpy and in torch on the CPU (one thread),
+    the same operations: the technique choice of docs/closed_loop.md."""
+    import numpy as np
+    import torch
+
+    from plant.params import PlantParams
+    from plant.rigid_body import RigidBody, quat_matrix
+
+    torch.set_num_threads(1)
+    body = RigidBody(PlantParams())
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(batch, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    R, current = quat_matrix(q), rng.uniform(-1, 1, (batch, 16))
+    Rt, It = torch.from_numpy(R), torch.from_numpy(current)
+    mags, coils = torch.from_numpy(body.magnets), torch.from_numpy(body.coils)
+    gain = torch.from_numpy(body.gain_scaled)
+
+    def torch_torque():
+        r = torch.matmul(mags, Rt.transpose(1, 2))
+        x = torch.clamp(torch.matmul(r, coils.T) - body.cos_cutoff, min=0.0)
+        a = torch.matmul(x * x * gain * It[:, None, :], coils)
+        return torch.linalg.cross(a, r, dim=-1).sum(dim=1)
+
+    assert np.allclose(torch_torque().numpy(), body.em_torque(R, current), atol=1e-12)
+    out = {}
+    for name, fn in (("numpy", lambda: body.em_torque(R, current)), ("torch", torch_torque)):
+        out[name] = min(_wall(fn) for _ in range(repeats))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, a smoke test")
+    ap.add_argument("--out", type=Path, help="with --quick: write the figures to this JSON")
+    args = ap.parse_args()
+    quick = args.quick
+    duration = 0.2 if quick else 2.0
+    sizes = [1, 4] if quick else [2**k for k in range(11)]
+    figures: dict[str, float] = {}
+    throughput(2, 0.05)  # warm-up: first-call costs (imports, caches) out of the figures
+    event_loop_speed(0.05)
+    for b in sizes:
+        figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
+    figures["event_loop_realtime_factor"] = event_loop_speed(duration)
+    for b in (1, 256):
+        for name, wall in torque_kernel_times(b).items():
+            figures[f"torque_kernel_{name}_B{b}_s"] = wall
+    ref = 4 if quick else 256
+    figures[f"batched_B{ref}_over_event_loop"] = (
+        figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]
+    )
+    cfg = study.StudyConfig(workers=1)
+    if quick:
+        cfg = cfg.model_copy(update={"delays_ms": (study.GK_MS,), "max_rates_rad_s": (),
+                                     "duration_s": 0.6})
+    ev, bt = study_sweep_walls(cfg)
+    figures["study_sweep_event_wall_s"], figures["study_sweep_batched_wall_s"] = ev, bt
+    tk = (dict(delays_s=(0.01633,), grid_points=2, n_trials=0, seeds=(0,),
+               validation_seeds=(100,), duration_s=0.15) if quick else {})
+    ev, bt = tune_kalman_walls(**tk)
+    figures["tune_kalman_event_wall_s"], figures["tune_kalman_batched_wall_s"] = ev, bt
+    n_runs, n_event = (8, 2) if quick else (10_000, EVENT_SAMPLE_RUNS)
+    ev, bt = sweep_walls(n_runs, n_event, duration, 4 if quick else 256)
+    figures[f"sweep{n_runs}_event_wall_s_extrapolated_from_{n_event}"] = ev
+    figures[f"sweep{n_runs}_batched_wall_s"] = bt
+    if quick:
+        for key, value in figures.items():
+            print(f"{key:>50s}  {value:.6g}")
+        if args.out is not None:
+            args.out.write_text(json.dumps(figures, indent=2) + "\n")
+        return
+    from _report import record
+
+    record(
+        "bench_engine",
+        "Batched closed-loop engine against the event loop (one core)",
+        figures,
+        notes="Default measurement-model scenario (PID, per-frame least squares, 5° tilt step, "
+        "GK-TransT seed latency), 2 s runs, one BLAS/OpenMP thread. Target (issue 13): "
+        "batched B = 256 >= 1000x real time. The study sweep, tune-kalman (defaults) and the "
+        "10,000-run sweep in one process; the event loop's 10,000-run wall time is "
+        f"extrapolated from {EVENT_SAMPLE_RUNS} runs.",
+    )
+
+
+if __name__ == "__main__":
+    main()

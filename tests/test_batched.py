@@ -1,0 +1,137 @@
+"""The batched engine against the event loop, run by run, and the engine choice."""
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from experiments.cli import app
+from experiments.scenario import Scenario, build_loop, run_many
+from latency.batched import run_batched
+from plant import attitude as A
+
+QUAT = ["qw", "qx", "qy", "qz"]
+
+
+def _scenario(**kw) -> Scenario:
+    base = {"duration_s": 0.8, "observer": {"kind": "solver"}}
+    return Scenario.model_validate({**base, **kw})
+
+
+#: The grid: one run per case, each with its own seed (so its own noise, latency and loss
+#: streams). Delays inside and past the PID's stability boundary (crossover 25 rad/s, phase
+#: margin 47°: about 33 ms of delay margin), saturation and the tilt stop (a 15° step onto the
+#: stop with a stiff loop, 50 rad/s with a 5 ms observer, whose torque limit is beyond the
+#: motor's capacity), lost frames (dropouts and a narrow tracker window on a fast cone),
+#: a random observer latency and the three observers.
+GRID = {
+    "nominal": _scenario(seed=0),
+    "past the stability boundary": _scenario(
+        seed=1, duration_s=1.2, controller={"kind": "pid", "config": {"crossover_rad_s": 25.0}},
+        pipeline={"observer": {"kind": "constant", "value_s": 0.06}, "mode": "pipelined"},
+    ),
+    "saturation and tilt stop": _scenario(
+        seed=2, controller={"kind": "pid", "config": {"crossover_rad_s": 50.0,
+                                                      "torque_limit_Nm": 2.0}},
+        reference={"kind": "tilt_step", "tilt_deg": 15.0, "t_step_s": 0.05},
+        pipeline={"observer": {"kind": "constant", "value_s": 0.005}},
+    ),
+    "lost frames": _scenario(
+        seed=3, measurement={"dropout_prob": 0.2, "search_radius_px": 25.0, "sigma_px": 1.0},
+        reference={"kind": "cone", "args": {"tilt_deg": 10.0, "yaw_rate_rad_s": 6.0}},
+    ),
+    "random latency, pixel Kalman": _scenario(
+        seed=4, observer={"kind": "pixel_kalman"},
+        pipeline={"observer": {"kind": "gamma", "shape_k": 9.0, "scale_theta_s": 0.003}},
+    ),
+    "aekf": _scenario(seed=5, observer={"kind": "aekf"}),
+}
+
+
+@pytest.fixture(scope="module")
+def both_engines():
+    scenarios = list(GRID.values())
+    event = [build_loop(s).run() for s in scenarios]
+    batched = run_batched([build_loop(s) for s in scenarios])
+    return dict(zip(GRID, zip(event, batched, strict=True), strict=True))
+
+
+@pytest.mark.parametrize("case", list(GRID))
+def test_batched_runs_follow_the_event_loop_run_by_run(both_engines, case):
+    """Same seed, same trajectory: every step's attitude within 1e-6 rad, the same frames lost
+    and dropped, the same events, and the summary metrics equal (to 1 %)."""
+    ev, bt = both_engines[case]
+    assert len(ev.steps) == len(bt.steps)
+    q_ev, q_bt = ev.steps[QUAT].to_numpy(), bt.steps[QUAT].to_numpy()
+    assert np.max(A.geodesic_angle(q_ev, q_bt)) < 1e-6
+    for col in ("lost", "dropped"):
+        if col in ev.frames:
+            assert ev.frames[col].fillna(False).tolist() == bt.frames[col].fillna(False).tolist()
+    assert ev.events.kind.tolist() == bt.events.kind.tolist()
+    for key, value in ev.summary.items():
+        other = bt.summary[key]
+        if np.isnan(value):
+            assert np.isnan(other), key
+        else:
+            assert other == pytest.approx(value, rel=0.01, abs=1e-12), key
+
+
+def test_the_grid_covers_what_it_claims(both_engines):
+    """The grid's cases do what their names say (on the event loop, the reference)."""
+    kinds = {case: set(ev.events.kind) for case, (ev, _) in both_engines.items()}
+    assert {"saturation", "tilt_stop_contact"} <= kinds["saturation and tilt stop"]
+    assert "tracking_loss" in kinds["lost frames"]
+    assert both_engines["lost frames"][0].summary["lost_frame_fraction"] > 0.1
+    nominal = both_engines["nominal"][0].summary["max_error_deg"]
+    unstable = both_engines["past the stability boundary"][0]
+    # a growing oscillation: the error late in the run exceeds the step itself
+    late = unstable.steps[unstable.steps.t_s > 0.8].error_deg
+    assert late.max() > 5.0 and late.max() > nominal
+
+
+def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
+    a, b = _scenario(seed=7, duration_s=0.3), _scenario(seed=8, duration_s=0.3)
+    ra, rb = run_many([a, b])
+    assert ra.config["seed"] == 7 and rb.config["seed"] == 8
+    image = Scenario(mode="image", duration_s=0.3)
+    with pytest.raises(ValueError, match="batched engine runs measurement-model"):
+        run_many([image], engine="batched")
+
+
+def test_cli_engine_option(tmp_path):
+    """``--engine event`` and the default (batched) give the same summary; batched on an image
+    scenario is a configuration error (exit status 2, the reason named)."""
+    runner = CliRunner()
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump({"duration_s": 0.3, "observer": {"kind": "solver"}}))
+    out = {}
+    for engine in ("event", None):
+        args = ["simulate", str(path), "--out", str(tmp_path / str(engine))]
+        res = runner.invoke(app, args + (["--engine", engine] if engine else []))
+        assert res.exit_code == 0, res.output
+        out[engine] = [ln for ln in res.output.splitlines() if "rms_error_deg" in ln]
+    assert out["event"] == out[None] and out["event"]
+    path.write_text(yaml.safe_dump({"duration_s": 0.3, "mode": "image"}))
+    res = runner.invoke(app, ["simulate", str(path), "--engine", "batched"])
+    assert res.exit_code == 2
+    assert "batched engine runs measurement-model" in res.output
+
+
+def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
+    """``execute_batch`` with the batched entry point: one row per config, the same summary as
+    the event loop's entry point for the same config, and an invalid config's error in its
+    own row while the others run."""
+    from experiments import sweep
+    from experiments.scenario import run_summary
+
+    good = [{"duration_s": 0.3, "seed": s, "observer": {"kind": "solver"}} for s in (0, 1)]
+    bad = {"duration_s": -1.0}
+    ids = sweep.execute_batch("experiments.scenario:run_summaries", [*good, bad], str(tmp_path))
+    table = sweep.table(tmp_path).set_index("run_id")
+    assert len(table) == 3
+    assert "duration_s" in table.loc[ids[2], "error"]
+    for rid, config in zip(ids[:2], good, strict=True):
+        assert table.loc[rid, "error"] == ""
+        event = run_summary(config)
+        assert table.loc[rid, "result.rms_error_deg"] == pytest.approx(event["rms_error_deg"],
+                                                                       rel=1e-9)
