@@ -20,9 +20,9 @@ def _steps(theta_deg: np.ndarray, ref_deg: np.ndarray, stop: np.ndarray | None =
     n = len(theta_deg)
     log = _StepLog(n)
     q, qr = _tilt_q(theta_deg), _tilt_q(ref_deg)
-    for k in range(n):
-        log.write(k, k * H, q[k], np.zeros(3), qr[k], np.zeros(3), np.zeros(3), np.zeros(16),
-                  None, False, bool(stop[k]) if stop is not None else False)
+    seg = loop.Segment(n * H, q, np.zeros((n, 3)), np.zeros((n, 16)))
+    flags = np.zeros(n, dtype=bool) if stop is None else np.asarray(stop, dtype=bool)
+    log.write_rows(0, np.arange(n) * H, seg, qr, np.zeros(3), np.zeros(3), None, False, flags)
     return log.frame(n)
 
 
