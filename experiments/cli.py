@@ -264,8 +264,7 @@ def measure_latency(
     import numpy as np
 
     from latency.profile import measure_locator_latency, measure_orb_latency
-    from observer.frame_observer import MarkerLocator
-    from observer.opencv_trackers import OpenCVTracker
+    from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
     if tracker not in ("kcf", "csrt", "orb") or frames < 1:
@@ -275,7 +274,7 @@ def measure_latency(
         prof = measure_orb_latency(p, "aekf", n_frames=frames, progress=True)
         label = "ORB-AEKF"
     else:
-        locator = MarkerLocator(p, OpenCVTracker(tracker))
+        locator = make_pair_tracker(f"{tracker}_gk", p)
         prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
         label = f"{tracker}+GK"
     prof.save(out)

@@ -62,7 +62,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -76,6 +76,7 @@ from observer.closed_form import SeedClosedForm
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
+from observer.tracking import PairTracker
 from plant import attitude
 from plant.params import PlantParams
 
@@ -578,54 +579,6 @@ class StepTestResult:
 # ------------------------------------------------------------------------------------------------
 # The camera scheme
 # ------------------------------------------------------------------------------------------------
-class _Locator(Protocol):
-    def start(self, image: NDArray[np.uint8], binning: int, boxes_px: NDArray) -> None: ...
-
-    def locate(self, image: NDArray[np.uint8], binning: int,
-               tilt_hint_rad: float | None) -> tuple[NDArray[np.float64], bool, str, bool]: ...
-
-
-class _GKLocator:
-    """OpenCV KCF on the red marker + the GK assistance (``observer.frame_observer``)."""
-
-    name = "kcf_gk"
-
-    def __init__(self, params: PlantParams) -> None:
-        from observer.frame_observer import MarkerLocator
-
-        self.loc = MarkerLocator(params)
-
-    def start(self, image: NDArray[np.uint8], binning: int, boxes_px: NDArray) -> None:
-        self.loc.reset()
-        self.loc.start(image, binning, boxes_px[0])
-
-    def locate(self, image: NDArray[np.uint8], binning: int,
-               tilt_hint_rad: float | None) -> tuple[NDArray[np.float64], bool, str, bool]:
-        self.loc.tilt_hint_rad = tilt_hint_rad
-        r = self.loc.locate(image, binning)
-        return r.marker_px, r.lost, r.reason, bool(r.gk.red_refined)
-
-
-class _PairLocator:
-    """A ``observer.trackers.MarkerPairTracker`` (GK-TransT)."""
-
-    def __init__(self, tracker, name: str) -> None:  # noqa: ANN001 - any MarkerPairTracker
-        self.tracker = tracker
-        self.name = name
-
-    def start(self, image: NDArray[np.uint8], binning: int, boxes_px: NDArray) -> None:
-        self.tracker.start(image, boxes_px, binning)
-
-    def locate(self, image: NDArray[np.uint8], binning: int,
-               tilt_hint_rad: float | None) -> tuple[NDArray[np.float64], bool, str, bool]:
-        if hasattr(self.tracker, "tilt_hint_rad"):
-            self.tracker.tilt_hint_rad = tilt_hint_rad
-        self.tracker.last_gk = None
-        r = self.tracker.step(image)
-        gk = getattr(self.tracker, "last_gk", None)
-        return r.marker_px, bool(r.lost), r.reason, bool(gk is not None and gk.red_refined)
-
-
 def gk_transt_available() -> tuple[bool, str]:
     """(True, "") if ``observer.trackers.gk_transt`` imports and the shipped TransT weights load
     (SHA-256 checked), else (False, why)."""
@@ -639,24 +592,26 @@ def gk_transt_available() -> tuple[bool, str]:
     return True, ""
 
 
-def make_locator(kind: str, params: PlantParams) -> tuple[_Locator, str, str]:
-    """(locator, name, note): ``kind`` "gk_transt", "kcf_gk" or "auto" (GK-TransT if available,
-    else KCF + GK with the reason in the note). For GK-TransT the note names the weights' digest
-    (the shipped file may be retrained between runs)."""
+def make_locator(kind: str, params: PlantParams) -> tuple[PairTracker, str, str]:
+    """(pair tracker, name, note): ``kind`` "gk_transt", "kcf_gk" or "auto" (GK-TransT if
+    available, else KCF + GK with the reason in the note). For GK-TransT the note names the
+    weights' digest (the shipped file may be retrained between runs)."""
+    from observer.trackers import make_pair_tracker
+
     if kind in ("auto", "gk_transt"):
         ok, why = gk_transt_available()
         if ok:
-            from observer.trackers import make_pair_tracker
             from observer.transt.weights import SMALL_WEIGHTS, sha256_of
 
             sha = sha256_of(SMALL_WEIGHTS)
-            return _PairLocator(make_pair_tracker("gk_transt", params), "gk_transt"), \
+            return make_pair_tracker("gk_transt", params), \
                 "gk_transt", f"weights {SMALL_WEIGHTS.name} SHA-256 {sha[:16]}…"
         if kind == "gk_transt":
             raise RuntimeError(f"GK-TransT is not available: {why}")
-        return _GKLocator(params), "kcf_gk", f"GK-TransT unavailable ({why}); used KCF + GK"
+        return make_pair_tracker("kcf_gk", params), "kcf_gk", \
+            f"GK-TransT unavailable ({why}); used KCF + GK"
     if kind == "kcf_gk":
-        return _GKLocator(params), "kcf_gk", ""
+        return make_pair_tracker("kcf_gk", params), "kcf_gk", ""
     raise ValueError(f"tracker must be 'auto', 'gk_transt' or 'kcf_gk', got {kind!r}")
 
 
@@ -746,8 +701,10 @@ def run_camera(table: RotaryTable, cfg: ReproductionConfig, params: PlantParams 
             frame, image = render(s.q, float(t), s.omega)
             t1 = time.perf_counter()
             if i == 0:
-                locator.start(image, frame.binning, frame.boxes_px)
-            uv, lost_i, reason, refined[i] = locator.locate(image, frame.binning, hint)
+                locator.start(image, frame.boxes_px, frame.binning)
+            locator.tilt_hint_rad = hint
+            r = locator.step(image)
+            uv, lost_i, reason, refined[i] = r.marker_px, r.lost, r.reason, r.red_refined
             t_loc[i], t_ren[i] = time.perf_counter() - t1, t1 - t0
             true_px[i], px[i], lost[i] = frame.marker_px, uv, lost_i
             for key, b in backends.items():

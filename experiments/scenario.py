@@ -48,12 +48,11 @@ from latency.pipeline import PipelineConfig
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.frame_observer import MarkerLocator
 from observer.gk.pixel_kalman import PixelKalmanConfig
-from observer.opencv_trackers import OpenCVTracker
 from observer.orb import OrbConfig
 from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
+from observer.trackers import make_pair_tracker
 from plant.params import PlantParams
 from plant.texture import TextureParams
 
@@ -219,7 +218,7 @@ class Scenario(_Model):
     tracker: Literal["kcf", "csrt", "transt"] = Field(
         "kcf",
         description="Image mode, marker observers: the red marker's tracker inside the GK "
-        "assistance (observer.frame_observer.MarkerLocator): OpenCV KCF or CSRT, or the "
+        "assistance (observer.trackers.make_pair_tracker): OpenCV KCF or CSRT, or the "
         "shipped TransT network ('transt': GK-TransT, seed 000 §3.2).",
     )
     plant: PlantParams = PlantParams()
@@ -351,13 +350,8 @@ def _renderer(s: Scenario):
     return MujocoRenderer(s.plant, texture=s.texture)
 
 
-def _tracker(kind: str):
-    """The red marker's single-object tracker for the image-mode locator."""
-    if kind == "transt":
-        from observer.transt.tracker import TransTTracker
-
-        return TransTTracker.small()
-    return OpenCVTracker(kind)
+#: The scenario's tracker names -> ``observer.trackers.make_pair_tracker`` names.
+PAIR_TRACKER_OF = {"kcf": "kcf_gk", "csrt": "csrt_gk", "transt": "gk_transt"}
 
 
 def build_loop(s: Scenario) -> ClosedLoop:
@@ -381,7 +375,7 @@ def build_loop(s: Scenario) -> ClosedLoop:
         if s.mode == "measurement":
             front = MeasurementFrontEnd(p, s.measurement, rng)
         else:
-            front = ImageFrontEnd(p, _renderer(s), MarkerLocator(p, _tracker(s.tracker)))
+            front = ImageFrontEnd(p, _renderer(s), make_pair_tracker(PAIR_TRACKER_OF[s.tracker], p))
         if o.kind in ("aekf", "ekf"):
             cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
             observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)

@@ -45,7 +45,7 @@ from latency.margins import attitude_margins, attitude_plant, sampled_margins  #
 from latency.models import SEED_LATENCY_S  # noqa: E402
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain  # noqa: E402
 from latency.profile import measure_locator_latency  # noqa: E402
-from observer.frame_observer import MarkerLocator  # noqa: E402
+from observer.trackers import make_pair_tracker  # noqa: E402
 from plant.params import PlantParams  # noqa: E402
 
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
@@ -456,7 +456,8 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     out = Path(out_root) / f"{stamp}-study"
     out.mkdir(parents=True, exist_ok=False)
 
-    prof = measure_locator_latency(params, MarkerLocator(params), n_frames=cfg.latency_frames)
+    prof = measure_locator_latency(params, make_pair_tracker("kcf_gk", params),
+                                   n_frames=cfg.latency_frames)
     prof.save(out / "latency_kcf_gk.json")
     measured_ms = 1e3 * float(np.median(prof.samples_s))
     marks = {"GK-TransT": GK_MS, "dual TransT": DUAL_MS, "KCF+GK here": measured_ms}

@@ -44,7 +44,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
-from observer.trackers import MarkerPairTracker, PairResult
+from observer.tracking import PairResult, PairTracker
 
 #: Centre-error thresholds of the precision curve, full-sensor px (seed 000 §4.2, Figure 11).
 THRESHOLDS_PX = np.arange(0.0, 51.0)
@@ -218,7 +218,7 @@ class TrackRun:
 
 
 def run_trackers(
-    trackers: Sequence[MarkerPairTracker],
+    trackers: Sequence[PairTracker],
     seq: TrackingSequence,
     interleave: bool = True,
     on_step: Callable[[], None] | None = None,
@@ -267,7 +267,7 @@ def run_trackers(
                      times[i], reasons[i]) for i, tr in enumerate(trackers)]
 
 
-def run_tracker(tracker: MarkerPairTracker, seq: TrackingSequence) -> TrackRun:
+def run_tracker(tracker: PairTracker, seq: TrackingSequence) -> TrackRun:
     """Start ``tracker`` on frame 0 with the true boxes and step it through the sequence."""
     return run_trackers([tracker], seq)[0]
 
@@ -294,7 +294,7 @@ def evaluate(run: TrackRun, seq: TrackingSequence) -> dict[str, float | str]:
     return row
 
 
-TrackerFactory = Callable[[], MarkerPairTracker]
+TrackerFactory = Callable[[], PairTracker]
 
 
 def run_benchmark(

@@ -359,8 +359,8 @@ class ClosedLoop:
         self.observer.process(cap.marker_px, t_exposure, cap.lost, cap.reason, cap.compute_time_s)
         est: Estimate = self.observer.release(t)
         state["estimate"] = est
-        if hasattr(self.front_end, "tilt_hint_rad") and est.valid:
-            self.front_end.tilt_hint_rad = attitude.tilt(est.q)
+        if est.valid:
+            self.front_end.tilt_hint(attitude.tilt(est.q))
         frames[frame_row].update(
             {
                 "est_qw": est.q[0],

@@ -4,9 +4,10 @@ The sequence is rendered with the analytic renderer from a seed (a slow cone in 
 with motion blur) and the wall-clock time of each frame's processing is recorded. The first
 ``warmup`` frames are not recorded (caches, lazy initialisation). Rendering is not timed.
 
-* ``measure_locator_latency``: the marker rotor; a locator (tracker + GK assistance) started on
-  the first frame's true box, timed per ``locate`` call.
-* ``measure_orb_latency``: the textured rotor (issue 8); an ``OrbObserver`` (ORB alone, ORB-EKF
+* ``measure_locator_latency``: the marker rotor; a pair tracker (``observer.tracking.PairTracker``,
+  e.g. a tracker inside the GK assistance) started on the first frame's true boxes, timed per
+  ``step`` call.
+* ``measure_orb_latency``: the textured rotor; an ``OrbObserver`` (ORB alone, ORB-EKF
   or ORB-AEKF) on a reference view at rest, timed per frame over its front end (ORB, matching,
   RANSAC, refinement) and back end (solve or filter update), as ``OrbObserver.update`` reports.
 
@@ -20,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from latency.models import Empirical
-from observer.frame_observer import MarkerLocator
+from observer.tracking import PairTracker
 from plant import attitude
 from plant.params import PlantParams
 from plant.texture import TextureParams
@@ -38,7 +39,7 @@ def cone_attitude(t: float, tilt_rad: float = np.deg2rad(8.0), rate_rad_s: float
 
 def measure_locator_latency(
     params: PlantParams,
-    locator: MarkerLocator,
+    locator: PairTracker,
     n_frames: int = 200,
     warmup: int = 5,
     seed: int = 0,
@@ -63,11 +64,11 @@ def measure_locator_latency(
         q, omega = cone_attitude(t)
         frame = renderer.render(q, t_exposure=t, omega=omega)
         if k == 0:
-            locator.start(frame.image, frame.binning, frame.boxes_px[0])
-        located = locator.locate(frame.image, frame.binning)
+            locator.start(frame.image, frame.boxes_px, frame.binning)
+        located = locator.step(frame.image)
         if k >= warmup:
             times.append(located.compute_time_s)
-    name = source or f"{type(locator.tracker).__name__} + GK assistance"
+    name = source or locator.name
     return Empirical.from_measurements(times, source=f"{name}, {n_frames} analytic frames")
 
 

@@ -1,155 +1,49 @@
-"""Frames -> attitude: the observer of DESIGN.md, ``update(frame, t_exposure) -> Estimate``.
+"""Frames -> attitude: ``FrameObserver.update(frame, t_exposure) -> Estimate``.
 
-Built from replaceable parts:
+Built from two replaceable parts:
 
-* a **tracker** of the red main marker (``init(frame, box)``, ``track(frame) -> (box, score)``
-  in image px): OpenCV KCF or CSRT today, GK-TransT when the network lands;
-* the **GK assistance** (seed 000 §3.2, ``observer.gk``): Kalman prediction, HSV gate, geometric
-  auxiliary point, scale EMA, sub-pixel centres;
+* a **pair tracker** (``observer.tracking.PairTracker``, ``observer.trackers``): frame -> both
+  marker centres, e.g. GK-TransT (seed 000 §3.2) or OpenCV's KCF inside the GK assistance
+  (``observer.trackers.make_pair_tracker("kcf_gk")``);
 * an attitude **back end** (``observer.pixel_observer``): a per-frame solver or the EKF/AEKF.
 
-``MarkerLocator`` is the first two (frame -> both marker centres); ``FrameObserver`` adds the back
-end. The timed loop uses the locator and the back end separately so that it can release the
-estimate after the observer's latency.
+The timed loop uses the same pair tracker (``latency.frontends.ImageFrontEnd``) and the back end
+separately, so that it can release the estimate after the observer's latency.
 
-Bad frames (DESIGN.md: never a crash in the middle of a loop, never a silent wrong number): a
-frame that is not (H, W, 3) uint8 RGB, is empty (``observer.gk.hsv_gate.check_rgb_image``), or
-does not have the sensor's size at its binning is not given to the tracker. ``locate`` returns
-``lost=True`` with the problem in ``reason`` and ``bad_frame``; ``FrameObserver.update`` returns
-an estimate with ``valid=False``, ``lost=True`` and a reason that starts with ``"bad frame: "``.
+Bad frames (never a crash in the middle of a loop, never a silent wrong number): a frame that
+fails ``observer.gk.hsv_gate.check_frame`` is not given to the tracker; the pair tracker's result
+is ``lost`` with the problem in ``bad_frame`` and the estimate is flagged ``valid=False``,
+``lost=True``, with a reason that starts with ``"bad frame: "``.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from observer.gk.assist import GKAssist, GKResult
-from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image, check_rgb_image
-from observer.opencv_trackers import OpenCVTracker
 from observer.pixel_observer import PixelObserver
+from observer.tracking import PairTracker
 from plant import attitude
 from plant.estimate import Estimate
-from plant.params import PlantParams
-from plant.scene import check_binning
-
-
-@dataclass(frozen=True)
-class Located:
-    """Both marker centres (2, 2), sensor px (red, yellow), with the GK result and the measured
-    wall-clock time of tracker + GK (s). ``bad_frame`` is why the frame was unusable ("" when it
-    was usable); a bad frame is always ``lost``."""
-
-    marker_px: NDArray[np.float64]
-    lost: bool
-    reason: str
-    compute_time_s: float
-    gk: GKResult
-    bad_frame: str = ""
-
-
-class MarkerLocator:
-    """Tracker on the red marker + GK assistance for both centres.
-
-    Parameters
-    ----------
-    params : PlantParams
-    tracker : object with ``init(frame, box)`` and ``track(frame) -> (box, score)`` (image px);
-        default OpenCV KCF.
-    gk : GKAssist, optional
-
-    ``start(frame, box_sensor_px)`` initialises the tracker on the red marker (a user's first-frame
-    annotation). When the GK assistance had to stand in for the tracker, the tracker is restarted
-    on the Kalman prediction. ``tilt_hint_rad`` (the latest estimated tilt) feeds the geometric
-    check D_exp = L·S·cos β.
-    """
-
-    def __init__(self, params: PlantParams, tracker=None, gk: GKAssist | None = None) -> None:
-        self.params = params
-        self.tracker = tracker or OpenCVTracker("kcf")
-        self.gk = gk or GKAssist(params)
-        self.tilt_hint_rad: float | None = None
-        self.started = False
-
-    def reset(self) -> None:
-        self.gk.reset()
-        self.started = False
-        self.tilt_hint_rad = None
-
-    def start(self, image: NDArray[np.uint8], binning: int, box_sensor_px: ArrayLike) -> None:
-        """Initialise the tracker on the red marker's box (x, y, w, h), sensor px."""
-        self.tracker.init(image, box_sensor_to_image(box_sensor_px, binning))
-        self.started = True
-
-    def check_frame(self, image: object, binning: object) -> str:
-        """"" if ``image`` is a usable frame at ``binning``, else why not: it must be RGB uint8
-        (H, W, 3), non-empty (``check_rgb_image``), and H × W = sensor size / ``binning``.
-        Never raises."""
-        bad = check_rgb_image(image)
-        if bad:
-            return bad
-        try:
-            b = check_binning(self.params, binning)  # type: ignore[arg-type]
-        except (TypeError, ValueError) as exc:
-            return f"bad binning: {exc}"
-        cam = self.params.camera
-        expected = (cam.sensor_height_px // b, cam.sensor_width_px // b, 3)
-        if image.shape != expected:  # type: ignore[union-attr]
-            return (f"frame shape {image.shape} does not match the sensor at binning {b}: "  # type: ignore[union-attr]
-                    f"expected {expected}")
-        return ""
-
-    def locate(self, image: NDArray[np.uint8], binning: int) -> Located:
-        """Both marker centres in this frame (RGB, binned by ``binning``).
-
-        A bad frame (``check_frame``) is not shown to the tracker; the GK assistance predicts
-        through it and the result is ``lost`` with the problem in ``reason`` and ``bad_frame``.
-        """
-        t0 = time.perf_counter()
-        if not self.started:
-            raise RuntimeError("start() the locator on the red marker's box first")
-        bad = self.check_frame(image, binning)
-        box, score = None, 0.0
-        if not bad:
-            box_img, score = self.tracker.track(image)
-            box = box_image_to_sensor(box_img, binning) if np.all(np.isfinite(box_img)) else None
-        res = self.gk.step(
-            image, binning, box_sensor_px=box, score=score, tilt_prev_rad=self.tilt_hint_rad
-        )
-        reason = res.reason
-        if bad:
-            # GK names the frame problem too (in its gate's reason): say it once, first.
-            rest = [r for r in res.reason.split("; ") if r and r not in (bad, res.gate.reason)]
-            reason = "; ".join([f"bad frame: {bad}", *rest])
-        elif res.red_source != "measurement" and np.all(np.isfinite(res.red_px)):
-            # Restart the tracker where the Kalman prediction puts the red marker.
-            r = 1.6 * self.gk.marker_radius_px
-            guess = np.r_[res.red_px - r, 2 * r, 2 * r]
-            try:
-                self.tracker.init(image, box_sensor_to_image(guess, binning))
-            except ValueError as exc:  # e.g. the prediction left the frame: keep the old track
-                reason = f"{reason}; tracker not restarted: {exc}" if reason else \
-                    f"tracker not restarted: {exc}"
-        return Located(res.marker_px, res.lost or bool(bad), reason,
-                       time.perf_counter() - t0, res, bad)
+from plant.scene import Frame
 
 
 class FrameObserver:
-    """``update(frame, t_exposure) -> Estimate`` from a locator and a pixel back end.
+    """``update(frame, t_exposure) -> Estimate`` from a pair tracker and a pixel back end.
 
     The estimate is released immediately (``t_available = t_exposure`` + the measured compute
     time); the timed loop instead releases through its latency model.
 
-    A bad frame (``MarkerLocator.check_frame``) reaches the back end as a lost frame (it
-    predicts or holds) and the estimate is flagged ``valid=False``, ``lost=True``, with a reason
-    that starts with ``"bad frame: "``. The locator's reasons (for example that the Kalman
-    prediction stood in for the tracker) are kept in the estimate's ``reason``.
+    A bad frame reaches the back end as a lost frame (it predicts or holds) and the estimate is
+    flagged ``valid=False``, ``lost=True``, with a reason that starts with ``"bad frame: "``.
+    The pair tracker's reasons (for example that the Kalman prediction stood in for the
+    tracker) are kept in the estimate's ``reason``.
     """
 
-    def __init__(self, locator: MarkerLocator, backend: PixelObserver) -> None:
+    def __init__(self, locator: PairTracker, backend: PixelObserver) -> None:
         self.locator = locator
         self.backend = backend
 
@@ -157,17 +51,14 @@ class FrameObserver:
         self.locator.reset()
         self.backend.reset(q0, t0)
 
-    def start(self, image: NDArray[np.uint8], binning: int, box_sensor_px: ArrayLike) -> None:
-        """Initialise the tracker on the red marker's box, sensor px."""
-        self.locator.start(image, binning, box_sensor_px)
+    def start(self, image: NDArray[np.uint8], binning: int, boxes_sensor_px: ArrayLike) -> None:
+        """Start the pair tracker on the red and yellow boxes (2, 4), sensor px."""
+        self.locator.start(image, boxes_sensor_px, binning)
 
-    def update(self, frame, t_exposure: float) -> Estimate:
-        """Estimate from one ``plant.scene.Frame`` (or any object with ``image`` and
-        ``binning``) taken at mid-exposure ``t_exposure`` (s)."""
+    def update(self, frame: Frame, t_exposure: float) -> Estimate:
+        """Estimate from one ``plant.scene.Frame`` taken at mid-exposure ``t_exposure`` (s)."""
         t0 = time.perf_counter()
-        image = getattr(frame, "image", None)
-        binning = getattr(frame, "binning", None)
-        loc = self.locator.locate(image, binning)  # type: ignore[arg-type]
+        loc = self.locator.step(frame.image)
         self.backend.process(loc.marker_px, t_exposure, loc.lost, loc.reason, loc.compute_time_s)
         elapsed = time.perf_counter() - t0
         est = self.backend.release(t_exposure + elapsed)

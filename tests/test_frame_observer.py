@@ -1,14 +1,16 @@
-"""The DESIGN observer, update(frame, t_exposure) -> Estimate, on rendered frames."""
+"""The frame observer, update(frame, t_exposure) -> Estimate, on rendered frames."""
 
 import numpy as np
 import pytest
 
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.frame_observer import FrameObserver, MarkerLocator
+from observer.frame_observer import FrameObserver
 from observer.gk.hsv_gate import box_sensor_to_image
 from observer.opencv_trackers import OpenCVTracker
 from observer.pixel_observer import FilterObserver, SolverObserver
+from observer.trackers import make_pair_tracker
+from observer.trackers.gk_transt import GKTransTPairTracker
 from plant import attitude as A
 from plant.params import PlantParams
 from plant.render_analytic import AnalyticRenderer
@@ -24,7 +26,7 @@ def cone(t):
 
 def run(backend, n=40):
     renderer = AnalyticRenderer(P, seed=3)
-    obs = FrameObserver(MarkerLocator(P), backend)
+    obs = FrameObserver(make_pair_tracker("kcf_gk", P), backend)
     obs.reset(cone(0.0), 0.0)
     errors, ests = [], []
     dt = 1.0 / P.camera.frame_rate_hz
@@ -32,7 +34,7 @@ def run(backend, n=40):
         t = k * dt
         frame = renderer.render(cone(t), t_exposure=t)
         if k == 0:
-            obs.start(frame.image, frame.binning, frame.boxes_px[0])
+            obs.start(frame.image, frame.binning, frame.boxes_px)
         est = obs.update(frame, t)
         ests.append(est)
         errors.append(A.geodesic_angle(est.q, cone(est.state_time)))
@@ -63,24 +65,24 @@ def test_filter_observer_on_rendered_frames_estimates_the_rate():
 
 def test_locator_predicts_through_blank_frames_and_reacquires():
     renderer = AnalyticRenderer(P, seed=4)
-    loc = MarkerLocator(P)
+    loc = make_pair_tracker("kcf_gk", P)
     frame = renderer.render(cone(0.0))
-    loc.start(frame.image, frame.binning, frame.boxes_px[0])
+    loc.start(frame.image, frame.boxes_px, frame.binning)
     dt = 1.0 / P.camera.frame_rate_hz
     for k in range(1, 4):
-        loc.locate(renderer.render(cone(k * dt)).image, frame.binning)
-    for _ in range(4, 8):  # the markers vanish: the Kalman prediction stands in, tracker restarts
-        blank = np.zeros_like(frame.image)
-        res = loc.locate(blank, frame.binning)
-        assert res.gk.red_source == "prediction"
+        loc.step(renderer.render(cone(k * dt)).image)
+    for _ in range(4, 8):  # the markers vanish: the Kalman prediction stands in
+        res = loc.step(np.zeros_like(frame.image))
+        assert not res.red_measured and np.all(np.isfinite(res.red_px))
+        assert loc.last_gk.red_source == "prediction"
     for k in range(8, 12):
         f = renderer.render(cone(k * dt))
-        res = loc.locate(f.image, f.binning)
-    assert not res.lost and res.gk.red_source == "measurement"
+        res = loc.step(f.image)
+    assert not res.lost and res.red_measured and loc.last_gk.red_source == "measurement"
     assert np.linalg.norm(res.marker_px - f.marker_px, axis=1).max() < 3.0
 
 
-# --- bad frames (DESIGN.md: a flagged estimate with a reason, never a crash mid-loop) ----------
+# --- bad frames (a flagged estimate with a reason, never a crash mid-loop) ---------------------
 
 def _bad_frames(image):
     """Name -> (bad image, words its reason must contain)."""
@@ -103,10 +105,10 @@ class _Frame:
 
 def _started_observer(backend, seed=5):
     renderer = AnalyticRenderer(P, seed=seed)
-    obs = FrameObserver(MarkerLocator(P), backend)
+    obs = FrameObserver(make_pair_tracker("kcf_gk", P), backend)
     obs.reset(cone(0.0), 0.0)
     first = renderer.render(cone(0.0), t_exposure=0.0)
-    obs.start(first.image, first.binning, first.boxes_px[0])
+    obs.start(first.image, first.binning, first.boxes_px)
     assert obs.update(first, 0.0).valid
     return obs, renderer, first
 
@@ -122,12 +124,6 @@ def test_bad_frames_give_an_invalid_estimate_with_a_reason():
             assert est.lost, name
             assert est.reason.startswith("bad frame: "), (name, est.reason)
             assert words in est.reason, (name, est.reason)
-
-
-def test_bad_binning_is_flagged_not_raised():
-    obs, _, first = _started_observer(SolverObserver(CorSolver(CorModel.nominal(P))))
-    est = obs.update(_Frame(first.image, 3), 1.0 / P.camera.frame_rate_hz)
-    assert not est.valid and est.lost and "binning" in est.reason
 
 
 def test_observer_recovers_after_bad_frames():
@@ -150,15 +146,15 @@ def test_locator_flags_a_bad_frame_without_showing_it_to_the_tracker():
     calls = []
 
     class Spy(OpenCVTracker):
-        def track(self, frame):
+        def track(self, frame, search_centre_image_px=None):
             calls.append(frame.shape)
-            return super().track(frame)
+            return super().track(frame, search_centre_image_px)
 
-    loc = MarkerLocator(P, tracker=Spy("kcf"))
+    loc = GKTransTPairTracker(Spy("kcf"), P, guide_search=False, restart_on_prediction=True)
     f = renderer.render(cone(0.0))
-    loc.start(f.image, f.binning, f.boxes_px[0])
-    loc.locate(f.image, f.binning)
-    res = loc.locate(f.image.astype(np.float32), f.binning)
+    loc.start(f.image, f.boxes_px, f.binning)
+    loc.step(f.image)
+    res = loc.step(f.image.astype(np.float32))
     assert calls == [f.image.shape]
     assert res.lost and "float32" in res.bad_frame and res.reason.startswith("bad frame: ")
     assert res.reason.count("float32") == 1  # said once, not repeated by the GK stage
@@ -170,18 +166,21 @@ def test_opencv_tracker_rejects_bad_frames_with_a_reason():
     box = box_sensor_to_image(f.boxes_px[0], f.binning)
     for kind in ("kcf", "csrt"):
         tr = OpenCVTracker(kind)
-        b, s = tr.track(f.image)
-        assert np.all(np.isnan(b)) and s == 0.0 and "not initialised" in tr.reason
+        res = tr.track(f.image)
+        b, s = res.box_image_px, res.score
+        assert np.all(np.isnan(b)) and s == 0.0 and "not initialised" in res.reason
         with pytest.raises(ValueError, match="uint8"):
-            tr.init(f.image.astype(float), box)
-        tr.init(f.image, box)
+            tr.initialize(f.image.astype(float), box)
+        tr.initialize(f.image, box)
         for name, (img, words) in _bad_frames(f.image).items():
-            b, s = tr.track(img)  # must not raise (it raised cv2.error before)
+            res = tr.track(img)  # must not raise (it raised cv2.error before)
+            b, s = res.box_image_px, res.score
             assert np.all(np.isnan(b)) and s == 0.0, (kind, name)
             # The tracker knows only its init frame, not the sensor.
             words = "differs from the init frame" if name == "wrong_size" else words
-            assert words in tr.reason, (kind, name, tr.reason)
-        b, s = tr.track(f.image)  # a good frame still tracks after the bad ones
-        assert s == 1.0 and tr.reason == ""
+            assert words in res.reason, (kind, name, res.reason)
+        res = tr.track(f.image)  # a good frame still tracks after the bad ones
+        b, s = res.box_image_px, res.score
+        assert s == 1.0 and res.valid and res.reason == ""
         c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
         assert np.linalg.norm(c - f.marker_px[0]) < 3.0

@@ -108,14 +108,14 @@ def test_exposure_longer_than_the_frame_period_is_rejected():
 
 def test_measuring_a_profile_is_one_call(tmp_path):
     from latency.profile import measure_locator_latency
-    from observer.frame_observer import MarkerLocator
+    from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
     p = PlantParams()
-    prof = measure_locator_latency(p, MarkerLocator(p), n_frames=15, warmup=2)
+    prof = measure_locator_latency(p, make_pair_tracker("kcf_gk", p), n_frames=15, warmup=2)
     assert len(prof.samples_s) == 15
     assert all(0 < s < 1.0 for s in prof.samples_s)
-    assert "KCF" in prof.source or "OpenCVTracker" in prof.source
+    assert "kcf_gk" in prof.source
     prof.save(tmp_path / "kcf.json")
     cfg = PipelineConfig(observer=Empirical.load(tmp_path / "kcf.json"))
     assert cfg.observer.mean_s == pytest.approx(prof.mean_s)

@@ -32,11 +32,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from plant.params import PlantParams
+from plant.scene import check_binning
+
 Colour = Literal["red", "yellow"]
 
 #: OpenCV's 8-bit hue range is [0, 180) (degrees / 2); 180 is allowed as an inclusive bound.
 _H_MAX = 180
 _SV_MAX = 255
+
+#: A region whose values span at most this many DN is blank (all black): nothing to track
+#: (our choice).
+UNIFORM_PTP_DN = 2
 
 
 class HSVRange(BaseModel):
@@ -132,6 +139,33 @@ def check_rgb_image(image: object) -> str:
         return f"frame is empty (shape {image.shape})"
     if image.dtype != np.uint8:
         return f"frame must be uint8 RGB, got dtype {image.dtype}"
+    return ""
+
+
+def check_frame(image: object, params: PlantParams, binning: object) -> str:
+    """"" if ``image`` is a usable camera frame at ``binning``, else why not. Never raises.
+
+    The one frame check of the trackers and the GK assistance: the frame must be RGB uint8
+    (H, W, 3), non-empty (``check_rgb_image``), of the sensor's size at a valid ``binning``
+    (``plant.scene.check_binning``), and not uniform (values spanning more than
+    ``UNIFORM_PTP_DN``: an all-black frame shows nothing to track).
+    """
+    bad = check_rgb_image(image)
+    if bad:
+        return bad
+    try:
+        b = check_binning(params, binning)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        return f"bad binning: {exc}"
+    cam = params.camera
+    expected = (cam.sensor_height_px // b, cam.sensor_width_px // b, 3)
+    img: NDArray[np.uint8] = image  # type: ignore[assignment]
+    if img.shape != expected:
+        return (f"frame shape {img.shape} does not match the sensor at binning {b}: "
+                f"expected {expected}")
+    lo, hi, _, _ = cv2.minMaxLoc(img.reshape(img.shape[0], -1))
+    if hi - lo <= UNIFORM_PTP_DN:
+        return f"frame is uniform (values {lo:.0f}-{hi:.0f} DN: all black or blank)"
     return ""
 
 

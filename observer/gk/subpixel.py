@@ -50,7 +50,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.gk.hsv_gate import RED, YELLOW, Colour, HSVRange, check_rgb_image, colour_mask
+from observer.gk.hsv_gate import (
+    RED,
+    YELLOW,
+    Colour,
+    HSVRange,
+    box_sensor_to_image,
+    check_rgb_image,
+    colour_mask,
+)
 from plant.camera import image_to_sensor
 
 _ELLIPSE3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
@@ -408,3 +416,31 @@ def refine_marker_centre(
         return SubpixelResult(np.full(2, np.nan), math.nan, rms, len(pts), n_burrs, n_out,
                               cover, False, reason)
     return result
+
+
+def refine_in_box(
+    image_rgb: NDArray[np.uint8],
+    colour: Colour | HSVRange,
+    box_sensor_px: ArrayLike,
+    binning: int,
+    config: SubpixelConfig | None = None,
+    roi_margin: float = 0.3,
+) -> tuple[NDArray[np.float64] | None, SubpixelResult]:
+    """The circle-fit acceptance rule for a tracker's box (seed 004 §4).
+
+    The fit (``refine_marker_centre``) runs in the box (x, y, w, h, full-sensor px) enlarged by
+    ``roi_margin`` of its size on each side (our choice 0.3: the whole marker stays in the ROI
+    when the box is off by a third of its size). Its centre is accepted when the fit is valid
+    and the centre lies inside the box: a fit that wandered to another blob is not the tracked
+    marker. Returns (centre in sensor px or None, the fit); a box that is not finite or has
+    w, h <= 0 gives (None, an invalid fit).
+    """
+    box = np.asarray(box_sensor_px, dtype=float).reshape(4)
+    if not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
+        return None, SubpixelResult.invalid("box not finite or has w, h <= 0")
+    roi = np.r_[box[:2] - roi_margin * box[2:], box[2:] * (1.0 + 2.0 * roi_margin)]
+    fit = refine_marker_centre(image_rgb, colour, box_sensor_to_image(roi, binning), config)
+    if not fit.valid:
+        return None, fit
+    c = fit.centre_sensor_px(binning)
+    return (c if np.all((c >= box[:2]) & (c <= box[:2] + box[2:])) else None), fit

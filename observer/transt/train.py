@@ -117,10 +117,11 @@ def evaluate_sequences(
     for seed in seeds:
         frames = validation_sequence(seed, n_frames)
         trk = TransTTracker(net.eval())
-        trk.init(frames[0].image, marker_box_image(frames[0], marker))
+        trk.initialize(frames[0].image, marker_box_image(frames[0], marker))
         for f in frames[1:]:
-            box, _ = trk.track(f.image)
-            times.append(trk.compute_time_s)
+            r = trk.track(f.image)
+            box = r.box_image_px
+            times.append(r.compute_time_s)
             c = (box[:2] + box[2:] / 2 + 0.5) * f.binning - 0.5  # image -> sensor px
             errs.append(float(np.hypot(*(c - f.marker_px[marker]))))
     e = np.asarray(errs)
