@@ -65,7 +65,7 @@ its own ``t_0``; ``record_command`` lets the loop report overrides). The compute
 Solve time
 ----------
 Every call is timed with ``time.perf_counter``: ``solve_times_s`` (the solver call) and
-``command_times_s`` (the whole call, the latency the loop sees); ``solve_stats()`` gives the median
+``compute_times_s`` (the whole call, the latency the loop sees); ``solve_stats()`` gives the median
 and p95.
 """
 
@@ -81,7 +81,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Reference
+from controller.base import Controller, InvalidCommand, Reference
 from controller.pid import (
     RateFromAttitude,
     estimate_usable,
@@ -173,7 +173,10 @@ class MPCConfig(BaseModel):
     prediction_step_s: float = Field(
         1.0e-3, gt=0.0, description="Our choice: 1 ms, the physics step (plant/params.py)."
     )
-    invalid_command: Literal["zero", "hold"] = Field("zero", description="Our choice: zero.")
+    invalid_command: InvalidCommand = Field(
+        "hold", description="Our choice: hold the last command while the estimate is invalid "
+        "(controller.base: the one invalid-estimate policy)."
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> MPCConfig:
@@ -209,11 +212,11 @@ def terminal_weight(J: float, h: float, q_th: float, q_w: float, r: float) -> ND
     return scipy.linalg.solve_discrete_are(A, B, h * np.diag([q_th, q_w]), np.array([[h * r]]))
 
 
-class MPCController:
+class MPCController(Controller):
     """Nonlinear MPC behind ``command(estimate, reference, t) -> stator torque (N·m)``.
 
     Attributes: ``last_plan`` (states (N+1, 7) and torques (N, 3) of the last solution),
-    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``command_times_s``,
+    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``compute_times_s``,
     ``unconverged`` (solves stopped by the iteration cap or reporting no success; their torque
     is still used), ``failures`` (solves with no finite solution or a solver error; the previous
     torque is held), ``invalid_count`` (invalid estimates; ``invalid_command`` applies).
@@ -238,7 +241,7 @@ class MPCController:
         self._build_prediction()
         self._build_nlp()
         self.solve_times_s: list[float] = []
-        self.command_times_s: list[float] = []
+        self.compute_times_s: list[float] = []
         self.reset()
 
     # --- construction ----------------------------------------------------------------------
@@ -447,14 +450,14 @@ class MPCController:
         self.last_t0 = np.nan
         self.last_status = ""
         self.last_solve_time_s = 0.0
-        self.last_command_time_s = 0.0
+        self.last_compute_time_s = 0.0
         self.failures = 0
         self.unconverged = 0
         self.invalid_count = 0
 
     def solve_stats(self) -> dict[str, float]:
         """Median and 95th percentile of the solver time and of the whole call, s."""
-        s, c = np.asarray(self.solve_times_s), np.asarray(self.command_times_s)
+        s, c = np.asarray(self.solve_times_s), np.asarray(self.compute_times_s)
         out = {"n": float(len(s))}
         for name, v in (("solve", s), ("command", c)):
             out[f"{name}_median_s"] = float(np.median(v)) if len(v) else np.nan
@@ -465,7 +468,7 @@ class MPCController:
         """The compute latency assumed for the prediction, s."""
         if self.config.compute_latency_s is not None:
             return self.config.compute_latency_s
-        recent = self.command_times_s[-20:]
+        recent = self.compute_times_s[-20:]
         return float(np.median(recent)) if recent else 0.0
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
@@ -474,8 +477,8 @@ class MPCController:
         try:
             return self._command(estimate, reference, float(t))
         finally:
-            self.last_command_time_s = time.perf_counter() - t_call
-            self.command_times_s.append(self.last_command_time_s)
+            self.last_compute_time_s = time.perf_counter() - t_call
+            self.compute_times_s.append(self.last_compute_time_s)
 
     def first_torque(
         self, x0: ArrayLike, reference: Reference, t0: float = 0.0

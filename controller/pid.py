@@ -78,7 +78,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Reference
+from controller.base import Controller, InvalidCommand, Reference
 from plant import attitude
 from plant.estimate import Estimate
 from plant.params import MotorParams, PlantParams, RotorParams
@@ -262,8 +262,9 @@ class PIDConfig(BaseModel):
         None, gt=0.0, description="Back-calculation T_t; None: sqrt(Ti Td) (Åström & Murray)."
     )
     feedforward: bool = Field(True, description="Our choice: add J alpha_r + omega_r x J omega_r.")
-    invalid_command: Literal["zero", "hold"] = Field(
-        "zero", description="Our choice: zero torque while the estimate is invalid."
+    invalid_command: InvalidCommand = Field(
+        "hold", description="Our choice: hold the last command while the estimate is invalid "
+        "(controller.base: the one invalid-estimate policy)."
     )
     inertia_kgm2: tuple[float, float, float] | None = Field(
         None, description="Design inertia per body axis; None: the plant's J about O (diagonal)."
@@ -288,7 +289,7 @@ class PIDConfig(BaseModel):
         return phase_margin_of_rule(self.zero_ratio, self.integral_ratio)
 
 
-class PIDController:
+class PIDController(Controller):
     """PID on the SO(3) attitude error with derivative on measurement and anti-windup.
 
     ``command(estimate, reference, t)`` returns the stator-frame torque (N·m) to apply from ``t``.

@@ -238,7 +238,6 @@ class Scenario(_Model):
     )
     controller: ControllerSpec = PIDSpec()
     reference: ReferenceSpec = TiltStepSpec()
-    on_invalid: Literal["zero", "hold"] = "hold"
     controller_rate_hz: float | None = Field(
         None, gt=0.0, description="None: control on each new estimate; a rate (Hz): a fixed "
         "controller clock on the latest estimate (latency.loop.LoopConfig)."
@@ -398,7 +397,6 @@ def build_loop(s: Scenario) -> ClosedLoop:
         duration_s=s.duration_s,
         pipeline=s.pipeline,
         seed=s.seed,
-        on_invalid=s.on_invalid,
         controller_rate_hz=s.controller_rate_hz,
         controller_latency=s.controller_latency,
         observer_latency=s.observer_latency,

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.orb import OrbConfig, OrbReference
+from observer.orb import OrbConfig, OrbMeasurement, OrbReference
 from observer.trackers import make_pair_tracker
 from observer.tracking import PairTracker
 from plant import attitude
@@ -35,13 +35,30 @@ from plant.texture import TextureParams
 
 @dataclass(frozen=True)
 class Capture:
-    """One frame's measured and true marker centres (2, 2), sensor px (red, yellow)."""
+    """One frame's measurement.
+
+    Attributes
+    ----------
+    marker_px : (2, 2) measured marker centres, sensor px (red, yellow); NaN when there is none
+        (lost, or a rotor without markers).
+    true_px : (2, 2) true marker centres, sensor px (NaN without marker truth).
+    lost : the front end lost the markers (or the features) in this frame.
+    reason : why the frame is not a clean measurement ("" when it is).
+    compute_time_s : the front end's measured compute time, s.
+    orb : the ORB matches of a textured rotor (``OrbFrontEnd``), None for marker front ends.
+    """
 
     marker_px: NDArray[np.float64]
     true_px: NDArray[np.float64]
     lost: bool = False
     reason: str = ""
     compute_time_s: float = 0.0
+    orb: OrbMeasurement | None = None
+
+    @property
+    def measurement(self) -> NDArray[np.float64] | OrbMeasurement:
+        """What the observer fuses: the ORB matches if any, else the marker centres."""
+        return self.marker_px if self.orb is None else self.orb
 
 
 class FrontEnd(Protocol):
@@ -230,7 +247,8 @@ class OrbFrontEnd:
     ) -> Capture:
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
         m = self.observer.measure(frame)
-        return Capture(m, np.full((2, 2), np.nan), not m.valid, m.reason, m.compute_time_s)
+        nan = np.full((2, 2), np.nan)
+        return Capture(nan, nan.copy(), not m.valid, m.reason, m.compute_time_s, orb=m)
 
 
 
