@@ -8,7 +8,7 @@ stator-frame torque T (N·m), viscous and smooth Coulomb friction, gravity and t
 term. We take the torque, not the 16 coil currents, as the input: 3 inputs instead of 16 and no
 K(q) (16 x 18 window terms) in the prediction, and the allocator (plant/torque.py) delivers any
 torque inside the motor's all-direction capacity exactly. The input constraint is therefore the
-ball ``|T_k|² <= T_lim²`` with ``T_lim = margin x worst_case_capacity`` (controller/pid.py), plus
+ball ``|T_k|² <= T_lim²`` with ``T_lim = margin x worst_case_capacity`` (plant/torque.py), plus
 the box ``|T_k,i| <= T_lim`` that keeps every QP bounded. Inside the optimisation the twin is
 built with a wider Coulomb smoothing (``model_coulomb_smoothing_rad_s``, see MPCConfig); the
 delay compensation uses the plant's own law.
@@ -85,12 +85,11 @@ from controller.base import Controller, InvalidCommand, Reference
 from controller.pid import (
     RateFromAttitude,
     estimate_usable,
-    inertia_about_centre,
-    worst_case_capacity,
 )
 from plant import attitude
 from plant.estimate import Estimate
 from plant.params import PlantParams
+from plant.torque import worst_case_capacity
 from plant.twin import CasadiTwin
 
 Solver = Literal["sqp_hpipm", "sqp_qpoases", "sqp_qrqp", "sqp_osqp", "ipopt"]
@@ -232,7 +231,7 @@ class MPCController(Controller):
         else:
             rotor = self.params.rotor.model_copy(update={"coulomb_smoothing_rad_s": eps})
             self.model_twin = CasadiTwin(self.params.model_copy(update={"rotor": rotor}))
-        self.J = np.diag(inertia_about_centre(self.params.rotor)).copy()
+        self.J = np.diag(self.params.rotor.inertia_about_centre_kgm2).copy()
         if cfg.torque_limit_Nm is not None:
             self.torque_limit = float(cfg.torque_limit_Nm)
         else:

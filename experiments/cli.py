@@ -14,6 +14,8 @@ import typer
 import yaml
 from pydantic import ValidationError
 
+from latency.models import seed_latency_ms
+
 os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
 
 app = typer.Typer(
@@ -136,7 +138,9 @@ def _plot_run(steps, path: Path, title: str) -> None:
 def margins(
     crossover_rad_s: Annotated[float, typer.Option(help="PID crossover, rad/s.")] = 10.0,
     frame_rate_hz: Annotated[float, typer.Option(help="Observer update rate, Hz.")] = 36.0,
-    delay_ms: Annotated[float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")] = 16.33,
+    delay_ms: Annotated[
+        float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")
+    ] = seed_latency_ms("gk_transt"),
     out: OutOption = Path("runs"),
 ) -> None:
     """Margins of the per-axis PID loop with the exact delay; Bode and Nyquist plots and the
@@ -406,13 +410,13 @@ def tune_kalman_cmd(
 
     Example: pmspm tune-kalman --delays-ms 16.33 --delays-ms 31.23 --trials 20 --workers 2
     """
-    from experiments.tuning import tune_kalman
+    from experiments.tuning import DEFAULT_DELAYS_S, tune_kalman
 
     if grid_points < 2 or trials < 0 or duration_s <= 0:
         _config_error(
             ValueError("need grid_points >= 2, trials >= 0 and duration_s > 0"), "options"
         )
-    delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
+    delays = tuple(d / 1e3 for d in delays_ms) if delays_ms else DEFAULT_DELAYS_S
     result = tune_kalman(
         out,
         delays_s=delays,

@@ -906,14 +906,13 @@ def plot_step_test(result: StepTestResult, path: str, keys: Sequence[str] | None
 # ------------------------------------------------------------------------------------------------
 # The tracking table (issue 7 §2 is benchmarks/bench_tracking.py's; we only summarise its output)
 # ------------------------------------------------------------------------------------------------
-#: Seed 000 §4.2–4.3 and Table 1: precision at 20 px (main, aux) per case, latency (ms), FPS.
-SEED_TRACKING: dict[str, dict[str, object]] = {
-    "gk_transt": {"clean": (0.909, 0.944), "occlusion": (0.891, 0.944), "blur": (0.897, 0.926),
-                  "latency_ms": 16.33, "fps": 61.23},
-    "dual_transt": {"clean": (0.909, 0.917), "latency_ms": 31.23, "fps": 32.02},
-    "kcf": {"clean": (0.894, 0.868), "occlusion": (0.295, 0.295), "blur": (0.428, 0.431),
-            "latency_ms": 10.86, "fps": 92.05},
-    "csrt": {"clean": (0.947, 0.971), "latency_ms": 67.62, "fps": 14.79},
+#: Seed 000 §4.2–4.3: precision at 20 px (main, aux) per case (latency and FPS: Table 1,
+#: ``experiments.tracking_bench.SEED_TABLE1``).
+SEED_TRACKING: dict[str, dict[str, tuple[float, float]]] = {
+    "gk_transt": {"clean": (0.909, 0.944), "occlusion": (0.891, 0.944), "blur": (0.897, 0.926)},
+    "dual_transt": {"clean": (0.909, 0.917)},
+    "kcf": {"clean": (0.894, 0.868), "occlusion": (0.295, 0.295), "blur": (0.428, 0.431)},
+    "csrt": {"clean": (0.947, 0.971)},
 }
 
 
@@ -922,6 +921,8 @@ def tracking_table_markdown(csv_path: str) -> str:
     benchmarks/bench_tracking.py): mean precision at 20 px (main, aux), median latency and FPS
     per tracker and case, with the seed's numbers beside (seed 000 §4, Table 1)."""
     import pandas as pd
+
+    from experiments.tracking_bench import SEED_TABLE1
 
     m = pd.read_csv(csv_path)
     g = m.groupby(["tracker", "case"], sort=False).agg(
@@ -939,8 +940,7 @@ def tracking_table_markdown(csv_path: str) -> str:
         seed = SEED_TRACKING.get(base, {})
         sp = seed.get(str(r.case))
         sp_s = f"{sp[0]:.3f} / {sp[1]:.3f}" if sp else "—"
-        sl = seed.get("latency_ms")
-        sf = seed.get("fps")
+        sf, sl = SEED_TABLE1.get(base, (None, None))
         name = str(r.tracker)
         if "standin" in name:
             name += " (numpy-KCF stand-in for the network: not TransT numbers)"

@@ -44,6 +44,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
+from latency.models import SEED_FPS, seed_latency_ms
 from observer.tracking import PairResult, PairTracker
 
 #: Centre-error thresholds of the precision curve, full-sensor px (seed 000 §4.2, Figure 11).
@@ -58,10 +59,7 @@ MARKER_NAMES = ("main", "aux")
 
 #: Seed 000 Table 1 (RTX 4060 laptop GPU): algorithm -> (FPS, latency ms).
 SEED_TABLE1: dict[str, tuple[float, float]] = {
-    "gk_transt": (61.23, 16.33),
-    "dual_transt": (32.02, 31.23),
-    "kcf": (92.05, 10.86),
-    "csrt": (14.79, 67.62),
+    name: (SEED_FPS[name], seed_latency_ms(name)) for name in SEED_FPS
 }
 #: Seed 000 §4.2-4.3 precision at 20 px: (algorithm, case) -> (main, aux). For KCF under
 #: occlusion the seed gives one number (0.295).
@@ -491,7 +489,7 @@ RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
 TARGET_PRECISION_CLEAN = 0.95
 TARGET_PRECISION_DISTURBED = 0.90
 TARGET_RATIO = 0.6
-TARGET_MEDIAN_MS = 16.33
+TARGET_MEDIAN_MS = seed_latency_ms("gk_transt")
 
 
 def min_frames(case: str) -> int:

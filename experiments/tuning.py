@@ -80,6 +80,7 @@ from experiments.scenario import PIDSpec, Scenario, run
 from latency.margins import Margins, attitude_plant, loop_margins, loop_model, sampled_margins
 from latency.models import SEED_LATENCY_S
 from latency.pipeline import FrameScheduler, PipelineConfig
+from observer.gk.pixel_kalman import F_CV_AXIS, H_CV_AXIS
 
 #: Seed 000 §3.2.1: Q = 0.01·I4 (sensor px², (px/frame)²), R = 0.1·I2 (sensor px²).
 SEED_Q_SCALE = 0.01
@@ -88,10 +89,6 @@ SEED_R_SCALE = 0.1
 DEFAULT_DELAYS_S = (SEED_LATENCY_S["gk_transt"], SEED_LATENCY_S["dual_transt"])
 #: The sweep runner's entry point for one run of the objective.
 RUN_TARGET = "experiments.tuning:run_cost"
-
-# The constant-velocity model of one pixel coordinate (u, u̇), Δt = 1 frame (seed 000 §3.2.1).
-_F1 = np.array([[1.0, 1.0], [0.0, 1.0]])
-_H1 = np.array([[1.0, 0.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -396,8 +393,8 @@ def kalman_steady_state(q: float, r: float) -> tuple[NDArray[np.float64], NDArra
     """
     if not (q > 0 and r > 0 and np.isfinite(q) and np.isfinite(r)):
         raise ValueError(f"q and r must be finite and > 0, got q={q}, r={r}")
-    P = scipy.linalg.solve_discrete_are(_F1.T, _H1.T, q * np.eye(2), np.array([[r]]))
-    K = P @ _H1.T / (_H1 @ P @ _H1.T + r)
+    P = scipy.linalg.solve_discrete_are(F_CV_AXIS.T, H_CV_AXIS.T, q * np.eye(2), np.array([[r]]))
+    K = P @ H_CV_AXIS.T / (H_CV_AXIS @ P @ H_CV_AXIS.T + r)
     return K, P
 
 
@@ -407,8 +404,8 @@ def kalman_filter_ss(q: float, r: float, dt_s: float) -> ct.StateSpace:
     one, both sensor px. ``x_k = A x_{k-1} + K z_k`` with ``A = (I − K H) F`` and output
     ``H x_k``, so ``y_k = H A x_{k-1} + H K z_k``."""
     K, _ = kalman_steady_state(q, r)
-    A = (np.eye(2) - K @ _H1) @ _F1
-    return ct.ss(A, K, _H1 @ A, _H1 @ K, dt_s)
+    A = (np.eye(2) - K @ H_CV_AXIS) @ F_CV_AXIS
+    return ct.ss(A, K, H_CV_AXIS @ A, H_CV_AXIS @ K, dt_s)
 
 
 def kalman_transfer_function(q: float, r: float, dt_s: float) -> ct.TransferFunction:

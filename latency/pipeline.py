@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from latency.models import Constant, LatencyModel
+from latency.models import SEED_LATENCY_S, Constant, LatencyModel
 
 PipelineMode = Literal["sequential", "pipelined"]
 
@@ -44,7 +44,7 @@ class PipelineConfig(BaseModel):
         "observer's latency, as seed 000 Table 1's per-frame figures are end to end."
     )
     observer: LatencyModel = Field(
-        default_factory=lambda: Constant(value_s=16.33e-3),
+        default_factory=lambda: Constant(value_s=SEED_LATENCY_S["gk_transt"]),
         description="Observer processing latency; default seed 000 Table 1, GK-TransT.",
     )
     mode: PipelineMode = "sequential"

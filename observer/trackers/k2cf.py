@@ -39,11 +39,11 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from observer.gk.hsv_gate import check_rgb_image
+from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.trackers.kcf_numpy import KCFConfig, NumpyKCF
 from observer.tracking import TrackResult
 
-_A = np.array([[1.0, 0, 1, 0], [0, 1.0, 0, 1], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-_H = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
+_A, _H = F_CV, H_CV  # the constant-velocity model, T = 1 frame (seed 004 eq. 12)
 
 
 class K2CFConfig(BaseModel):
