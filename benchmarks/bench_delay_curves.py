@@ -45,12 +45,12 @@ def main() -> None:
     )
     marks = {"GK-TransT": GK_MS, "dual TransT": DUAL_MS}
     margins = margins_table(PlantParams(), cfg)
-    plot_margins(margins, marks, HERE / "results" / "pid_margins_vs_delay.png")
+    plot_margins(margins, marks).savefig(HERE / "results" / "pid_margins_vs_delay.png", dpi=110)
     mpc = mpc_margins_table(PlantParams(), cfg)
-    plot_pm_pid_vs_mpc(margins, mpc, marks, HERE / "results" / "pm_pid_vs_mpc.png")
+    plot_pm_pid_vs_mpc(margins, mpc, marks).savefig(HERE / "results" / "pm_pid_vs_mpc.png", dpi=110)
     out = HERE / "results" / "delay_curves_sweep"
     sweep = tidy_sweep(run_sweep("experiments.study:study_run", sweep_configs(cfg), out))
-    plot_steps(sweep, marks, HERE / "results" / "step_metrics_vs_delay.png")
+    plot_steps(sweep, marks).savefig(HERE / "results" / "step_metrics_vs_delay.png", dpi=110)
 
     figures: dict[str, float] = {}
     for d in (0.0, GK_MS, DUAL_MS, 45.0, 60.0):

@@ -80,18 +80,6 @@ def study(
 
 
 @app.command()
-def demo(out: OutOption = Path("runs")) -> None:
-    """Tilt step of the simulated motor under a PD law on the true state, with rendered frames.
-
-    Example: pmspm demo --out runs
-    """
-    from experiments.demo import run_demo
-
-    folder = run_demo(out)
-    typer.echo(f"report: {folder / 'report.md'}")
-
-
-@app.command()
 def simulate(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML (experiments.scenario).")],
     out: OutOption = Path("runs"),
@@ -114,13 +102,11 @@ def simulate(
     typer.echo(f"tables: {folder}")
 
 
-def _plot_run(steps, path: Path, title: str) -> None:
-    import matplotlib
+def _plot_run(steps, path: Path, title: str) -> None:  # noqa: ANN001 - LoopResult.steps
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+    fig = Figure(figsize=(8, 5.5))
+    ax = fig.subplots(2, 1, sharex=True)
     ax[0].plot(steps.t_s, steps.tilt_deg, label="tilt")
     ax[0].plot(steps.t_s, steps.ref_tilt_deg, "k--", lw=0.8, label="reference tilt")
     ax[0].set_ylabel("tilt (deg)")
@@ -131,7 +117,6 @@ def _plot_run(steps, path: Path, title: str) -> None:
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 @app.command()
@@ -148,9 +133,6 @@ def margins(
 
     Example: pmspm margins --crossover-rad-s 10 --delay-ms 31.23
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     from controller.pid import PIDConfig, PIDController
     from latency.margins import (
         attitude_delay_sweep,

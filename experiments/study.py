@@ -28,25 +28,22 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from pydantic import BaseModel, ConfigDict, Field
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from pydantic import BaseModel, ConfigDict, Field  # noqa: E402
-
-from controller.mpc import MPCConfig  # noqa: E402
-from controller.pid import PIDConfig, PIDController  # noqa: E402
-from experiments.report import write_report  # noqa: E402
-from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, PIDSpec, Scenario, run  # noqa: E402
-from experiments.sweep import run_sweep  # noqa: E402
-from latency.margins import attitude_margins, attitude_plant, sampled_margins  # noqa: E402
-from latency.models import SEED_LATENCY_S  # noqa: E402
-from latency.mpc_law import mpc_discrete_law, mpc_state_gain  # noqa: E402
-from latency.profile import measure_locator_latency  # noqa: E402
-from observer.trackers import make_pair_tracker  # noqa: E402
-from plant.params import PlantParams  # noqa: E402
+from controller.mpc import MPCConfig
+from controller.pid import PIDConfig, PIDController
+from experiments.report import write_report
+from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, PIDSpec, Scenario, run
+from experiments.sweep import run_sweep
+from latency.margins import attitude_margins, attitude_plant, sampled_margins
+from latency.models import SEED_LATENCY_S
+from latency.mpc_law import mpc_discrete_law, mpc_state_gain
+from latency.profile import measure_locator_latency
+from observer.trackers import make_pair_tracker
+from plant.params import PlantParams
 
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
 DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
@@ -166,10 +163,11 @@ def mpc_margins_table(
 
 
 def plot_pm_pid_vs_mpc(
-    pid: pd.DataFrame, mpc: pd.DataFrame, marks: dict[str, float], path: Path
-) -> None:
+    pid: pd.DataFrame, mpc: pd.DataFrame, marks: dict[str, float]
+) -> Figure:
     """Phase and delay margin against vision delay for the PID and the MPC's linearised law."""
-    fig, ax = plt.subplots(2, 1, figsize=(8.5, 7), sharex=True)
+    fig = Figure(figsize=(8.5, 7))
+    ax = fig.subplots(2, 1, sharex=True)
     grid = np.linspace(0, 60, 61).round(6)
     for mode, style in (("sequential", "-"), ("pipelined", "--")):
         g = pid[(pid.observer == mode) & pid.vision_delay_ms.round(6).isin(grid)]
@@ -190,12 +188,12 @@ def plot_pm_pid_vs_mpc(
     ax[0].legend(loc="upper right", fontsize=7)
     fig.suptitle("PID and MPC (linearised law): margins against vision delay")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def plot_margins(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
-    fig, ax = plt.subplots(3, 1, figsize=(8.5, 9), sharex=True)
+def plot_margins(df: pd.DataFrame, marks: dict[str, float]) -> Figure:
+    fig = Figure(figsize=(8.5, 9))
+    ax = fig.subplots(3, 1, sharex=True)
     grid = df[df.vision_delay_ms.round(6).isin(np.linspace(0, 60, 61).round(6))]
     for mode, style in (("sequential", "-"), ("pipelined", "--")):
         g = grid[grid.observer == mode]
@@ -211,8 +209,7 @@ def plot_margins(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
     ax[0].legend(loc="upper right")
     fig.suptitle("Per-axis PID attitude loop: margins against vision delay")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 # --- 2. closed-loop sweep -------------------------------------------------------------------
@@ -275,9 +272,10 @@ def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
     return out.sort_values(["controller", "reference", "vision_delay_ms"]).reset_index(drop=True)
 
 
-def plot_sweep(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
+def plot_sweep(df: pd.DataFrame, marks: dict[str, float]) -> Figure:
     rnd = df[df.reference.str.startswith("random")]
-    fig, ax = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    fig = Figure(figsize=(11, 7.5))
+    ax = fig.subplots(2, 2, sharex=True)
     for j, ctrl in enumerate(("pid", "mpc")):
         for rate, g in rnd[rnd.controller == ctrl].groupby("max_rate_rad_s"):
             g = g.groupby("vision_delay_ms", as_index=False).mean(numeric_only=True)
@@ -295,13 +293,13 @@ def plot_sweep(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
         ax[0, j].legend(fontsize=8)
     fig.suptitle("Closed loop (measurement model, sequential observer): error and tracking loss")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def plot_steps(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
+def plot_steps(df: pd.DataFrame, marks: dict[str, float]) -> Figure:
     st = df[df.reference == "tilt_step_5deg"]
-    fig, ax = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
+    fig = Figure(figsize=(11, 3.8))
+    ax = fig.subplots(1, 2, sharex=True)
     for ctrl, g in st.groupby("controller"):
         g = g.groupby("vision_delay_ms", as_index=False).mean(numeric_only=True)
         ok = g.diverged < 0.5
@@ -315,8 +313,7 @@ def plot_steps(df: pd.DataFrame, marks: dict[str, float], path: Path) -> None:
         a.legend()
     fig.suptitle("5° tilt step: the MPC's delay tolerance read from step responses")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 # --- 3. time series -------------------------------------------------------------------------
@@ -345,8 +342,9 @@ def time_series(cfg: StudyConfig, out: Path) -> tuple[dict[str, pd.DataFrame], d
     return series, summaries
 
 
-def plot_time_series(series: dict[str, pd.DataFrame], path: Path) -> None:
-    fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True, sharey="row")
+def plot_time_series(series: dict[str, pd.DataFrame]) -> Figure:
+    fig = Figure(figsize=(11, 6))
+    ax = fig.subplots(2, 2, sharex=True, sharey="row")
     for j, d in enumerate((GK_MS, DUAL_MS)):
         for ctrl in ("pid", "mpc"):
             s = series[f"{ctrl}_{d:.2f}ms"]
@@ -363,8 +361,7 @@ def plot_time_series(series: dict[str, pd.DataFrame], path: Path) -> None:
     ax[0, 0].legend()
     fig.suptitle("5° tilt step at GK-TransT's and the dual TransT's latency")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 # --- 4. summary -----------------------------------------------------------------------------
@@ -465,10 +462,10 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
 
     margins = margins_table(params, cfg)
     margins.to_parquet(out / "margins.parquet")
-    plot_margins(margins, marks, out / "margins_vs_delay.png")
+    plot_margins(margins, marks).savefig(out / "margins_vs_delay.png", dpi=110)
     mpc_margins = mpc_margins_table(params, cfg)
     mpc_margins.to_parquet(out / "mpc_margins.parquet")
-    plot_pm_pid_vs_mpc(margins, mpc_margins, marks, out / "pm_pid_vs_mpc.png")
+    plot_pm_pid_vs_mpc(margins, mpc_margins, marks).savefig(out / "pm_pid_vs_mpc.png", dpi=110)
 
     raw = run_sweep(
         "experiments.study:study_run",
@@ -479,11 +476,11 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     )
     sweep = tidy_sweep(raw)
     sweep.to_parquet(out / "sweep.parquet")
-    plot_sweep(sweep, marks, out / "sweep_error_loss.png")
-    plot_steps(sweep, marks, out / "step_vs_delay.png")
+    plot_sweep(sweep, marks).savefig(out / "sweep_error_loss.png", dpi=110)
+    plot_steps(sweep, marks).savefig(out / "step_vs_delay.png", dpi=110)
 
     series, ts = time_series(cfg, out)
-    plot_time_series(series, out / "timeseries_16_vs_31ms.png")
+    plot_time_series(series).savefig(out / "timeseries_16_vs_31ms.png", dpi=110)
 
     findings = summary_text(margins, sweep, ts, measured_ms, cfg, mpc_margins)
     (out / "study_config.json").write_text(json.dumps(cfg.model_dump(), indent=1))

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
@@ -383,16 +384,12 @@ def latency_ratio(table: pd.DataFrame, num: str = "gk_transt", den: str = "dual_
 
 # --- plots --------------------------------------------------------------------------------------
 def plot_precision_curves(
-    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], case: str, path: Path | str
-) -> Path:
+    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], case: str
+) -> Figure:
     """Precision curves of every tracker in one case, main and auxiliary marker side by side
     (seed Figure 11; 12a/c and 14a/c for the occlusion and blur cases)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    fig = Figure(figsize=(10, 4))
+    axes = fig.subplots(1, 2, sharey=True)
     for name in dict.fromkeys(r.tracker for r in runs if r.case == case):
         curves = pooled_precision(runs, seqs, name, case)
         for m, ax in enumerate(axes):
@@ -408,25 +405,17 @@ def plot_precision_curves(
         ax.legend(loc="lower right", fontsize=8)
     axes[0].set_ylabel("precision")
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def plot_error_curves(
-    runs: Sequence[TrackRun], seq: TrackingSequence, path: Path | str, ymax_px: float = 100.0
-) -> Path:
+    runs: Sequence[TrackRun], seq: TrackingSequence, ymax_px: float = 100.0
+) -> Figure:
     """Centre error over frames of every tracker on one sequence, main and auxiliary marker
     (seed Figures 12b/d, 14b/d); disturbed frames shaded; errors beyond ``ymax_px`` leave the
     chart as in the seed's figures."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig = Figure(figsize=(10, 6))
+    axes = fig.subplots(2, 1, sharex=True)
     frames = np.arange(seq.n_frames)
     for r in runs:
         if r.sequence != seq.name:
@@ -451,11 +440,7 @@ def plot_error_curves(
     axes[0].legend(loc="upper right", fontsize=8, ncol=3)
     axes[1].set_xlabel("frame")
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
@@ -656,10 +641,12 @@ def run_tracking_benchmark(
     metrics.to_csv(files[0], index=False)
     plots = []
     for case in cases:
-        path = out / f"tracking_precision_{case}.png"
-        plots.append(plot_precision_curves(runs, seqs, case, path))
         first = next(s for s in seqs if s.case == case)
-        plots.append(plot_error_curves(runs, first, out / f"tracking_errors_{case}.png"))
+        for fig, path in ((plot_precision_curves(runs, seqs, case),
+                           out / f"tracking_precision_{case}.png"),
+                          (plot_error_curves(runs, first), out / f"tracking_errors_{case}.png")):
+            fig.savefig(path, dpi=110)
+            plots.append(path)
     files += plots
 
     summary = summary_table(metrics)
