@@ -1,4 +1,4 @@
-"""Quaternion EKF vs AEKF on marker pixels, and delay compensation (issue 3 §3).
+"""Quaternion EKF vs AEKF on marker pixels, and delay compensation.
 
 A 3 s MuJoCo run under a known torque (spin plus a wobble below the tilt stop); frames at 36/s
 with noise sigma_true; estimates released after the seed's latencies. Reports the RMS geodesic

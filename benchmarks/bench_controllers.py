@@ -1,4 +1,4 @@
-"""Controller compute cost and step responses (issue 5 §1).
+"""Controller compute cost and step responses.
 
 * PID: wall-clock time per ``command`` call.
 * MPC: solve time (median, p95) of every solver option on the same closed-loop scenarios,

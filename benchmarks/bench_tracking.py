@@ -17,7 +17,7 @@ Writes ``benchmarks/results/tracking_*.png`` (precision curves per case like see
 12a/c, 14a/c; centre error over frames of the first sequence per case like 12b/d, 14b/d),
 ``results/tracking_metrics.csv`` (one row per run) and appends the tables to ``RESULTS.md``.
 
-The composition (trackers, sequences, metrics, tables, plots, issue 4's targets) is
+The composition (trackers, sequences, metrics, tables, plots, the targets) is
 ``experiments.tracking_bench.run_tracking_benchmark``, shared with ``pmspm bench-trackers``; this
 script adds the torch thread setting and the record in RESULTS.md.
 

@@ -1,4 +1,4 @@
-"""Delay-aware nonlinear MPC of the rotor attitude with CasADi (issue 5 §1).
+"""Delay-aware nonlinear MPC of the rotor attitude with CasADi.
 
 Model
 -----

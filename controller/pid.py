@@ -1,4 +1,4 @@
-"""PID attitude control on SO(3) with a crossover-based tuning rule (issue 5 §1).
+"""PID attitude control on SO(3) with a crossover-based tuning rule.
 
 Control law (per body axis i of the *estimated* rotor frame)
 ------------------------------------------------------------

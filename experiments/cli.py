@@ -312,7 +312,7 @@ def bench_trackers(
     validation sequences, clean and with the seed's occlusion and blur cases.
 
     Writes tracking_metrics.csv (one row per run), precision and error plots per case and
-    report.md (Table 1 beside the seed's, precision at 20 px, success AUC, issue 4's targets).
+    report.md (Table 1 beside the seed's, precision at 20 px, success AUC, the targets).
     The same code path as benchmarks/bench_tracking.py.
 
     Example: pmspm bench-trackers --seeds 1 --cases clean --trackers gk_transt,kcf --stand-in

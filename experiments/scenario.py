@@ -12,7 +12,7 @@ frames, marker observers on the textured rotor, a measured latency without compu
 
 Defaults that depend on other fields are resolved at validation, so that a dumped scenario shows
 what ran: the MPC's compute latency (its median call time measured here, ``MPC_CALL_MEDIAN_S``),
-the textured rotor and the measured observer latency for the ORB observers (issue 8).
+the textured rotor and the measured observer latency for the ORB observers.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class MPCSpec(_Model):
 ControllerSpec = Annotated[PIDSpec | MPCSpec, Field(discriminator="kind")]
 
 
-#: Observer kinds of the textured rotor (issue 8, ``observer.orb_observer.OrbObserver``): ORB
+#: Observer kinds of the textured rotor (``observer.orb_observer.OrbObserver``): ORB
 #: alone (a direct solve per frame), ORB-EKF and ORB-AEKF (seed 001 Table 2).
 ORB_KINDS = {"orb": "orb", "orb_ekf": "ekf", "orb_aekf": "aekf"}
 
@@ -94,7 +94,7 @@ class ObserverSpec(_Model):
     latency), ``solver`` (per-frame least squares), or ``pixel_kalman`` (the seed's pixel Kalman
     filter on each marker, then the solver).
 
-    Textured rotor (issue 8, image mode only): ``orb`` (ORB alone, a direct solve per frame),
+    Textured rotor (image mode only): ``orb`` (ORB alone, a direct solve per frame),
     ``orb_ekf`` and ``orb_aekf`` (the quaternion EKF/AEKF on the matched points, seed 001); the
     front end is ``latency.frontends.OrbFrontEnd`` with the ORB settings ``orb``.
     """
@@ -227,7 +227,7 @@ class Scenario(_Model):
     observer: ObserverSpec = ObserverSpec()
     texture: TextureParams | None = Field(
         None,
-        description="Issue 8: the rotor's printed pattern (seed and shapes) instead of the two "
+        description="The rotor's printed pattern (seed and shapes) instead of the two "
         "markers; default on for the ORB observer kinds, off otherwise.",
     )
     observer_latency: Literal["model", "measured"] = Field(

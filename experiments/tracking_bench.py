@@ -27,7 +27,7 @@ The seed's numbers (Table 1 and §4.2-4.3) are kept in ``SEED_TABLE1`` and ``SEE
 for the side-by-side tables. ``run_benchmark`` returns tidy pandas tables; ``plot_*`` write the
 PNG figures (precision curves like seed Figures 11, 12a/c, 14a/c; error over frames like 12b/d,
 14b/d). ``run_tracking_benchmark`` composes the whole benchmark (trackers by name, validation
-sequences, metrics CSV, plots, tables, issue 4's targets): ``benchmarks/bench_tracking.py`` and
+sequences, metrics CSV, plots, tables, the targets): ``benchmarks/bench_tracking.py`` and
 ``pmspm bench-trackers`` both call it.
 """
 
@@ -469,7 +469,7 @@ RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("gk_transt", "dual_transt_refine", "both with the sub-pixel circle fit"),
     ("gk_transt", "dual_transt", "the defaults: GK-TransT with, dual TransT without the fit"),
 )
-#: Issue 4's targets for GK-TransT: precision at 20 px (clean; occlusion and blur), the median
+#: The targets for GK-TransT: precision at 20 px (clean; occlusion and blur), the median
 #: latency (seed 000 Table 1: 16.33 ms) and the GK-TransT / dual TransT latency ratio (seed 0.523).
 TARGET_PRECISION_CLEAN = 0.95
 TARGET_PRECISION_DISTURBED = 0.90
@@ -550,7 +550,7 @@ class BenchmarkReport:
     summary : ``summary_table`` of the metrics; table1 : ``table1`` (clean cases if run).
     runs, seqs : the runs and their sequences (images dropped).
     ratio_median, ratio_mean : GK-TransT / dual TransT latency ratios (NaN unless both ran).
-    checks : issue 4's targets, met or not, one line each (GK-TransT only).
+    checks : the targets, met or not, one line each (GK-TransT only).
     figures : flat figures for ``benchmarks/RESULTS.md`` (SI units in the names).
     notes : the tables and notes as markdown.
     files : the files written (CSV, plots).
@@ -596,7 +596,7 @@ def run_tracking_benchmark(
 ) -> BenchmarkReport:
     """The tracking benchmark of seed 000 §4, composed: the named trackers on ``seeds``
     validation sequences per case (``experiments.sequences.validation_suite``, rendered one at
-    a time), their metrics, the tables and issue 4's targets.
+    a time), their metrics, the tables and the targets.
 
     Writes into ``out_dir``: ``tracking_metrics.csv`` (one row per run),
     ``tracking_precision_<case>.png`` (precision curves, seed Figures 11, 12a/c, 14a/c) and
@@ -731,7 +731,7 @@ def run_tracking_benchmark(
         "Precision at 20 px and success AUC, mean over seeds (seed's precision beside; "
         "re-acquisition = frames after frame 110 until measured within 20 px for 5 frames):"
         "\n\n" + markdown_table(summary[sum_cols]),
-        "Targets (issue 4):\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
+        "Targets:\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
         "Plots: " + ", ".join(f"`{link_prefix}{Path(p).name}`" for p in plots),
     ] if x)
     return BenchmarkReport(metrics, summary, t1, runs, seqs, ratio_med, ratio_mean, checks,

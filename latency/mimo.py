@@ -1,4 +1,4 @@
-"""MIMO check of the three-axis attitude loop with the exact vision delay (issue 5 §4).
+"""MIMO check of the three-axis attitude loop with the exact vision delay.
 
 The per-axis analysis (:func:`latency.margins.attitude_margins`) treats the body axes as three
 independent loops ``P_i = 1/(J_ii s² + b s)``. They are coupled when the centre of mass sits off

@@ -3,7 +3,7 @@
 Stages of one frame k (all times in s of simulated time):
 
 * exposure from ``k T_f`` to ``k T_f + t_exp``; its measurement belongs to mid-exposure
-  ``t_exposure = k T_f + t_exp/2`` (DESIGN.md);
+  ``t_exposure = k T_f + t_exp/2`` (docs/architecture.md, "Conventions");
 * readout: the frame is in memory at ``t_ready = k T_f + t_exp + t_readout``;
 * processing by the observer, with a latency drawn from its model; released at ``t_release``.
 

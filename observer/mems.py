@@ -1,4 +1,4 @@
-"""The MEMS baseline (seed 000 §5, issue 3 §4): an IMU on the rotor and its attitude estimator.
+"""The MEMS baseline (seed 000 §5): an IMU on the rotor and its attitude estimator.
 
 The seed compares its camera against an ICM42605 IMU sampled at 200 Hz with ranges ±2000 °/s and
 ±16 g (seed 000 Table 2), mounted on a fixture that stands in for the rotor's bottom (§5). Its yaw
@@ -132,7 +132,7 @@ class ImuConfig(_Strict):
         0.0,
         ge=0.0,
         description="Our choice: 1σ per-axis scale-factor error, drawn at turn-on; 0 by "
-        "default (not among the terms issue 3 asks for).",
+        "default (not among the terms modelled).",
     )
     accel_noise_density_ug_rthz: float = Field(
         70.0, ge=0.0, description="ICM-42605 datasheet: accelerometer noise 70 µg/√Hz."

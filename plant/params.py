@@ -42,7 +42,7 @@ class MotorParams(_Strict):
         ge=0.0,
         lt=45.0,
         description="Our choice: azimuth offset of the lower coil layer; "
-        "halves the worst condition number of K(q) (DESIGN.md).",
+        "halves the worst condition number of K(q) (docs/plant.md).",
     )
     cutoff_deg: float = Field(40.0, gt=5.0, lt=90.0, description="Our choice: f(phi)=0 beyond it.")
     k_T_Nm_per_A: float = Field(
@@ -168,7 +168,8 @@ class PlantParams(_Strict):
     camera: CameraParams = CameraParams()
     vfc: VFCParams = VFCParams()
     physics_dt_s: float = Field(
-        1.0e-3, gt=0.0, le=5e-3, description="Our choice: 1 kHz physics (issue 5: >= 1 kHz)."
+        1.0e-3, gt=0.0, le=5e-3,
+        description="Our choice: 1 kHz physics (the loop's timing needs >= 1 kHz).",
     )
 
     @classmethod

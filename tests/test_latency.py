@@ -82,7 +82,7 @@ def releases(profile, mode, duration=1.0):
 
 def test_sequential_observer_drops_frames_while_busy():
     # 31.23 ms of processing at a 27.8 ms frame period: every second frame is dropped, so the
-    # update rate halves (issue 5); CSRT's 67.62 ms keeps one frame in three.
+    # update rate halves; CSRT's 67.62 ms keeps one frame in three.
     for profile, keep_every in [("kcf", 1), ("gk_transt", 1), ("dual_transt", 2), ("csrt", 3)]:
         frames = releases(profile, "sequential")
         kept = [f.index for f in frames if not f.dropped]
@@ -122,7 +122,7 @@ def test_measuring_a_profile_is_one_call(tmp_path):
 
 
 def test_measuring_the_orb_observer_profile_is_one_call(tmp_path):
-    """The textured rotor's ORB-AEKF (issue 8): one call gives its per-frame compute time as a
+    """The textured rotor's ORB-AEKF: one call gives its per-frame compute time as a
     profile, which a scenario with an ORB observer then takes as its (reproducible) latency."""
     from experiments.scenario import Scenario, build_loop
     from latency.profile import measure_orb_latency

@@ -1,5 +1,5 @@
 """Scenario defaults that depend on the controller: the MPC's compute time counts as latency
-(issue 5), by default as its median call time measured here, or measured per call."""
+, by default as its median call time measured here, or measured per call."""
 
 import json
 from pathlib import Path

@@ -96,7 +96,7 @@ def test_numpy_kcf_searches_at_an_external_centre(clean):
 
 
 def test_numpy_kcf_comparable_to_opencv_kcf(clean):
-    """Issue 4: the numpy KCF against OpenCV's KCF on the same clean sequence, red marker."""
+    """the numpy KCF against OpenCV's KCF on the same clean sequence, red marker."""
     gt = clean.marker_px[:, 0]
     box0 = box_sensor_to_image(clean.boxes_px[0, 0], clean.binning)
     errs = {}

@@ -183,7 +183,7 @@ def _table(results: dict[str, StepTestResult], cfg: ReproductionConfig, df: pd.D
         "",
         markdown_step_table(df),
         "",
-        "Issue 7's target, least-squares camera RMSE below the seed's camera figures on every "
+        "The target, least-squares camera RMSE below the seed's camera figures on every "
         "axis: " + ", ".join(
             f"{a} {ls[f'{a}_rmse_deg']:.4f}° vs {SEED_RMSE_DEG['camera'][a]}° "
             f"({'met' if met[a] else 'NOT met'})" for a in AXES) + ".",

@@ -24,7 +24,7 @@ class ReproductionConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     renderer: Literal["mujoco", "analytic"] = Field(
-        "mujoco", description="Issue 7: the MuJoCo renderer for this bench (analytic for tests)."
+        "mujoco", description="The MuJoCo renderer for this bench (analytic for tests)."
     )
     tracker: Literal["auto", "gk_transt", "kcf_gk"] = Field(
         "auto",

@@ -1,8 +1,7 @@
 """Train the ``small`` TransT on cached analytic-render crop pairs (CPU, resumable).
 
-Recipe (DESIGN.md "Facts about the dependencies": a 1.9 M-parameter TransT-shaped model with
-TransT's loss weights, AdamW 5e-4 and batch 32 reached 0.1 marker diameters median error in 300
-steps here): TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
+Recipe (a 1.9 M-parameter TransT-shaped model with TransT's loss weights, AdamW 5e-4 and batch
+32 reached 0.1 marker diameters median error in 300 steps in a first trial here, docs/transt.md): TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
 weight 0.0625), AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32,
 a 30-step linear warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1
 (our choice), dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched
