@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--axes", nargs="+", default=list(rp.AXES), choices=list(rp.AXES))
     ap.add_argument("--tracker", default="auto", choices=["auto", "gk_transt", "kcf_gk"])
     ap.add_argument("--no-record", action="store_true",
-                    help="do not append to RESULTS.md nor rewrite docs/reproduction.md")
+                    help="do not record the figures nor rewrite docs/reproduction.md")
     a = ap.parse_args(argv)
     try:  # One intra-op thread: on two shared cores, two PyTorch threads contending with other
         # jobs made the network ~10x slower here (measured); the bench is sequential anyway.
