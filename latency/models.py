@@ -173,10 +173,6 @@ class Empirical(_Model):
     def mean_s(self) -> float:
         return float(np.mean(self.samples_s))
 
-    def percentile_s(self, p: float) -> float:
-        """The p-th percentile (0–100) of the measured latencies, s."""
-        return float(np.percentile(self.samples_s, p))
-
     def save(self, path: str | Path) -> None:
         """Write the profile as JSON."""
         Path(path).write_text(json.dumps(self.model_dump(), indent=1) + "\n")

@@ -149,11 +149,6 @@ class MarkerPairTracker(ABC):
             )
         return cam.sensor_width_px // w
 
-    def expected_shape(self, binning: int) -> tuple[int, int, int]:
-        """(H, W, 3) of a frame binned by ``binning``."""
-        cam = self.params.camera
-        return (cam.sensor_height_px // binning, cam.sensor_width_px // binning, 3)
-
     def check_frame(self, image: object) -> str:
         """"" if ``image`` is a usable frame for the started tracker, else why not
         (``observer.gk.hsv_gate.check_frame`` at the start frame's binning)."""

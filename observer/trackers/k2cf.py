@@ -111,13 +111,9 @@ class K2CF:
     def initialised(self) -> bool:
         return self.kcf.initialised
 
-    def prediction_image_px(self) -> NDArray[np.float64]:
-        """Position predicted for the next frame, H A s (image px; NaN before ``init``)."""
-        return (_H @ _A @ self.x) if self.initialised else np.full(2, np.nan)
-
     def initialize(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
         """Start on the target in ``box_image_px`` (x, y, w, h), image px; ``ValueError`` for
-        an unusable frame or box (see ``NumpyKCF.init``)."""
+        an unusable frame or box (see ``NumpyKCF.initialize``)."""
         t0 = time.perf_counter()
         self.kcf.initialize(frame, box_image_px)
         c = self.kcf.centre_image_px
