@@ -1,5 +1,8 @@
 """Delay-aware nonlinear MPC of the rotor attitude with CasADi.
 
+One module of about 680 lines: the NLP, its solvers, the warm start and the delay compensation
+share the CasADi functions and the command history of one controller object.
+
 Model
 -----
 The prediction model is the plant's CasADi twin driven by torque, ``CasadiTwin.f_torque``

@@ -1,5 +1,8 @@
 """The tracking benchmark of seed 000 §4: metrics per marker, runs, tables and plots.
 
+One module of about 790 lines: its parts (metrics, runs, tables, plots, the whole benchmark) form
+one pipeline that only the benchmark uses; the seams are the section comments below.
+
 **Protocol.** A pair tracker (``observer.trackers``) is started on frame 0 with the true boxes of
 both markers and stepped through frames 1 … N-1; frame 0 is not scored. The trackers of a
 benchmark take turns frame by frame (``run_trackers``), so that on a shared machine they all meet

@@ -1,5 +1,8 @@
 """The MEMS baseline (seed 000 §5): an IMU on the rotor and its attitude estimator.
 
+One module of about 890 lines: the IMU model and its estimator are one baseline, described
+together by seed 000 §5.3 (noise terms, zeroing, yaw decoupling, unwrapping), and tested as one.
+
 The seed compares its camera against an ICM42605 IMU sampled at 200 Hz with ranges ±2000 °/s and
 ±16 g (seed 000 Table 2), mounted on a fixture that stands in for the rotor's bottom (§5). Its yaw
 is compared after an SO(3) decoupling, Ψ = atan2(R21, R11), temporal phase unwrapping and initial
