@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
-from observer.gk.hsv_gate import UNIFORM_PTP_DN
+from observer.gk.hsv_gate import UNIFORM_PTP_DN, check_rgb_image
 from observer.tracking import TrackResult
 from observer.transt.crop import context_side, crop_square, crop_to_box, normalise
 from observer.transt.network import TransTConfig, TransTNet, build_transt
@@ -88,19 +88,6 @@ def hanning_window(n: int) -> NDArray[np.float32]:
     """TransT's cosine window over an n x n score map, flattened row-major (np.hanning outer)."""
     h = np.hanning(n)
     return np.outer(h, h).astype(np.float32).reshape(-1)
-
-
-def check_frame(frame: object) -> str | None:
-    """None if ``frame`` is a usable RGB uint8 image (H, W, 3), else why not."""
-    if not isinstance(frame, np.ndarray):
-        return f"frame is a {type(frame).__name__}, not a numpy array"
-    if frame.dtype != np.uint8:
-        return f"frame dtype is {frame.dtype}, expected uint8 RGB"
-    if frame.ndim != 3 or frame.shape[2] != 3:
-        return f"frame shape is {frame.shape}, expected (H, W, 3) RGB"
-    if frame.shape[0] < 2 or frame.shape[1] < 2:
-        return f"frame is empty or degenerate: shape {frame.shape}"
-    return None
 
 
 class _Runner:
@@ -227,8 +214,8 @@ class TransTTracker:
         uniform template region (an all-black frame).
         """
         t0 = time.perf_counter()
-        why = check_frame(frame_rgb)
-        if why is not None:
+        why = check_rgb_image(frame_rgb)
+        if why:
             raise ValueError(f"TransTTracker.initialize: {why}")
         box = np.asarray(box_image_px, dtype=float)
         if box.shape != (4,) or not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
@@ -288,7 +275,7 @@ class TransTTracker:
             return nan_box, 0.0, "not initialised: call initialize first", np.full(2, np.nan), 0.0
         side = context_side(self.size_image_px, self.config.search_factor)
         centre = self.centre_image_px
-        why = check_frame(frame)
+        why = check_rgb_image(frame) or None
         if why is None and search_centre is not None:
             try:
                 sc = np.asarray(search_centre, dtype=float).reshape(2)
