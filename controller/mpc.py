@@ -1,6 +1,6 @@
 """Delay-aware nonlinear MPC of the rotor attitude with CasADi.
 
-One module of about 680 lines: the NLP, its solvers, the warm start and the delay compensation
+One module of about 690 lines: the NLP, its solvers, the warm start and the delay compensation
 share the CasADi functions and the command history of one controller object.
 
 Model
@@ -279,18 +279,7 @@ class MPCController(Controller):
         r = weights[0][2]
         P = [terminal_weight(self.J[i], h, *weights[i]) for i in range(3)]
 
-        # One shooting interval: M RK4 sub-steps of f_torque.
-        x = ca.SX.sym("x", 7)
-        T = ca.SX.sym("T", 3)
-        xi = x
-        f, hm = self.model_twin.f_torque, h / M
-        for _ in range(M):  # plain RK4 (no renormalisation: it would only add curvature)
-            k1 = f(xi, T)
-            k2 = f(xi + hm / 2 * k1, T)
-            k3 = f(xi + hm / 2 * k2, T)
-            k4 = f(xi + hm * k3, T)
-            xi = xi + hm / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        Phi = ca.Function("Phi", [x, T], [xi])
+        Phi = self._shooting_step(h, M)
 
         Xs = [ca.SX.sym(f"X{k}", 7) for k in range(N + 1)]
         Us = [ca.SX.sym(f"U{k}", 3) for k in range(N)]
@@ -360,11 +349,33 @@ class MPCController(Controller):
         nlp = {"x": wv, "f": J_cost, "g": G, "p": pvec}
         self._nw = int(nlp["x"].numel())
         self._ng = int(nlp["g"].numel())
-        # Gauss-Newton-type Hessian: the cost is quadratic in w (e_k is linear in q_k for a
-        # given q_ref), so its Hessian is exact. Of the constraints only the path constraints
-        # keep their (cheap, diagonal) curvature, with the multiplier signs projected so that
-        # the Hessian stays positive semidefinite (casadi: lam_g < 0 at an active lower bound,
-        # > 0 at an active upper bound); the curvature of the RK4 dynamics is left out.
+        self._hess_gn = self._gauss_newton_hessian(J_cost, wv, pvec, G, tilt_rows, ball_rows)
+        self._nlp = nlp
+        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+
+    def _shooting_step(self, h: float, M: int) -> ca.Function:
+        """One shooting interval of ``h`` (s): ``M`` plain RK4 sub-steps of the twin's
+        ``f_torque`` (no renormalisation of the quaternion: it would only add curvature)."""
+        x = ca.SX.sym("x", 7)
+        T = ca.SX.sym("T", 3)
+        xi = x
+        f, hm = self.model_twin.f_torque, h / M
+        for _ in range(M):
+            k1 = f(xi, T)
+            k2 = f(xi + hm / 2 * k1, T)
+            k3 = f(xi + hm / 2 * k2, T)
+            k4 = f(xi + hm * k3, T)
+            xi = xi + hm / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return ca.Function("Phi", [x, T], [xi])
+
+    def _gauss_newton_hessian(self, J_cost: ca.SX, wv: ca.SX, pvec: ca.SX, G: ca.SX,
+                              tilt_rows: list[int], ball_rows: list[int]) -> ca.Function:
+        """Gauss-Newton-type Hessian of the Lagrangian. The cost is quadratic in w (e_k is
+        linear in q_k for a given q_ref), so its Hessian is exact. Of the constraints only the
+        path constraints keep their (cheap, diagonal) curvature, with the multiplier signs
+        projected so that the Hessian stays positive semidefinite (casadi: lam_g < 0 at an
+        active lower bound, > 0 at an active upper bound); the curvature of the RK4 dynamics
+        is left out."""
         lam_f = ca.SX.sym("lam_f")
         lam_g = ca.SX.sym("lam_g", self._ng)
         L_path = 0
@@ -373,17 +384,10 @@ class MPCController(Controller):
         for i in ball_rows:
             L_path += ca.fmax(lam_g[i], 0) * G[i]
         H = lam_f * ca.hessian(J_cost, wv)[0] + ca.hessian(L_path, wv)[0]
-        if cfg.solver == "ipopt":  # IPOPT takes the upper triangle only
+        if self.config.solver == "ipopt":  # IPOPT takes the upper triangle only
             H = ca.triu(H)
-        self._hess_gn = ca.Function(
-            "nlp_hess_l",
-            [wv, pvec, lam_f, lam_g],
-            [H],
-            ["x", "p", "lam_f", "lam_g"],
-            ["hess_gamma_x_x"],
-        )
-        self._nlp = nlp
-        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+        return ca.Function("nlp_hess_l", [wv, pvec, lam_f, lam_g], [H],
+                           ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
 
     def _solver_spec(self) -> tuple[str]:
         return ("ipopt",) if self.config.solver == "ipopt" else ("sqpmethod",)
