@@ -249,6 +249,72 @@ def _range_of(colour: Colour | HSVRange) -> HSVRange:
     return {"red": RED, "yellow": YELLOW}[colour]
 
 
+def _subpixel_edge(
+    region: NDArray[np.uint8], alpha: NDArray[np.float32], cfg: SubpixelConfig
+) -> NDArray[np.float64] | SubpixelResult:
+    """Sub-pixel edge points (crop px) of the marker ``region``: each outer contour pixel moved
+    along the ray from the region's centroid to where the coverage ``alpha`` crosses 1/2
+    (seed 004 §4.2). Contour pixels on the crop's border are dropped (the region may continue
+    outside it). Returns an invalid ``SubpixelResult`` when too few points remain."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    contour = max(contours, key=len).reshape(-1, 2).astype(float)
+    m = cv2.moments(region, binaryImage=True)
+    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    ray = contour - centroid
+    norm = np.hypot(ray[:, 0], ray[:, 1])
+    keep = norm > 0.5
+    hh, ww = region.shape
+    on_border = (
+        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
+        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
+    )
+    # Pixels on the crop's border: the region may continue outside it, not a real edge.
+    keep &= ~on_border
+    contour, ray, norm = contour[keep], ray[keep], norm[keep]
+    if len(contour) < cfg.min_points:
+        return SubpixelResult.invalid("too few contour points", len(contour))
+    u = ray / norm[:, None]
+    t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
+    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
+    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
+    prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=float("nan"))
+    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
+    cross = inside & outside
+    t_mid = 0.5 * (t[:-1] + t[1:])
+    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
+    found = cross[np.arange(len(j)), j]
+    a0 = prof[np.arange(len(j)), j].astype(float)
+    a1 = prof[np.arange(len(j)), j + 1].astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
+    found &= np.isfinite(ts)
+    edge = contour[found] + u[found] * ts[found, None]
+    if len(edge) < cfg.min_points:
+        return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
+    return edge
+
+
+def _robust_circle(
+    pts: NDArray[np.float64], c0: NDArray[np.float64], R0: float, cfg: SubpixelConfig
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64], NDArray[np.float64], int]:
+    """Geometric circle fit from ``(c0, R0)`` with up to three rounds of rejecting points whose
+    residual exceeds ``outlier_k`` robust sigmas (MAD) or ``outlier_floor_px``, keeping at least
+    ``min_points``. Returns (centre, radius, residuals, points kept, points rejected)."""
+    c, R, res = fit_circle_geometric(pts, c0, R0, cfg.max_iter)
+    n_out = 0
+    for _ in range(3):
+        med = float(np.median(res))
+        sigma = 1.4826 * float(np.median(np.abs(res - med)))
+        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
+        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
+            break
+        n_out += int(bad_pts.sum())
+        pts = pts[~bad_pts]
+        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
+    return c, R, res, pts, n_out
+
+
 def refine_marker_centre(
     image_rgb: NDArray[np.uint8],
     colour: Colour | HSVRange,
@@ -332,42 +398,10 @@ def refine_marker_centre(
     alpha = ((crop_f - bg) @ (d / dd)).astype(np.float32)
 
     # 2. contour, moved to the alpha = 1/2 crossing along the ray from the centroid
-    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    contour = max(contours, key=len).reshape(-1, 2).astype(float)
-    m = cv2.moments(region, binaryImage=True)
-    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
-    ray = contour - centroid
-    norm = np.hypot(ray[:, 0], ray[:, 1])
-    keep = norm > 0.5
+    edge = _subpixel_edge(region, alpha, cfg)
+    if isinstance(edge, SubpixelResult):
+        return edge
     hh, ww = region.shape
-    on_border = (
-        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
-        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
-    )
-    # Pixels on the crop's border: the region may continue outside it, not a real edge.
-    keep &= ~on_border
-    contour, ray, norm = contour[keep], ray[keep], norm[keep]
-    if len(contour) < cfg.min_points:
-        return SubpixelResult.invalid("too few contour points", len(contour))
-    u = ray / norm[:, None]
-    t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
-    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
-    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
-    prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                     borderValue=float("nan"))
-    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
-    cross = inside & outside
-    t_mid = 0.5 * (t[:-1] + t[1:])
-    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
-    found = cross[np.arange(len(j)), j]
-    a0 = prof[np.arange(len(j)), j].astype(float)
-    a1 = prof[np.arange(len(j)), j + 1].astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
-    found &= np.isfinite(ts)
-    edge = contour[found] + u[found] * ts[found, None]
-    if len(edge) < cfg.min_points:
-        return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
 
     # 3. burr removal (seed 004 eq. 25)
     spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
@@ -388,17 +422,7 @@ def refine_marker_centre(
     c_alg, R_alg = fit_circle_algebraic(pts)
     if not np.all(np.isfinite(c_alg)):
         return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
-    c, R, res = fit_circle_geometric(pts, c_alg, R_alg, cfg.max_iter)
-    n_out = 0
-    for _ in range(3):
-        med = float(np.median(res))
-        sigma = 1.4826 * float(np.median(np.abs(res - med)))
-        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
-        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
-            break
-        n_out += int(bad_pts.sum())
-        pts = pts[~bad_pts]
-        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
+    c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
     rms = float(np.sqrt(np.mean(res * res)))
     cover = _arc_coverage(pts, c)
     centre = c + offset
