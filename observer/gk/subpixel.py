@@ -249,6 +249,28 @@ def _range_of(colour: Colour | HSVRange) -> HSVRange:
     return {"red": RED, "yellow": YELLOW}[colour]
 
 
+def _coverage(
+    crop: NDArray[np.uint8], region: NDArray[np.uint8], cfg: SubpixelConfig
+) -> NDArray[np.float32] | SubpixelResult:
+    """The colour coverage map α = ((p − b)·(f − b)) / |f − b|² of ``crop`` (f, b: median RGB
+    inside the eroded marker ``region`` and in a ring around it; seed 004 §4.2). Returns an
+    invalid ``SubpixelResult`` when no background is visible or the contrast |f − b| is below
+    ``min_contrast_dn``."""
+    inner = cv2.erode(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(inner) < 3:
+        inner = region
+    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(ring) < 3:
+        return SubpixelResult.invalid("no background visible around the marker in the roi")
+    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
+    crop_f = crop.astype(np.float32)
+    d = fg - bg
+    dd = float(d @ d)
+    if math.sqrt(dd) < cfg.min_contrast_dn:
+        return SubpixelResult.invalid(f"marker contrast {math.sqrt(dd):.1f} DN too low")
+    return ((crop_f - bg) @ (d / dd)).astype(np.float32)
+
+
 def _subpixel_edge(
     region: NDArray[np.uint8], alpha: NDArray[np.float32], cfg: SubpixelConfig
 ) -> NDArray[np.float64] | SubpixelResult:
@@ -383,19 +405,9 @@ def refine_marker_centre(
     r_area = math.sqrt(area / math.pi)
 
     # marker and background colours -> coverage map alpha
-    inner = cv2.erode(region, _ELLIPSE3, iterations=2)
-    if cv2.countNonZero(inner) < 3:
-        inner = region
-    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
-    if cv2.countNonZero(ring) < 3:
-        return SubpixelResult.invalid("no background visible around the marker in the roi")
-    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
-    crop_f = crop.astype(np.float32)
-    d = fg - bg
-    dd = float(d @ d)
-    if math.sqrt(dd) < cfg.min_contrast_dn:
-        return SubpixelResult.invalid(f"marker contrast {math.sqrt(dd):.1f} DN too low")
-    alpha = ((crop_f - bg) @ (d / dd)).astype(np.float32)
+    alpha = _coverage(crop, region, cfg)
+    if isinstance(alpha, SubpixelResult):
+        return alpha
 
     # 2. contour, moved to the alpha = 1/2 crossing along the ray from the centroid
     edge = _subpixel_edge(region, alpha, cfg)
