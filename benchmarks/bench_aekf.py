@@ -1,4 +1,4 @@
-"""Quaternion EKF vs AEKF on marker pixels, and delay compensation (issue 3 §3).
+"""Quaternion EKF vs AEKF on marker pixels, and delay compensation.
 
 A 3 s MuJoCo run under a known torque (spin plus a wobble below the tilt stop); frames at 36/s
 with noise sigma_true; estimates released after the seed's latencies. Reports the RMS geodesic
@@ -15,6 +15,7 @@ import time
 import numpy as np
 from _report import record
 
+from latency.models import SEED_LATENCY_S
 from observer.aekf import AEKFConfig, QuaternionAEKF
 from plant import attitude as A
 from plant.camera import marker_pixels
@@ -66,7 +67,8 @@ def main() -> None:
     qs = truth()
     figures: dict[str, float] = {}
     all_times = []
-    for delay, name in [(16.33e-3, "gk_transt"), (31.23e-3, "dual_transt")]:
+    for name in ("gk_transt", "dual_transt"):
+        delay = SEED_LATENCY_S[name]
         for sigma in (1.0, 4.0):
             for adaptive in (False, True):
                 c, u, times = run(qs, adaptive, delay, sigma)

@@ -1,4 +1,4 @@
-"""Controller compute cost and step responses (issue 5 §1).
+"""Controller compute cost and step responses.
 
 * PID: wall-clock time per ``command`` call.
 * MPC: solve time (median, p95) of every solver option on the same closed-loop scenarios,
@@ -98,7 +98,7 @@ def main() -> None:
             if label == "step20":
                 figures[f"mpc_{name}_step20_max_tilt_deg"] = float(np.degrees(run["tilt"].max()))
         s = np.asarray(mpc.solve_times_s)
-        c = np.asarray(mpc.command_times_s)
+        c = np.asarray(mpc.compute_times_s)
         figures[f"mpc_{name}_solve_median_s"] = float(np.median(s))
         figures[f"mpc_{name}_solve_p95_s"] = float(np.percentile(s, 95))
         figures[f"mpc_{name}_command_median_s"] = float(np.median(c))

@@ -1,5 +1,5 @@
 """Phase margin against vision delay for the toolkit's PID and MPC (analysis) and step-response
-metrics against delay for both (simulation) — issue 5's curves, with the seed's 16.33 ms
+metrics against delay for both (simulation), with the seed's 16.33 ms
 (GK-TransT) and 31.23 ms (dual TransT) marked.
 
 PID: exact sampled-data margins of ``controller.pid`` as it runs (experiments.study.margins_table),

@@ -19,7 +19,7 @@ Two sources of main-marker boxes feed ``GKAssist`` (it must work behind any trac
   jittered by N(0, 2 sensor px) per axis (our choice, a tracker's box noise); it keeps reporting
   a box during the occlusion, which the HSV gate must reject.
 * ``kcf``: OpenCV's TrackerKCF on the binned frame, started on the first true box. A stand-in
-  for the integration of issue 4: when GK had to use its prediction, KCF is restarted on the
+  for the GK integration: when GK had to use its prediction, KCF is restarted on the
   predicted box if that box passes the HSV gate (the Kalman-predicted window of K²CF,
   seed 004 §3.2.2).
 

@@ -1,4 +1,4 @@
-"""Speed of the timed closed loop (issue 5 acceptance): simulated seconds per wall second.
+"""Speed of the timed closed loop: simulated seconds per wall second.
 
 * measurement-model mode with PID and the per-frame least-squares observer (the sweep setting),
   and with the AEKF observer;
@@ -52,7 +52,7 @@ def main() -> None:
         "Timed closed loop: simulated time per wall time",
         figures,
         notes="5° tilt step, 1 kHz MuJoCo physics with exact event times, 36 frames/s, "
-        "GK-TransT's seed latency (16.33 ms) in the pipeline. Targets (issue 5): >= 200x for the "
+        "GK-TransT's seed latency (16.33 ms) in the pipeline. Targets: >= 200x for the "
         "measurement-model loop with PID, >= 0.5x for image-in-the-loop with the analytic "
         "renderer and a ~16 ms observer.",
     )

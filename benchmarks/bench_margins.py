@@ -32,10 +32,11 @@ from _report import HERE, record
 from matplotlib.figure import Figure
 
 from latency.margins import attitude_margins, loop_margins, loop_model, pade_margins
+from latency.models import SEED_LATENCY_S
 from plant.params import PlantParams
 
-GK_TRANST_S = 16.33e-3  # seed 000 Table 1
-DUAL_TRANST_S = 31.23e-3  # seed 000 Table 1
+GK_TRANST_S = SEED_LATENCY_S["gk_transt"]
+DUAL_TRANST_S = SEED_LATENCY_S["dual_transt"]
 LEAD_RATIO = 9.0
 
 

@@ -1,4 +1,4 @@
-"""The three-axis (MIMO) loop against the per-axis analysis (issue 5 §4): margins of the PID
+"""The three-axis (MIMO) loop against the per-axis analysis: margins of the PID
 loop at GK-TransT's and the dual TransT's latency, for a centred rotor and for a centre of mass
 2 mm / 1 mm / −3 mm off the pivot at 15° tilt, and the time the check takes.
 

@@ -1,4 +1,4 @@
-"""Attitude solvers of issue 3 §1: accuracy against the CRB, time per frame, PnP ratios,
+"""Attitude solvers: accuracy against the CRB, time per frame, PnP ratios,
 self-calibration recovery.
 
 1. Accuracy: the seed's closed form (seed 000 §2.3-2.5), the CoR least-squares solver
@@ -275,7 +275,7 @@ def main() -> None:
         "bench_solvers",
         "Attitude solvers: closed form, CoR least squares, CRB, PnP, self-calibration",
         figures,
-        notes="Issue 3 §1. Seed 000's closed form and the CoR least-squares solver (seed 002 §2.4) "
+        notes="Seed 000's closed form and the CoR least-squares solver (seed 002 §2.4) "
         "on the two-marker VFC against the Cramér–Rao bound; PnP (OpenCV 5.0) against the CoR "
         "solver on the 4-marker VFC (seed 002 §3.5); batch self-calibration (seed 002 §2.5) on a "
         "6-marker target, 5 batches of 150 frames at σ = 0.1 px. Angles in rad in the table; "

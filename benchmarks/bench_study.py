@@ -1,4 +1,4 @@
-"""Wall time of the headline study (issue 6: under 10 minutes on two cores) and its key figures.
+"""Wall time of the headline study (under 10 minutes on two cores) and its key figures.
 
 Runs ``experiments.study.run_study`` with the embedded default into a temporary folder, as
 ``make study`` does after the install, and records the wall time and the headline margins.
@@ -39,7 +39,7 @@ def main() -> None:
         "Headline study (pmspm study): wall time",
         figures,
         notes="The embedded default StudyConfig, in-process (the install of `make study` not "
-        "included). Issue 6 target: under 10 minutes on two cores.",
+        "included). Target: under 10 minutes on two cores.",
     )
 
 

@@ -15,9 +15,10 @@ marker, box centres), the numpy KCF and K²CF (one per marker).
 
 Writes ``benchmarks/results/tracking_*.png`` (precision curves per case like seed Figures 11,
 12a/c, 14a/c; centre error over frames of the first sequence per case like 12b/d, 14b/d),
-``results/tracking_metrics.csv`` (one row per run) and appends the tables to ``RESULTS.md``.
+``results/tracking_metrics.csv`` (one row per run) and records its figures (``RESULTS.md`` is
+generated from them).
 
-The composition (trackers, sequences, metrics, tables, plots, issue 4's targets) is
+The composition (trackers, sequences, metrics, tables, plots, the targets) is
 ``experiments.tracking_bench.run_tracking_benchmark``, shared with ``pmspm bench-trackers``; this
 script adds the torch thread setting and the record in RESULTS.md.
 
@@ -61,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
                     "dual_transt_refine (dual TransT with it)")
     ap.add_argument("--stand-in", action="store_true",
                     help="numpy KCF in place of the TransT network (plumbing check)")
-    ap.add_argument("--no-record", action="store_true", help="do not append to RESULTS.md")
+    ap.add_argument("--no-record", action="store_true",
+                    help="do not record the figures (results/*.json, RESULTS.md)")
     ap.add_argument("--torch-threads", type=int, default=1,
                     help="torch intra-op threads (default 1: on this shared 2-core machine the "
                     "small network was as fast with 1 thread and far steadier)")

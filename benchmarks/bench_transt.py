@@ -37,11 +37,12 @@ SEQ_SEED = 3001
 
 def run(trk: TransTTracker, frames: list, n: int) -> tuple[list[float], list[float]]:
     """Track frames[1 : n + 1] from the true first box; (times s, centre errors sensor px)."""
-    trk.init(frames[0].image, red_box_image(frames[0]))
+    trk.initialize(frames[0].image, red_box_image(frames[0]))
     times, errs = [], []
     for f in frames[1 : n + 1]:
-        box, _ = trk.track(f.image)
-        times.append(trk.compute_time_s)
+        r = trk.track(f.image)
+        box = r.box_image_px
+        times.append(r.compute_time_s)
         c = (box[:2] + box[2:] / 2 + 0.5) * f.binning - 0.5
         errs.append(float(np.hypot(*(c - f.marker_px[0]))))
     return times, errs
@@ -58,7 +59,7 @@ def main() -> None:
         t0 = time.perf_counter()
         try:
             trk = TransTTracker(net, backend=backend)
-            trk.init(frames[0].image, red_box_image(frames[0]))
+            trk.initialize(frames[0].image, red_box_image(frames[0]))
             trk.track(frames[1].image)  # compiles / exports here
         except Exception as exc:  # an optional backend that does not work here
             print(f"backend {backend} unavailable: {exc!r}")

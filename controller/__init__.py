@@ -1,4 +1,4 @@
-"""Attitude controllers (PID, MPC) behind one interface (issue 5), and reference trajectories.
+"""Attitude controllers (PID, MPC) behind one interface, and reference trajectories.
 
 ``command(estimate, reference, t) -> torque`` (controller/base.py): the torque on the rotor in the
 stator frame, N·m. See docs/controllers.md for the tuning rule, the MPC formulation and the

@@ -1,15 +1,20 @@
-"""The controller seam (DESIGN.md): ``command(estimate, reference, t) -> torque``.
+"""The controller interface: ``command(estimate, reference, t) -> torque``.
 
 A controller receives the observer's latest ``Estimate`` (which carries its own ``t_exposure``
 and ``t_available``), the reference trajectory and the current time, and returns the torque on
 the rotor in the stator frame (N·m). The closed loop measures the wall-clock time of every call
-and adds it to the latency; controllers may also report their own solve time.
+and adds it to the latency; controllers keep their own per-call times in ``compute_times_s``.
+
+**Invalid estimates** have one policy, the controller's ``invalid_command`` (``InvalidCommand``):
+the loop hands every estimate to the controller, valid or not, and the controller answers an
+invalid one with zero torque or by holding its last command. The loop overrides only a command
+that is not a finite (3,) torque (with zero torque, reported back by ``record_command``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,11 +38,25 @@ class Reference(Protocol):
     def sample(self, t: float) -> RefSample: ...
 
 
+#: What a controller commands while its estimate is invalid: zero torque, or its last command.
+InvalidCommand = Literal["zero", "hold"]
+
+
 class Controller(Protocol):
-    """Attitude controller. ``reset()`` clears its internal state (integrators, warm starts)."""
+    """Attitude controller. ``reset()`` clears its internal state (integrators, warm starts).
+
+    Subclass it to inherit the no-op ``record_command`` (controllers without a command
+    history)."""
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
-        """Torque (3,), N·m, stator frame, to apply from time ``t`` (s)."""
+        """Torque (3,), N·m, stator frame, to apply from time ``t`` (s); an invalid estimate
+        gets the controller's ``invalid_command``."""
         ...
 
     def reset(self) -> None: ...
+
+    def record_command(self, t_apply: float, torque: NDArray[np.float64]) -> None:
+        """The loop replaced this controller's command by ``torque`` (N·m, stator frame) from
+        ``t_apply`` (s). Controllers that predict with their own command history (the MPC's
+        delay compensation) record it; the others ignore it."""
+        return None

@@ -1,4 +1,7 @@
-"""Delay-aware nonlinear MPC of the rotor attitude with CasADi (issue 5 §1).
+"""Delay-aware nonlinear MPC of the rotor attitude with CasADi.
+
+One module of about 690 lines: the NLP, its solvers, the warm start and the delay compensation
+share the CasADi functions and the command history of one controller object.
 
 Model
 -----
@@ -8,7 +11,7 @@ stator-frame torque T (N·m), viscous and smooth Coulomb friction, gravity and t
 term. We take the torque, not the 16 coil currents, as the input: 3 inputs instead of 16 and no
 K(q) (16 x 18 window terms) in the prediction, and the allocator (plant/torque.py) delivers any
 torque inside the motor's all-direction capacity exactly. The input constraint is therefore the
-ball ``|T_k|² <= T_lim²`` with ``T_lim = margin x worst_case_capacity`` (controller/pid.py), plus
+ball ``|T_k|² <= T_lim²`` with ``T_lim = margin x worst_case_capacity`` (plant/torque.py), plus
 the box ``|T_k,i| <= T_lim`` that keeps every QP bounded. Inside the optimisation the twin is
 built with a wider Coulomb smoothing (``model_coulomb_smoothing_rad_s``, see MPCConfig); the
 delay compensation uses the plant's own law.
@@ -65,7 +68,7 @@ its own ``t_0``; ``record_command`` lets the loop report overrides). The compute
 Solve time
 ----------
 Every call is timed with the controller's ``clock`` (``time.perf_counter`` by default):
-``solve_times_s`` (the solver call) and ``command_times_s`` (the whole call, the latency the loop
+``solve_times_s`` (the solver call) and ``compute_times_s`` (the whole call, the latency the loop
 sees); ``solve_stats()`` gives the median and p95.
 """
 
@@ -82,16 +85,15 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Reference, RefSample
+from controller.base import Controller, InvalidCommand, Reference, RefSample
 from controller.pid import (
     RateFromAttitude,
     estimate_usable,
-    inertia_about_centre,
-    worst_case_capacity,
 )
 from plant import attitude
 from plant.estimate import Estimate
 from plant.params import PlantParams
+from plant.torque import worst_case_capacity
 from plant.twin import CasadiTwin
 
 Solver = Literal["sqp_hpipm", "sqp_qpoases", "sqp_qrqp", "sqp_osqp", "ipopt"]
@@ -181,7 +183,10 @@ class MPCConfig(BaseModel):
     prediction_step_s: float = Field(
         1.0e-3, gt=0.0, description="Our choice: 1 ms, the physics step (plant/params.py)."
     )
-    invalid_command: Literal["zero", "hold"] = Field("zero", description="Our choice: zero.")
+    invalid_command: InvalidCommand = Field(
+        "hold", description="Our choice: hold the last command while the estimate is invalid "
+        "(controller.base: the one invalid-estimate policy)."
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> MPCConfig:
@@ -217,11 +222,11 @@ def terminal_weight(J: float, h: float, q_th: float, q_w: float, r: float) -> ND
     return scipy.linalg.solve_discrete_are(A, B, h * np.diag([q_th, q_w]), np.array([[h * r]]))
 
 
-class MPCController:
+class MPCController(Controller):
     """Nonlinear MPC behind ``command(estimate, reference, t) -> stator torque (N·m)``.
 
     Attributes: ``last_plan`` (states (N+1, 7) and torques (N, 3) of the last solution),
-    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``command_times_s``,
+    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``compute_times_s``,
     ``unconverged`` (solves stopped by the iteration cap or reporting no success; their torque
     is still used), ``failures`` (solves with no finite solution or a solver error; the previous
     torque is held), ``invalid_count`` (invalid estimates; ``invalid_command`` applies).
@@ -245,7 +250,7 @@ class MPCController:
         else:
             rotor = self.params.rotor.model_copy(update={"coulomb_smoothing_rad_s": eps})
             self.model_twin = CasadiTwin(self.params.model_copy(update={"rotor": rotor}))
-        self.J = np.diag(inertia_about_centre(self.params.rotor)).copy()
+        self.J = np.diag(self.params.rotor.inertia_about_centre_kgm2).copy()
         if cfg.torque_limit_Nm is not None:
             self.torque_limit = float(cfg.torque_limit_Nm)
         else:
@@ -254,7 +259,7 @@ class MPCController:
         self._build_prediction()
         self._build_nlp()
         self.solve_times_s: list[float] = []
-        self.command_times_s: list[float] = []
+        self.compute_times_s: list[float] = []
         self.reset()
 
     # --- construction ----------------------------------------------------------------------
@@ -290,18 +295,7 @@ class MPCController:
         r = weights[0][2]
         P = [terminal_weight(self.J[i], h, *weights[i]) for i in range(3)]
 
-        # One shooting interval: M RK4 sub-steps of f_torque.
-        x = ca.SX.sym("x", 7)
-        T = ca.SX.sym("T", 3)
-        xi = x
-        f, hm = self.model_twin.f_torque, h / M
-        for _ in range(M):  # plain RK4 (no renormalisation: it would only add curvature)
-            k1 = f(xi, T)
-            k2 = f(xi + hm / 2 * k1, T)
-            k3 = f(xi + hm / 2 * k2, T)
-            k4 = f(xi + hm * k3, T)
-            xi = xi + hm / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        Phi = ca.Function("Phi", [x, T], [xi])
+        Phi = self._shooting_step(h, M)
 
         Xs = [ca.SX.sym(f"X{k}", 7) for k in range(N + 1)]
         Us = [ca.SX.sym(f"U{k}", 3) for k in range(N)]
@@ -371,11 +365,33 @@ class MPCController:
         nlp = {"x": wv, "f": J_cost, "g": G, "p": pvec}
         self._nw = int(nlp["x"].numel())
         self._ng = int(nlp["g"].numel())
-        # Gauss-Newton-type Hessian: the cost is quadratic in w (e_k is linear in q_k for a
-        # given q_ref), so its Hessian is exact. Of the constraints only the path constraints
-        # keep their (cheap, diagonal) curvature, with the multiplier signs projected so that
-        # the Hessian stays positive semidefinite (casadi: lam_g < 0 at an active lower bound,
-        # > 0 at an active upper bound); the curvature of the RK4 dynamics is left out.
+        self._hess_gn = self._gauss_newton_hessian(J_cost, wv, pvec, G, tilt_rows, ball_rows)
+        self._nlp = nlp
+        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+
+    def _shooting_step(self, h: float, M: int) -> ca.Function:
+        """One shooting interval of ``h`` (s): ``M`` plain RK4 sub-steps of the twin's
+        ``f_torque`` (no renormalisation of the quaternion: it would only add curvature)."""
+        x = ca.SX.sym("x", 7)
+        T = ca.SX.sym("T", 3)
+        xi = x
+        f, hm = self.model_twin.f_torque, h / M
+        for _ in range(M):
+            k1 = f(xi, T)
+            k2 = f(xi + hm / 2 * k1, T)
+            k3 = f(xi + hm / 2 * k2, T)
+            k4 = f(xi + hm * k3, T)
+            xi = xi + hm / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return ca.Function("Phi", [x, T], [xi])
+
+    def _gauss_newton_hessian(self, J_cost: ca.SX, wv: ca.SX, pvec: ca.SX, G: ca.SX,
+                              tilt_rows: list[int], ball_rows: list[int]) -> ca.Function:
+        """Gauss-Newton-type Hessian of the Lagrangian. The cost is quadratic in w (e_k is
+        linear in q_k for a given q_ref), so its Hessian is exact. Of the constraints only the
+        path constraints keep their (cheap, diagonal) curvature, with the multiplier signs
+        projected so that the Hessian stays positive semidefinite (casadi: lam_g < 0 at an
+        active lower bound, > 0 at an active upper bound); the curvature of the RK4 dynamics
+        is left out."""
         lam_f = ca.SX.sym("lam_f")
         lam_g = ca.SX.sym("lam_g", self._ng)
         L_path = 0
@@ -384,17 +400,10 @@ class MPCController:
         for i in ball_rows:
             L_path += ca.fmax(lam_g[i], 0) * G[i]
         H = lam_f * ca.hessian(J_cost, wv)[0] + ca.hessian(L_path, wv)[0]
-        if cfg.solver == "ipopt":  # IPOPT takes the upper triangle only
+        if self.config.solver == "ipopt":  # IPOPT takes the upper triangle only
             H = ca.triu(H)
-        self._hess_gn = ca.Function(
-            "nlp_hess_l",
-            [wv, pvec, lam_f, lam_g],
-            [H],
-            ["x", "p", "lam_f", "lam_g"],
-            ["hess_gamma_x_x"],
-        )
-        self._nlp = nlp
-        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+        return ca.Function("nlp_hess_l", [wv, pvec, lam_f, lam_g], [H],
+                           ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
 
     def _solver_spec(self) -> tuple[str]:
         return ("ipopt",) if self.config.solver == "ipopt" else ("sqpmethod",)
@@ -463,14 +472,14 @@ class MPCController:
         self.last_t0 = np.nan
         self.last_status = ""
         self.last_solve_time_s = 0.0
-        self.last_command_time_s = 0.0
+        self.last_compute_time_s = 0.0
         self.failures = 0
         self.unconverged = 0
         self.invalid_count = 0
 
     def solve_stats(self) -> dict[str, float]:
         """Median and 95th percentile of the solver time and of the whole call, s."""
-        s, c = np.asarray(self.solve_times_s), np.asarray(self.command_times_s)
+        s, c = np.asarray(self.solve_times_s), np.asarray(self.compute_times_s)
         out = {"n": float(len(s))}
         for name, v in (("solve", s), ("command", c)):
             out[f"{name}_median_s"] = float(np.median(v)) if len(v) else np.nan
@@ -481,7 +490,7 @@ class MPCController:
         """The compute latency assumed for the prediction, s."""
         if self.config.compute_latency_s is not None:
             return self.config.compute_latency_s
-        recent = self.command_times_s[-20:]
+        recent = self.compute_times_s[-20:]
         return float(np.median(recent)) if recent else 0.0
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
@@ -490,8 +499,8 @@ class MPCController:
         try:
             return self._command(estimate, reference, float(t))
         finally:
-            self.last_command_time_s = self.clock() - t_call
-            self.command_times_s.append(self.last_command_time_s)
+            self.last_compute_time_s = self.clock() - t_call
+            self.compute_times_s.append(self.last_compute_time_s)
 
     def first_torque(
         self, x0: ArrayLike, reference: Reference, t0: float = 0.0

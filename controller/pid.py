@@ -1,4 +1,4 @@
-"""PID attitude control on SO(3) with a crossover-based tuning rule (issue 5 §1).
+"""PID attitude control on SO(3) with a crossover-based tuning rule.
 
 Control law (per body axis i of the *estimated* rotor frame)
 ------------------------------------------------------------
@@ -27,8 +27,8 @@ largest torque available in *every* direction at one attitude is the zonotope's 
 the origin, ``min_n i_max Σ_k |n · k_k|`` over unit n, attained at a facet normal
 ``n ∝ k_a × k_b`` (a 3-D zonotope's facets are spanned by pairs of generators). ``T_lim`` defaults
 to ``margin`` times the minimum of that inradius over a grid of the tilt workspace
-(``worst_case_capacity``); tests/test_pid.py checks the inradius against the LP capacity of
-tests/test_torque.py.
+(``plant.torque.worst_case_capacity``); tests/test_pid.py checks the inradius against the LP
+capacity of tests/test_torque.py.
 
 Tuning rule (our formulation of a symmetric-optimum-like rule for ``P(s) = 1/(J s²)``)
 -----------------------------------------------------------------------------------------
@@ -71,7 +71,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from functools import lru_cache
 from typing import Literal
 
 import control
@@ -79,50 +78,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Reference
+from controller.base import Controller, InvalidCommand, Reference
 from plant import attitude
 from plant.estimate import Estimate
-from plant.params import MotorParams, PlantParams, RotorParams
-from plant.torque import TorqueMap
-
-# --------------------------------------------------------------------------------------------
-# Torque capacity (shared with controller.mpc)
-# --------------------------------------------------------------------------------------------
-
-
-def inradius(K: NDArray[np.float64], i_max: float) -> float:
-    """Largest torque (N·m) that the currents ``|I_k| <= i_max`` (A) deliver in every direction
-    through ``K`` (3 x n, N·m/A): the inradius about the origin of the zonotope ``K [-i_max,
-    i_max]^n``, ``min over facet normals n of i_max Σ_k |n · k_k|``."""
-    K = attitude.check_finite("K", K)
-    cols = K.T
-    ia, ib = np.triu_indices(cols.shape[0], k=1)
-    N = np.cross(cols[ia], cols[ib])
-    norms = np.linalg.norm(N, axis=1)
-    keep = norms > 1e-12 * max(float(np.max(norms)), 1e-300)
-    if not np.any(keep):
-        return 0.0
-    N = N[keep] / norms[keep, None]
-    return float(i_max * np.abs(N @ K).sum(axis=1).min())
-
-
-@lru_cache(maxsize=8)
-def worst_case_capacity(
-    motor: MotorParams,
-    tilt_max_deg: float = 15.0,
-    n_tilt: int = 6,
-    n_spin: int = 24,
-    n_yaw: int = 24,
-) -> float:
-    """Minimum over a grid of the tilt workspace (tilt 0..``tilt_max_deg``, all spins and yaws)
-    of the all-direction torque capacity ``inradius(K(q), i_max)``, N·m. Cached per motor."""
-    tm = TorqueMap(motor)
-    worst = np.inf
-    for b in np.linspace(0.0, np.deg2rad(tilt_max_deg), n_tilt):
-        for a in np.linspace(0.0, 2 * np.pi, n_spin, endpoint=False):
-            for g in np.linspace(0.0, 2 * np.pi, n_yaw, endpoint=False):
-                worst = min(worst, inradius(tm(attitude.from_zyz(a, b, g)), motor.i_max_A))
-    return float(worst)
+from plant.params import PlantParams
+from plant.torque import worst_case_capacity
 
 
 def limit_vector(T: NDArray[np.float64], limit: float) -> tuple[NDArray[np.float64], bool]:
@@ -132,13 +92,6 @@ def limit_vector(T: NDArray[np.float64], limit: float) -> tuple[NDArray[np.float
     if n > limit:
         return T * (limit / n), True
     return T, False
-
-
-def inertia_about_centre(rotor: RotorParams) -> NDArray[np.float64]:
-    """Inertia about the fixed centre O (kg·m², 3x3) from the centre-of-mass inertia and offset
-    (parallel-axis theorem), as plant/twin.py computes it."""
-    d = np.asarray(rotor.com_offset_m, dtype=float)
-    return np.diag(rotor.inertia_com_kgm2) + rotor.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
 
 
 class RateFromAttitude:
@@ -273,8 +226,9 @@ class PIDConfig(BaseModel):
     friction_compensation_width_deg: float = Field(
         0.05, gt=0.0, description="Our choice: the error w (deg) over which tanh goes to ±1."
     )
-    invalid_command: Literal["zero", "hold"] = Field(
-        "zero", description="Our choice: zero torque while the estimate is invalid."
+    invalid_command: InvalidCommand = Field(
+        "hold", description="Our choice: hold the last command while the estimate is invalid "
+        "(controller.base: the one invalid-estimate policy)."
     )
     inertia_kgm2: tuple[float, float, float] | None = Field(
         None, description="Design inertia per body axis; None: the plant's J about O (diagonal)."
@@ -299,7 +253,7 @@ class PIDConfig(BaseModel):
         return phase_margin_of_rule(self.zero_ratio, self.integral_ratio)
 
 
-class PIDController:
+class PIDController(Controller):
     """PID on the SO(3) attitude error with derivative on measurement and anti-windup.
 
     ``command(estimate, reference, t)`` returns the stator-frame torque (N·m) to apply from ``t``.
@@ -321,7 +275,7 @@ class PIDController:
         J = (
             np.asarray(cfg.inertia_kgm2, dtype=float)
             if cfg.inertia_kgm2 is not None
-            else np.diag(inertia_about_centre(self.params.rotor)).copy()
+            else np.diag(self.params.rotor.inertia_about_centre_kgm2).copy()
         )
         self.J = J
         self.gains = tuple(

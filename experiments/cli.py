@@ -26,6 +26,7 @@ import typer
 from pydantic import ValidationError
 
 from experiments.config_files import ConfigFileError, load_mapping
+from latency.models import seed_latency_ms
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
 
@@ -218,18 +219,6 @@ def study(
 
 
 @app.command()
-def demo(out: OutOption = Path("runs")) -> None:
-    """Tilt step of the simulated motor under a PD law on the true state, with rendered frames.
-
-    Example: pmspm demo --out runs
-    """
-    from experiments.demo import run_demo
-
-    folder = run_demo(_writable_folder(out))
-    typer.echo(f"report: {folder / 'report.md'}")
-
-
-@app.command()
 def simulate(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML (experiments.scenario).")],
     out: OutOption = Path("runs"),
@@ -262,13 +251,11 @@ def simulate(
     typer.echo(f"tables: {folder}")
 
 
-def _plot_run(steps, path: Path, title: str) -> None:
-    import matplotlib
+def _plot_run(steps, path: Path, title: str) -> None:  # noqa: ANN001 - LoopResult.steps
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+    fig = Figure(figsize=(8, 5.5))
+    ax = fig.subplots(2, 1, sharex=True)
     ax[0].plot(steps.t_s, steps.tilt_deg, label="tilt")
     ax[0].plot(steps.t_s, steps.ref_tilt_deg, "k--", lw=0.8, label="reference tilt")
     ax[0].set_ylabel("tilt (deg)")
@@ -279,7 +266,6 @@ def _plot_run(steps, path: Path, title: str) -> None:
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 @app.command()
@@ -288,7 +274,9 @@ def margins(
     frame_rate_hz: Annotated[
         float | None, typer.Option(help="Camera frame rate, Hz (default: PlantParams.camera).")
     ] = None,
-    delay_ms: Annotated[float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")] = 16.33,
+    delay_ms: Annotated[
+        float, typer.Option(help="Vision delay for Bode/Nyquist, ms.")
+    ] = seed_latency_ms("gk_transt"),
     observer: Annotated[
         str,
         typer.Option(help="sequential (drops frames while busy, as the study) or pipelined."),
@@ -486,8 +474,6 @@ def measure_latency(
         measure_orb_latency,
         measure_pair_tracker_latency,
     )
-    from observer.frame_observer import MarkerLocator
-    from observer.opencv_trackers import OpenCVTracker
     from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
@@ -509,7 +495,7 @@ def measure_latency(
                                                     n_frames=frames, progress=True)
                 label = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT"}[name]
             else:
-                locator = MarkerLocator(p, OpenCVTracker(name))
+                locator = make_pair_tracker(f"{name}_gk", p)
                 prof = measure_locator_latency(p, locator, n_frames=frames, progress=True)
                 label = f"{name}+GK"
         except KeyboardInterrupt:
@@ -564,7 +550,7 @@ def bench_trackers(
     validation sequences, clean and with the seed's occlusion and blur cases.
 
     Writes tracking_metrics.csv (one row per run), precision and error plots per case and
-    report.md (Table 1 beside the seed's, precision at 20 px, success AUC, issue 4's targets).
+    report.md (Table 1 beside the seed's, precision at 20 px, success AUC, the targets).
     The same code path as benchmarks/bench_tracking.py.
 
     Example: pmspm bench-trackers --seeds 1 --cases clean --trackers gk_transt,kcf --stand-in
@@ -657,6 +643,7 @@ def tune_kalman_cmd(
     Example: pmspm tune-kalman --delays-ms 16.33 --delays-ms 31.23 --trials 20 --workers 2
     """
     from experiments.tuning import (
+        DEFAULT_DELAYS_S,
         GRID_DECADES,
         SEED_Q_SCALE,
         SEED_R_SCALE,
@@ -671,7 +658,7 @@ def tune_kalman_cmd(
     _number("--duration-s", duration_s, strict=True)
     for d in delays_ms or []:
         _number("--delays-ms", d)
-    delays = tuple(d / 1e3 for d in (delays_ms or [16.33, 31.23]))
+    delays = tuple(d / 1e3 for d in delays_ms) if delays_ms else DEFAULT_DELAYS_S
     try:  # the scenarios of the runs, validated here rather than in the workers
         for d in delays:
             TuningObjective(delay_s=d, duration_s=duration_s).configs(SEED_Q_SCALE, SEED_R_SCALE)

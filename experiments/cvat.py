@@ -406,6 +406,7 @@ def benchmark_cvat_folder(
         out.mkdir(parents=True, exist_ok=True)
         metrics.to_csv(out / f"{seq.name}_metrics.csv", index=False)
         t1.to_csv(out / f"{seq.name}_table1.csv", index=False)
-        tb.plot_precision_curves(runs, seqs, seq.case, out / f"{seq.name}_precision.png")
-        tb.plot_error_curves(runs, seq, out / f"{seq.name}_errors.png")
+        tb.plot_precision_curves(runs, seqs, seq.case).savefig(
+            out / f"{seq.name}_precision.png", dpi=110)
+        tb.plot_error_curves(runs, seq).savefig(out / f"{seq.name}_errors.png", dpi=110)
     return metrics, t1

@@ -12,7 +12,7 @@ frames, marker observers on the textured rotor, a measured latency without compu
 
 Defaults that depend on other fields are resolved at validation, so that a dumped scenario shows
 what ran: the MPC's compute latency (its median call time measured here, ``MPC_CALL_MEDIAN_S``),
-the textured rotor and the measured observer latency for the ORB observers (issue 8).
+the textured rotor and the measured observer latency for the ORB observers.
 """
 
 from __future__ import annotations
@@ -53,12 +53,11 @@ from latency.pipeline import PipelineConfig
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.frame_observer import MarkerLocator
 from observer.gk.pixel_kalman import PixelKalmanConfig
-from observer.opencv_trackers import OpenCVTracker
 from observer.orb import OrbConfig
 from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
+from observer.trackers import make_pair_tracker
 from plant import attitude
 from plant.params import PlantParams
 from plant.texture import TextureParams
@@ -81,7 +80,7 @@ class MPCSpec(_Model):
 ControllerSpec = Annotated[PIDSpec | MPCSpec, Field(discriminator="kind")]
 
 
-#: Observer kinds of the textured rotor (issue 8, ``observer.orb_observer.OrbObserver``): ORB
+#: Observer kinds of the textured rotor (``observer.orb_observer.OrbObserver``): ORB
 #: alone (a direct solve per frame), ORB-EKF and ORB-AEKF (seed 001 Table 2).
 ORB_KINDS = {"orb": "orb", "orb_ekf": "ekf", "orb_aekf": "aekf"}
 
@@ -101,7 +100,7 @@ class ObserverSpec(_Model):
     latency), ``solver`` (per-frame least squares), or ``pixel_kalman`` (the seed's pixel Kalman
     filter on each marker, then the solver).
 
-    Textured rotor (issue 8, image mode only): ``orb`` (ORB alone, a direct solve per frame),
+    Textured rotor (image mode only): ``orb`` (ORB alone, a direct solve per frame),
     ``orb_ekf`` and ``orb_aekf`` (the quaternion EKF/AEKF on the matched points, seed 001); the
     front end is ``latency.frontends.OrbFrontEnd`` with the ORB settings ``orb``.
     """
@@ -264,7 +263,7 @@ class Scenario(_Model):
     tracker: Literal["kcf", "csrt", "transt"] = Field(
         "kcf",
         description="Image mode, marker observers: the red marker's tracker inside the GK "
-        "assistance (observer.frame_observer.MarkerLocator): OpenCV KCF or CSRT, or the "
+        "assistance (observer.trackers.make_pair_tracker): OpenCV KCF or CSRT, or the "
         "shipped TransT network ('transt': GK-TransT, seed 000 §3.2).",
     )
     plant: PlantParams = PlantParams()
@@ -273,7 +272,7 @@ class Scenario(_Model):
     observer: ObserverSpec = ObserverSpec()
     texture: TextureParams | None = Field(
         None,
-        description="Issue 8: the rotor's printed pattern (seed and shapes) instead of the two "
+        description="The rotor's printed pattern (seed and shapes) instead of the two "
         "markers; default on for the ORB observer kinds, off otherwise.",
     )
     observer_latency: Literal["model", "measured"] = Field(
@@ -284,7 +283,6 @@ class Scenario(_Model):
     )
     controller: ControllerSpec = PIDSpec()
     reference: ReferenceSpec = TiltStepSpec()
-    on_invalid: Literal["zero", "hold"] = "hold"
     controller_rate_hz: float | None = Field(
         None, gt=0.0, description="None: control on each new estimate; a rate (Hz): a fixed "
         "controller clock on the latest estimate (latency.loop.LoopConfig)."
@@ -482,7 +480,6 @@ class Scenario(_Model):
             duration_s=self.duration_s,
             pipeline=self.pipeline,
             seed=self.seed,
-            on_invalid=self.on_invalid,
             controller_rate_hz=self.controller_rate_hz,
             controller_latency=self.controller_latency,
             observer_latency=self.observer_latency,
@@ -507,13 +504,8 @@ def _renderer(s: Scenario):
     return MujocoRenderer(s.plant, texture=s.texture)
 
 
-def _tracker(kind: str):
-    """The red marker's single-object tracker for the image-mode locator."""
-    if kind == "transt":
-        from observer.transt.tracker import TransTTracker
-
-        return TransTTracker.small()
-    return OpenCVTracker(kind)
+#: The scenario's tracker names -> ``observer.trackers.make_pair_tracker`` names.
+PAIR_TRACKER_OF = {"kcf": "kcf_gk", "csrt": "csrt_gk", "transt": "gk_transt"}
 
 
 def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> ClosedLoop:
@@ -543,8 +535,9 @@ def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> C
         if s.mode == "measurement":
             front = MeasurementFrontEnd(p, s.measurement, rng)
         else:
-            locator = MarkerLocator(p, _tracker(s.tracker), clock=clock)
-            front = ImageFrontEnd(p, _renderer(s), locator)
+            front = ImageFrontEnd(
+                p, _renderer(s), make_pair_tracker(PAIR_TRACKER_OF[s.tracker], p, clock=clock)
+            )
         if o.kind in ("aekf", "ekf"):
             cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})
             observer = FilterObserver(p, cfg, compensate_delay=o.compensate_delay)

@@ -246,7 +246,8 @@ def mpc_margins_table(
     mpc = mpc or MPCConfig()
     compute_s = MPC_CALL_MEDIAN_S[(mpc.solver, mpc.hessian)]
     K = mpc_state_gain(mpc, params)
-    J, b = float(PIDController(None, params).J[1]), params.rotor.viscous_Nms_per_rad
+    J = float(params.rotor.inertia_about_centre_kgm2[1, 1])
+    b = params.rotor.viscous_Nms_per_rad
     plant = attitude_plant(J, b)
 
     def law(t: LoopTiming, aware: bool) -> ct.StateSpace:

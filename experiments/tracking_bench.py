@@ -1,5 +1,8 @@
 """The tracking benchmark of seed 000 §4: metrics per marker, runs, tables and plots.
 
+One module of about 790 lines: its parts (metrics, runs, tables, plots, the whole benchmark) form
+one pipeline that only the benchmark uses; the seams are the section comments below.
+
 **Protocol.** A pair tracker (``observer.trackers``) is started on frame 0 with the true boxes of
 both markers and stepped through frames 1 … N-1; frame 0 is not scored. The trackers of a
 benchmark take turns frame by frame (``run_trackers``), so that on a shared machine they all meet
@@ -27,7 +30,7 @@ The seed's numbers (Table 1 and §4.2-4.3) are kept in ``SEED_TABLE1`` and ``SEE
 for the side-by-side tables. ``run_benchmark`` returns tidy pandas tables; ``plot_*`` write the
 PNG figures (precision curves like seed Figures 11, 12a/c, 14a/c; error over frames like 12b/d,
 14b/d). ``run_tracking_benchmark`` composes the whole benchmark (trackers by name, validation
-sequences, metrics CSV, plots, tables, issue 4's targets): ``benchmarks/bench_tracking.py`` and
+sequences, metrics CSV, plots, tables, the targets): ``benchmarks/bench_tracking.py`` and
 ``pmspm bench-trackers`` both call it.
 """
 
@@ -42,10 +45,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
-from observer.trackers import MarkerPairTracker, PairResult
+from latency.models import SEED_FPS, seed_latency_ms
+from observer.tracking import PairResult, PairTracker
 
 #: Centre-error thresholds of the precision curve, full-sensor px (seed 000 §4.2, Figure 11).
 THRESHOLDS_PX = np.arange(0.0, 51.0)
@@ -59,10 +64,7 @@ MARKER_NAMES = ("main", "aux")
 
 #: Seed 000 Table 1 (RTX 4060 laptop GPU): algorithm -> (FPS, latency ms).
 SEED_TABLE1: dict[str, tuple[float, float]] = {
-    "gk_transt": (61.23, 16.33),
-    "dual_transt": (32.02, 31.23),
-    "kcf": (92.05, 10.86),
-    "csrt": (14.79, 67.62),
+    name: (SEED_FPS[name], seed_latency_ms(name)) for name in SEED_FPS
 }
 #: Seed 000 §4.2-4.3 precision at 20 px: (algorithm, case) -> (main, aux). For KCF under
 #: occlusion the seed gives one number (0.295).
@@ -219,7 +221,7 @@ class TrackRun:
 
 
 def run_trackers(
-    trackers: Sequence[MarkerPairTracker],
+    trackers: Sequence[PairTracker],
     seq: TrackingSequence,
     interleave: bool = True,
     on_step: Callable[[], None] | None = None,
@@ -268,7 +270,7 @@ def run_trackers(
                      times[i], reasons[i]) for i, tr in enumerate(trackers)]
 
 
-def run_tracker(tracker: MarkerPairTracker, seq: TrackingSequence) -> TrackRun:
+def run_tracker(tracker: PairTracker, seq: TrackingSequence) -> TrackRun:
     """Start ``tracker`` on frame 0 with the true boxes and step it through the sequence."""
     return run_trackers([tracker], seq)[0]
 
@@ -295,7 +297,7 @@ def evaluate(run: TrackRun, seq: TrackingSequence) -> dict[str, float | str]:
     return row
 
 
-TrackerFactory = Callable[[], MarkerPairTracker]
+TrackerFactory = Callable[[], PairTracker]
 
 
 def run_benchmark(
@@ -386,16 +388,12 @@ def latency_ratio(table: pd.DataFrame, num: str = "gk_transt", den: str = "dual_
 
 # --- plots --------------------------------------------------------------------------------------
 def plot_precision_curves(
-    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], case: str, path: Path | str
-) -> Path:
+    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], case: str
+) -> Figure:
     """Precision curves of every tracker in one case, main and auxiliary marker side by side
     (seed Figure 11; 12a/c and 14a/c for the occlusion and blur cases)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    fig = Figure(figsize=(10, 4))
+    axes = fig.subplots(1, 2, sharey=True)
     for name in dict.fromkeys(r.tracker for r in runs if r.case == case):
         curves = pooled_precision(runs, seqs, name, case)
         for m, ax in enumerate(axes):
@@ -411,25 +409,17 @@ def plot_precision_curves(
         ax.legend(loc="lower right", fontsize=8)
     axes[0].set_ylabel("precision")
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def plot_error_curves(
-    runs: Sequence[TrackRun], seq: TrackingSequence, path: Path | str, ymax_px: float = 100.0
-) -> Path:
+    runs: Sequence[TrackRun], seq: TrackingSequence, ymax_px: float = 100.0
+) -> Figure:
     """Centre error over frames of every tracker on one sequence, main and auxiliary marker
     (seed Figures 12b/d, 14b/d); disturbed frames shaded; errors beyond ``ymax_px`` leave the
     chart as in the seed's figures."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig = Figure(figsize=(10, 6))
+    axes = fig.subplots(2, 1, sharex=True)
     frames = np.arange(seq.n_frames)
     for r in runs:
         if r.sequence != seq.name:
@@ -454,11 +444,7 @@ def plot_error_curves(
     axes[0].legend(loc="upper right", fontsize=8, ncol=3)
     axes[1].set_xlabel("frame")
     fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
@@ -487,12 +473,12 @@ RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("gk_transt", "dual_transt_refine", "both with the sub-pixel circle fit"),
     ("gk_transt", "dual_transt", "the defaults: GK-TransT with, dual TransT without the fit"),
 )
-#: Issue 4's targets for GK-TransT: precision at 20 px (clean; occlusion and blur), the median
+#: The targets for GK-TransT: precision at 20 px (clean; occlusion and blur), the median
 #: latency (seed 000 Table 1: 16.33 ms) and the GK-TransT / dual TransT latency ratio (seed 0.523).
 TARGET_PRECISION_CLEAN = 0.95
 TARGET_PRECISION_DISTURBED = 0.90
 TARGET_RATIO = 0.6
-TARGET_MEDIAN_MS = 16.33
+TARGET_MEDIAN_MS = seed_latency_ms("gk_transt")
 
 
 def min_frames(case: str) -> int:
@@ -576,7 +562,7 @@ class BenchmarkReport:
     summary : ``summary_table`` of the metrics; table1 : ``table1`` (clean cases if run).
     runs, seqs : the runs and their sequences (images dropped).
     ratio_median, ratio_mean : GK-TransT / dual TransT latency ratios (NaN unless both ran).
-    checks : issue 4's targets, met or not, one line each (GK-TransT only).
+    checks : the targets, met or not, one line each (GK-TransT only).
     figures : flat figures for ``benchmarks/RESULTS.md`` (SI units in the names).
     notes : the tables and notes as markdown.
     files : the files written (CSV, plots).
@@ -623,7 +609,7 @@ def run_tracking_benchmark(
 ) -> BenchmarkReport:
     """The tracking benchmark of seed 000 §4, composed: the named trackers on ``seeds``
     validation sequences per case (``experiments.sequences.validation_suite``, rendered one at
-    a time), their metrics, the tables and issue 4's targets.
+    a time), their metrics, the tables and the targets.
 
     Writes into ``out_dir``: ``tracking_metrics.csv`` (one row per run),
     ``tracking_precision_<case>.png`` (precision curves, seed Figures 11, 12a/c, 14a/c) and
@@ -670,10 +656,12 @@ def run_tracking_benchmark(
     metrics.to_csv(files[0], index=False)
     plots = []
     for case in cases:
-        path = out / f"tracking_precision_{case}.png"
-        plots.append(plot_precision_curves(runs, seqs, case, path))
         first = next(s for s in seqs if s.case == case)
-        plots.append(plot_error_curves(runs, first, out / f"tracking_errors_{case}.png"))
+        for fig, path in ((plot_precision_curves(runs, seqs, case),
+                           out / f"tracking_precision_{case}.png"),
+                          (plot_error_curves(runs, first), out / f"tracking_errors_{case}.png")):
+            fig.savefig(path, dpi=110)
+            plots.append(path)
     files += plots
 
     summary = summary_table(metrics)
@@ -762,7 +750,7 @@ def run_tracking_benchmark(
         "Precision at 20 px and success AUC, mean over seeds (seed's precision beside; "
         "re-acquisition = frames after frame 110 until measured within 20 px for 5 frames):"
         "\n\n" + markdown_table(summary[sum_cols]),
-        "Targets (issue 4):\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
+        "Targets:\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
         "Plots: " + ", ".join(f"`{link_prefix}{Path(p).name}`" for p in plots),
     ] if x)
     return BenchmarkReport(metrics, summary, t1, runs, seqs, ratio_med, ratio_mean, checks,

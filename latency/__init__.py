@@ -1,1 +1,1 @@
-"""Time: latency models, the timed closed loop, exact-delay frequency-domain margins (issue 5)."""
+"""Time: latency models, the timed closed loop, exact-delay frequency-domain margins."""

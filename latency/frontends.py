@@ -3,10 +3,10 @@
 * ``MeasurementFrontEnd`` (measurement-model mode): the true marker pixels at mid-exposure plus
   Gaussian noise, frame dropouts and outliers. Fast, for sweeps.
 * ``ImageFrontEnd`` (image-in-the-loop mode): a rendered frame (with motion blur over the
-  exposure), a real tracker on the red marker and the GK assistance of seed 000 §3.2 for both
-  centres. Its compute time is measured.
-* ``OrbFrontEnd`` (image-in-the-loop, rotor without markers, issue 8): a rendered frame of the
-  textured rotor and the ORB matches of ``observer.orb``; its ``Capture.marker_px`` carries the
+  exposure) and a pair tracker (``observer.tracking.PairTracker``: e.g. GK-TransT, or OpenCV's
+  KCF inside the GK assistance of seed 000 §3.2) for both centres. Its compute time is measured.
+* ``OrbFrontEnd`` (image-in-the-loop, rotor without markers): a rendered frame of the textured
+  rotor and the ORB matches of ``observer.orb``; its ``Capture.orb`` carries the
   ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
   ``orb_reference`` renders the reference view it matches against. A scenario selects it with
   an ORB observer kind (``experiments.scenario``: ``observer.kind: orb_aekf``, image mode).
@@ -24,8 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.frame_observer import MarkerLocator
-from observer.orb import OrbConfig, OrbReference
+from observer.orb import OrbConfig, OrbMeasurement, OrbReference
+from observer.trackers import make_pair_tracker
+from observer.tracking import PairTracker
 from plant import attitude
 from plant.camera import marker_pixels
 from plant.params import PlantParams
@@ -34,21 +35,50 @@ from plant.texture import TextureParams
 
 @dataclass(frozen=True)
 class Capture:
-    """One frame's measured and true marker centres (2, 2), sensor px (red, yellow)."""
+    """One frame's measurement.
+
+    Attributes
+    ----------
+    marker_px : (2, 2) measured marker centres, sensor px (red, yellow); NaN when there is none
+        (lost, or a rotor without markers).
+    true_px : (2, 2) true marker centres, sensor px (NaN without marker truth).
+    lost : the front end lost the markers (or the features) in this frame.
+    reason : why the frame is not a clean measurement ("" when it is).
+    compute_time_s : the front end's measured compute time, s.
+    orb : the ORB matches of a textured rotor (``OrbFrontEnd``), None for marker front ends.
+    """
 
     marker_px: NDArray[np.float64]
     true_px: NDArray[np.float64]
     lost: bool = False
     reason: str = ""
     compute_time_s: float = 0.0
+    orb: OrbMeasurement | None = None
+
+    @property
+    def measurement(self) -> NDArray[np.float64] | OrbMeasurement:
+        """What the observer fuses: the ORB matches if any, else the marker centres."""
+        return self.marker_px if self.orb is None else self.orb
 
 
 class FrontEnd(Protocol):
-    def reset(self) -> None: ...
+    """Rotor motion -> one frame's measurement (see the module docstring)."""
+
+    def reset(self) -> None:
+        """Forget the tracking state (a new run)."""
+        ...
 
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
-    ) -> Capture: ...
+    ) -> Capture:
+        """The measurement of a frame exposed at ``t_exposure`` (s, mid-exposure) while the
+        rotor is at attitude ``q`` with body rate ``omega`` (rad/s)."""
+        ...
+
+    def tilt_hint(self, tilt_rad: float) -> None:
+        """The latest estimated tilt β (rad), for front ends with a geometric check; the
+        others ignore it."""
+        ...
 
 
 class MeasurementConfig(BaseModel):
@@ -109,6 +139,9 @@ class MeasurementFrontEnd:
         self._lost_frames = 0
         self._frames_since = 0  # processed frames since the last measurement
 
+    def tilt_hint(self, tilt_rad: float) -> None:
+        """No geometric check: ignored."""
+
     def _blur_travel_px(self, q: NDArray[np.float64], omega: NDArray[np.float64]) -> float:
         half = 0.5 * self.params.camera.exposure_s
         ends = [
@@ -148,43 +181,44 @@ class MeasurementFrontEnd:
 
 
 class ImageFrontEnd:
-    """Render a frame (with motion blur), then locate both markers with a tracker and the GK
-    assistance (``observer.frame_observer.MarkerLocator``).
+    """Render a frame (with motion blur), then locate both markers with a pair tracker.
 
     Parameters
     ----------
     params : PlantParams
     renderer : object with ``render(q, t_exposure, omega=...) -> plant.scene.Frame``
         (``AnalyticRenderer`` or ``MujocoRenderer``).
-    locator : MarkerLocator, optional (default: OpenCV KCF + GK assistance)
+    locator : PairTracker, optional
+        Default: OpenCV KCF inside the GK assistance (``make_pair_tracker("kcf_gk")``).
 
-    The tracker starts on the true box of the first frame, as a user's first-frame annotation
-    would. ``tilt_hint_rad`` (set by the loop from the latest estimate) feeds the GK geometry.
+    The tracker starts on the true boxes of the first frame, as a user's first-frame annotation
+    would, and that frame's measurement is the annotation (the boxes' centres), as in the
+    tracking benchmark (``experiments.tracking_bench.run_trackers``): the loop and the benchmark
+    run the same tracker on the same frames. ``tilt_hint`` (called by the loop with the latest
+    estimate) feeds the GK geometry.
     """
 
-    def __init__(self, params: PlantParams, renderer, locator: MarkerLocator | None = None):
+    def __init__(self, params: PlantParams, renderer, locator: PairTracker | None = None):
         self.params = params
         self.renderer = renderer
-        self.locator = locator or MarkerLocator(params)
-
-    @property
-    def tilt_hint_rad(self) -> float | None:
-        return self.locator.tilt_hint_rad
-
-    @tilt_hint_rad.setter
-    def tilt_hint_rad(self, value: float | None) -> None:
-        self.locator.tilt_hint_rad = value
+        self.locator = locator or make_pair_tracker("kcf_gk", params)
 
     def reset(self) -> None:
         self.locator.reset()
+
+    def tilt_hint(self, tilt_rad: float) -> None:
+        """The latest estimated tilt β, rad, for the GK geometric check."""
+        self.locator.tilt_hint_rad = tilt_rad
 
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
         if not self.locator.started:
-            self.locator.start(frame.image, frame.binning, frame.boxes_px[0])
-        loc = self.locator.locate(frame.image, frame.binning)
+            self.locator.start(frame.image, frame.boxes_px, frame.binning)
+            boxes = np.asarray(frame.boxes_px, dtype=float)
+            return Capture(boxes[:, :2] + 0.5 * boxes[:, 2:], frame.marker_px)
+        loc = self.locator.step(frame.image)
         return Capture(loc.marker_px, frame.marker_px, loc.lost, loc.reason, loc.compute_time_s)
 
 
@@ -205,12 +239,16 @@ class OrbFrontEnd:
     def reset(self) -> None:
         """Nothing to reset: the reference view is fixed."""
 
+    def tilt_hint(self, tilt_rad: float) -> None:
+        """No geometric check: ignored."""
+
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
         m = self.observer.measure(frame)
-        return Capture(m, np.full((2, 2), np.nan), not m.valid, m.reason, m.compute_time_s)
+        nan = np.full((2, 2), np.nan)
+        return Capture(nan, nan.copy(), not m.valid, m.reason, m.compute_time_s, orb=m)
 
 
 

@@ -72,6 +72,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from latency.zoh import zoh_integrals
+
 __all__ = [
     "CostComparison",
     "StationaryCost",
@@ -157,6 +159,50 @@ def _noise_cost(A: NDArray, R1c: NDArray, Q1: NDArray, h: float) -> float:
     return total
 
 
+def _checked_inputs(
+    plant: ct.LTI, controller: ct.LTI, period_s: float, delay_pmf: ArrayLike,
+    weights: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
+) -> tuple:
+    """The arguments of ``stationary_cost`` checked and as arrays: plant ``(A, B, C)``, the
+    period ``T`` (s), the controller's ``(Ac, Bc, Cc, Dc)``, the normalised delay pmf and
+    ``(Q1, Q2, R1c, R2)``. Raises ``ValueError`` naming the bad argument."""
+    Q1, Q2, R1c, R2 = weights
+    A, B, C, D = _ss_matrices(plant)
+    if plant.isdtime(strict=True):
+        raise ValueError("plant must be continuous")
+    if np.any(D != 0.0):
+        raise ValueError("plant must be strictly proper (D = 0)")
+    if not controller.isdtime(strict=True) or controller.dt is True:
+        raise ValueError("controller must be discrete with a numeric dt")
+    T = float(period_s)
+    if not np.isfinite(T) or T <= 0.0:
+        raise ValueError(f"period_s must be > 0, got {period_s}")
+    if not math.isclose(float(controller.dt), T, rel_tol=1e-9):
+        raise ValueError(f"controller dt = {controller.dt} differs from period_s = {T}")
+    Ac, Bc, Cc, Dc = _ss_matrices(controller)
+    if ct.ss(controller).nstates == 0:
+        Ac = np.zeros((0, 0))
+        Bc = np.zeros((0, C.shape[0]))
+        Cc = np.zeros((B.shape[1], 0))
+    p = np.asarray(delay_pmf, dtype=float).ravel()
+    if p.size < 1 or np.any(p < 0.0) or not np.isclose(p.sum(), 1.0, atol=1e-9):
+        raise ValueError("delay_pmf must be non-negative and sum to 1")
+    p = p / p.sum()
+    n, m = B.shape
+    ny = C.shape[0]
+    nc = Ac.shape[0]
+    if Bc.shape != (nc, ny) or Dc.shape != (m, ny) or Cc.shape != (m, nc):
+        raise ValueError("controller dimensions do not match the plant (p inputs, m outputs)")
+    Q1 = np.atleast_2d(np.asarray(Q1, dtype=float))
+    Q2 = np.atleast_2d(np.asarray(Q2, dtype=float))
+    R1c = np.atleast_2d(np.asarray(R1c, dtype=float))
+    R2 = np.atleast_2d(np.asarray(R2, dtype=float))
+    for name, M, k in (("Q1", Q1, n), ("Q2", Q2, m), ("R1c", R1c, n), ("R2", R2, ny)):
+        if M.shape != (k, k):
+            raise ValueError(f"{name} must be {k}x{k}, got {M.shape}")
+    return A, B, C, T, (Ac, Bc, Cc, Dc), p, (Q1, Q2, R1c, R2)
+
+
 def stationary_cost(
     plant: ct.LTI,
     controller: ct.LTI,
@@ -202,39 +248,11 @@ def stationary_cost(
     -------
     StationaryCost
     """
-    A, B, C, D = _ss_matrices(plant)
-    if plant.isdtime(strict=True):
-        raise ValueError("plant must be continuous")
-    if np.any(D != 0.0):
-        raise ValueError("plant must be strictly proper (D = 0)")
-    if not controller.isdtime(strict=True) or controller.dt is True:
-        raise ValueError("controller must be discrete with a numeric dt")
-    T = float(period_s)
-    if not np.isfinite(T) or T <= 0.0:
-        raise ValueError(f"period_s must be > 0, got {period_s}")
-    if not math.isclose(float(controller.dt), T, rel_tol=1e-9):
-        raise ValueError(f"controller dt = {controller.dt} differs from period_s = {T}")
-    Ac, Bc, Cc, Dc = _ss_matrices(controller)
-    if ct.ss(controller).nstates == 0:
-        Ac = np.zeros((0, 0))
-        Bc = np.zeros((0, C.shape[0]))
-        Cc = np.zeros((B.shape[1], 0))
-    p = np.asarray(delay_pmf, dtype=float).ravel()
-    if p.size < 1 or np.any(p < 0.0) or not np.isclose(p.sum(), 1.0, atol=1e-9):
-        raise ValueError("delay_pmf must be non-negative and sum to 1")
-    p = p / p.sum()
+    A, B, C, T, (Ac, Bc, Cc, Dc), p, (Q1, Q2, R1c, R2) = _checked_inputs(
+        plant, controller, period_s, delay_pmf, (Q1, Q2, R1c, R2)
+    )
     n, m = B.shape
-    ny = C.shape[0]
     nc = Ac.shape[0]
-    if Bc.shape != (nc, ny) or Dc.shape != (m, ny) or Cc.shape != (m, nc):
-        raise ValueError("controller dimensions do not match the plant (p inputs, m outputs)")
-    Q1 = np.atleast_2d(np.asarray(Q1, dtype=float))
-    Q2 = np.atleast_2d(np.asarray(Q2, dtype=float))
-    R1c = np.atleast_2d(np.asarray(R1c, dtype=float))
-    R2 = np.atleast_2d(np.asarray(R2, dtype=float))
-    for name, M, k in (("Q1", Q1, n), ("Q2", Q2, m), ("R1c", R1c, n), ("R2", R2, ny)):
-        if M.shape != (k, k):
-            raise ValueError(f"{name} must be {k}x{k}, got {M.shape}")
     Nn = p.size
     h = T / Nn
 
@@ -242,38 +260,16 @@ def stationary_cost(
     F = np.zeros((n + m, n + m))
     F[:n, :n] = A
     F[:n, n:] = B
-    Eh = scipy.linalg.expm(F * h)
-    Phi, Gam = Eh[:n, :n], Eh[:n, n:]
+    Phi, Gam = zoh_integrals(A, B, h)
     Wh = _van_loan_noise(A, R1c, h)
     Qx = _van_loan_cost(F, scipy.linalg.block_diag(Q1, np.zeros((m, m))), h)
     Qu = _van_loan_cost(F, scipy.linalg.block_diag(np.zeros((n, n)), Q2), h)
     c_noise = _noise_cost(A, R1c, Q1, h)
 
     # grain-level state chi = [x; u_old; u_new; x_c(next)]
-    nchi = n + 2 * m + nc
-    ix, iold, inew, ic = (
-        slice(0, n),
-        slice(n, n + m),
-        slice(n + m, n + 2 * m),
-        slice(n + 2 * m, nchi),
-    )
-    nxi = n + m + nc
-    # sample map: chi = S xi + H e
-    S = np.zeros((nchi, nxi))
-    S[ix, :n] = np.eye(n)
-    S[iold, n : n + m] = np.eye(m)
-    S[inew, :n] = -Dc @ C
-    S[inew, n + m :] = -Cc
-    S[ic, :n] = Bc @ C
-    S[ic, n + m :] = Ac
-    H = np.zeros((nchi, ny))
-    H[inew] = -Dc
-    H[ic] = Bc
-    # end-of-period map: xi = E chi
-    E = np.zeros((nxi, nchi))
-    E[:n, ix] = np.eye(n)
-    E[n : n + m, inew] = np.eye(m)
-    E[n + m :, ic] = np.eye(nc)
+    nchi, nxi = n + 2 * m + nc, n + m + nc
+    ix, iold, inew = slice(0, n), slice(n, n + m), slice(n + m, n + 2 * m)
+    S, H, E = _sample_maps(C, (Ac, Bc, Cc, Dc), m)
 
     def grain(active: slice) -> tuple[NDArray, NDArray]:
         """Transition of chi over one grain and the selector z = [x; u_active]."""
@@ -307,32 +303,63 @@ def stationary_cost(
     K = sum(pj * np.kron(M, M) for pj, M in zip(p, M_list, strict=True))
     rho = float(np.max(np.abs(np.linalg.eigvals(K)))) if K.size else 0.0
     if rho >= 1.0:
-        return StationaryCost(
-            math.inf,
-            math.inf,
-            math.inf,
-            np.full((nxi, nxi), np.inf),
-            rho,
-            False,
-            T,
-            h,
-            p,
-        )
-    if nxi <= max_direct_states:
-        vecP = np.linalg.solve(np.eye(nxi * nxi) - K, const.reshape(-1, order="F"))
-        P = vecP.reshape((nxi, nxi), order="F")
-    else:
-        P = const.copy()
-        for _ in range(1_000_000):
-            Pn = const + sum(pj * M @ P @ M.T for pj, M in zip(p, M_list, strict=True))
-            if np.max(np.abs(Pn - P)) <= 1e-13 * max(1.0, np.max(np.abs(Pn))):
-                P = Pn
-                break
-            P = Pn
+        return StationaryCost(math.inf, math.inf, math.inf, np.full((nxi, nxi), np.inf), rho,
+                              False, T, h, p)
+    P = _stationary_covariance(K, const, p, M_list, max_direct_states)
     P = 0.5 * (P + P.T)
 
     # cost over one period, branch by branch
-    chi0 = S @ P @ S.T + H @ R2 @ H.T
+    state_cost, input_cost = _period_cost(S @ P @ S.T + H @ R2 @ H.T, p, (G_old, Z_old),
+                                          (G_new, Z_new), W_chi, Qx, Qu, c_noise)
+    state_cost /= T
+    input_cost /= T
+    return StationaryCost(state_cost + input_cost, state_cost, input_cost, P, rho, True, T, h, p)
+
+
+def _sample_maps(C: NDArray, controller: tuple[NDArray, NDArray, NDArray, NDArray],
+                 m: int) -> tuple[NDArray, NDArray, NDArray]:
+    """The sample map ``chi = S xi + H e`` (the controller reads ``y = C x + e`` and computes
+    ``u_new``) and the end-of-period map ``xi = E chi``, for the grain-level state
+    ``chi = [x; u_old; u_new; x_c(next)]`` and the period state ``xi = [x; u; x_c]``."""
+    Ac, Bc, Cc, Dc = controller
+    n, ny, nc = C.shape[1], C.shape[0], Ac.shape[0]
+    nchi = n + 2 * m + nc
+    ix, iold, inew, ic = (
+        slice(0, n),
+        slice(n, n + m),
+        slice(n + m, n + 2 * m),
+        slice(n + 2 * m, nchi),
+    )
+    nxi = n + m + nc
+    # sample map: chi = S xi + H e
+    S = np.zeros((nchi, nxi))
+    S[ix, :n] = np.eye(n)
+    S[iold, n : n + m] = np.eye(m)
+    S[inew, :n] = -Dc @ C
+    S[inew, n + m :] = -Cc
+    S[ic, :n] = Bc @ C
+    S[ic, n + m :] = Ac
+    H = np.zeros((nchi, ny))
+    H[inew] = -Dc
+    H[ic] = Bc
+    # end-of-period map: xi = E chi
+    E = np.zeros((nxi, nchi))
+    E[:n, ix] = np.eye(n)
+    E[n : n + m, inew] = np.eye(m)
+    E[n + m :, ic] = np.eye(nc)
+    return S, H, E
+
+
+def _period_cost(chi0: NDArray, p: NDArray, old: tuple[NDArray, NDArray],
+                 new: tuple[NDArray, NDArray], W_chi: NDArray, Qx: NDArray, Qu: NDArray,
+                 c_noise: float) -> tuple[float, float]:
+    """Expected state and input cost over one period from the covariance ``chi0`` of the
+    grain-level state after sampling: for each delay branch j (probability ``p[j]``) the
+    grains before the actuation hold the old input (``old``: transition and cost selector),
+    the others the new one (``new``)."""
+    G_old, Z_old = old
+    G_new, Z_new = new
+    Nn = len(p)
     state_cost = 0.0
     input_cost = 0.0
     for j, pj in enumerate(p):
@@ -348,9 +375,24 @@ def stationary_cost(
             X = G @ X @ G.T + W_chi
         state_cost += pj * sx
         input_cost += pj * su
-    state_cost /= T
-    input_cost /= T
-    return StationaryCost(state_cost + input_cost, state_cost, input_cost, P, rho, True, T, h, p)
+    return state_cost, input_cost
+
+
+def _stationary_covariance(K: NDArray, const: NDArray, p: NDArray, M_list: list[NDArray],
+                           max_direct_states: int) -> NDArray:
+    """The stationary ``P = const + Σ_j p_j M_j P M_jᵀ``: directly from ``vec P = (I − K)⁻¹
+    vec const`` when ``dim P`` is at most ``max_direct_states``, else by fixed-point iteration."""
+    nxi = const.shape[0]
+    if nxi <= max_direct_states:
+        vecP = np.linalg.solve(np.eye(nxi * nxi) - K, const.reshape(-1, order="F"))
+        return vecP.reshape((nxi, nxi), order="F")
+    P = const.copy()
+    for _ in range(1_000_000):
+        Pn = const + sum(pj * M @ P @ M.T for pj, M in zip(p, M_list, strict=True))
+        if np.max(np.abs(Pn - P)) <= 1e-13 * max(1.0, np.max(np.abs(Pn))):
+            return Pn
+        P = Pn
+    return P
 
 
 def trajectory_cost(

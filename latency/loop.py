@@ -17,9 +17,10 @@ Simulated time only (s). Per run:
 
 Events are recorded with their times: tracking loss (the front end says so, or a centre is more
 than 20 px from the truth, seed 000 §4.2) and re-acquisition, dropped frames, invalid estimates
-(the controller then falls back to zero torque or holds its last command), current saturation,
-contact with the tilt stop, and divergence (noted; the run still covers its whole duration, so
-the metrics of every run cover the same time).
+(the controller answers them by its ``invalid_command``: zero torque or its last command, see
+``controller.base``), invalid commands (a torque that is not finite: zero torque instead),
+current saturation, contact with the tilt stop, and divergence (noted; the run still covers its
+whole duration, so the metrics of every run cover the same time).
 
 Event times are exact: the physics advances to each event with a shortened last step
 (``MujocoPlant.advance``), so delays are not rounded to the physics grid.
@@ -46,7 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tqdm import tqdm
 
 from controller.base import Controller, Reference
-from latency.frontends import FrontEnd
+from latency.frontends import Capture, FrontEnd
 from latency.models import Constant, LatencyModel
 from latency.pipeline import FrameScheduler, PipelineConfig
 from observer.pixel_observer import PixelObserver
@@ -96,9 +97,6 @@ class LoopConfig(BaseModel):
         "model",
         description="Observer processing latency from pipeline.observer (reproducible) "
         "or the front end's measured compute time on this machine.",
-    )
-    on_invalid: Literal["zero", "hold"] = Field(
-        "hold", description="Safe command when the estimate is invalid."
     )
     controller_rate_hz: float | None = Field(
         None,
@@ -196,9 +194,35 @@ class LoopResult:
         return out
 
 
-def _zyz_deg(q: np.ndarray) -> tuple[float, float, float]:
-    a, b, g = attitude.to_zyz(q)
-    return float(np.degrees(a)), float(np.degrees(b)), float(np.degrees(g))
+@dataclass
+class _Run:
+    """The state of one run, shared by the event handlers of ``ClosedLoop``.
+
+    ``queue`` holds the pending events (time s, order, kind, payload); ``frames`` and
+    ``events`` are the rows of the result's tables. The rest is what the plant currently
+    receives (coil currents A, commanded and delivered torque N·m) and the flags whose changes
+    are events.
+    """
+
+    plant: PlantState
+    scheduler: FrameScheduler
+    rng_ctrl: np.random.Generator
+    queue: list[tuple[float, int, str, object]] = field(default_factory=list)
+    order: itertools.count = field(default_factory=itertools.count)
+    frames: list[dict] = field(default_factory=list)
+    events: list[tuple[float, str, str]] = field(default_factory=list)
+    currents: NDArray[np.float64] = field(default_factory=lambda: np.zeros(N_COILS))
+    torque_cmd: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    delivered: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    saturated: bool = False
+    lost: bool = False
+    stop: bool = False
+    estimate: Estimate | None = None
+    diverged: str = ""
+
+    def push(self, t: float, kind: str, payload: object = None) -> None:
+        """Schedule an event of ``kind`` at ``t`` (s); ties run in the order pushed."""
+        heapq.heappush(self.queue, (t, next(self.order), kind, payload))
 
 
 class ClosedLoop:
@@ -210,7 +234,9 @@ class ClosedLoop:
     controller : Controller
     reference : Reference
     front_end : FrontEnd (``MeasurementFrontEnd`` or ``ImageFrontEnd``)
-    observer : PixelObserver (e.g. ``observer.pixel_observer.FilterObserver``)
+    observer : the back end that fuses the front end's ``Capture.measurement``: a PixelObserver
+        (e.g. ``observer.pixel_observer.FilterObserver``) for marker pixels, an
+        ``observer.orb_observer.OrbObserver`` for ORB matches
     config : LoopConfig
     clock : callable returning seconds, default ``time.perf_counter``
         Times each ``controller.command`` call (``controller_compute_s``; the latency with
@@ -279,31 +305,13 @@ class ClosedLoop:
         self.controller.reset()
         self.front_end.reset()
         self.observer.reset(c.q0, 0.0)
-        scheduler = FrameScheduler(c.pipeline, rng_pipe)
+        run = _Run(plant, FrameScheduler(c.pipeline, rng_pipe), rng_ctrl)
         n_steps = self.n_steps
 
         log = _StepLog(n_steps + 1)
-        frames: list[dict] = []
-        events: list[tuple[float, str, str]] = []
-        queue: list[tuple[float, int, str, object]] = []
-        order = itertools.count()
-
-        def push(t: float, kind: str, payload: object = None) -> None:
-            heapq.heappush(queue, (t, next(order), kind, payload))
-
-        state = {
-            "currents": np.zeros(N_COILS),
-            "torque_cmd": np.zeros(3),
-            "delivered": np.zeros(3),
-            "saturated": False,
-            "lost": False,
-            "stop": False,
-            "estimate": None,
-            "last_ctrl_time": np.nan,
-        }
-        push(0.5 * c.pipeline.exposure_s, "frame")
+        run.push(0.5 * c.pipeline.exposure_s, "frame")
         if c.controller_rate_hz is not None:
-            push(0.0, "tick", 0)
+            run.push(0.0, "tick", 0)
         t, k_log = 0.0, 0
         stopped = ""
         bar = tqdm(total=n_steps, disable=not progress, desc="closed loop", unit="step")
@@ -316,22 +324,23 @@ class ClosedLoop:
             times = (k0 + np.arange(n)) * p.physics_dt_s
             q_ref = np.array([self.reference.sample(float(tk)).q for tk in times])
             stop = tilt_stop_contact(seg.q, p)
-            before = np.r_[state["stop"], stop[:-1]]
-            est = state["estimate"]
-            log.write_rows(k0, times, seg, q_ref, state["torque_cmd"], state["delivered"],
-                           est.q if est is not None else None, state["saturated"], before)
+            before = np.r_[run.stop, stop[:-1]]
+            est = run.estimate
+            log.write_rows(k0, times, seg, q_ref, run.torque_cmd, run.delivered,
+                           est.q if est is not None else None, run.saturated, before)
             for k in np.flatnonzero(stop != before):
-                events.append((float(times[k]),
-                               "tilt_stop_contact" if stop[k] else "tilt_stop_release", ""))
-            state["stop"] = bool(stop[-1])
+                run.events.append((float(times[k]),
+                                   "tilt_stop_contact" if stop[k] else "tilt_stop_release", ""))
+            run.stop = bool(stop[-1])
 
         record(0, Segment(0.0, plant.q[None], plant.omega[None], plant.currents[None],
                           plant.delayed_q()[None] if native else None))
+        queue = run.queue
         while True:
             t_next_event = queue[0][0] if queue else np.inf
             t_target = min(t_next_event, c.duration_s)
             if t_target > t:
-                seg = yield Advance(state["currents"], t, t_target, k_log)
+                seg = yield Advance(run.currents, t, t_target, k_log)
                 t = seg.t_s
                 if len(seg.q):
                     record(k_log + 1, seg)
@@ -343,36 +352,34 @@ class ClosedLoop:
                 continue
             _, _, kind, payload = heapq.heappop(queue)
             if kind == "frame":
-                self._on_frame(t, plant, scheduler, push, frames, events, state)
+                self._on_frame(run, t)
             elif kind == "release":
-                self._on_release(t, payload, push, frames, events, state, rng_ctrl)
+                self._on_release(run, t, payload)
             elif kind == "command":
-                self._on_command(t, payload, plant, events, state)
+                self._on_command(run, t, payload)
             elif kind == "tick":
-                push((payload + 1) / c.controller_rate_hz, "tick", payload + 1)
-                est = state["estimate"]
-                if est is None:
-                    est = _no_estimate(t)
-                self._control(t, est, None, push, frames, events, state, rng_ctrl)
-            if state.get("diverged") and not stopped:
-                stopped = state["diverged"]  # noted once; the run goes on to its full duration
-                events.append((t, "divergence", stopped))
+                run.push((payload + 1) / c.controller_rate_hz, "tick", payload + 1)
+                est = run.estimate if run.estimate is not None else _no_estimate(t)
+                self._control(run, t, est, None)
+            if run.diverged and not stopped:
+                stopped = run.diverged  # noted once; the run goes on to its full duration
+                run.events.append((t, "divergence", stopped))
         bar.close()
 
         steps = log.frame(k_log + 1, native)
-        frames_df = pd.DataFrame(frames)
-        events_df = pd.DataFrame(events, columns=["t_s", "kind", "detail"])
+        frames_df = pd.DataFrame(run.frames)
+        events_df = pd.DataFrame(run.events, columns=["t_s", "kind", "detail"])
         summary = summarize(steps, frames_df, events_df, c.duration_s, stopped)
         return LoopResult(steps, frames_df, events_df, summary, c.model_dump(mode="json"))
 
     # --- event handlers --------------------------------------------------------------------
-    def _on_frame(self, t, plant, scheduler, push, frames, events, state) -> None:
+    def _on_frame(self, run: _Run, t: float) -> None:
         """A frame's mid-exposure: measure (unless the frame is dropped), schedule release."""
-        c = self.config
+        c, plant = self.config, run.plant
         err = attitude.geodesic_angle(plant.q, self.reference.sample(t).q)
         far = not np.isfinite(err) or np.degrees(err) > c.divergence_deg
-        if far and not state.get("diverged"):
-            state["diverged"] = f"divergence: geodesic error {np.degrees(err):.1f} deg"
+        if far and not run.diverged:
+            run.diverged = f"divergence: geodesic error {np.degrees(err):.1f} deg"
         captured: dict = {}
 
         def measure(k: int) -> float:
@@ -380,11 +387,11 @@ class ClosedLoop:
             captured["cap"] = cap
             if c.observer_latency == "measured":
                 return cap.compute_time_s
-            return c.pipeline.observer.sample(scheduler.rng)
+            return c.pipeline.observer.sample(run.scheduler.rng)
 
-        timing = scheduler.next_frame(measure)
+        timing = run.scheduler.next_frame(measure)
         t_next = (timing.index + 1) * c.pipeline.frame_period_s + 0.5 * c.pipeline.exposure_s
-        push(t_next, "frame")
+        run.push(t_next, "frame")
         row = {
             "frame": timing.index,
             "t_exposure_s": timing.t_exposure,
@@ -392,21 +399,20 @@ class ClosedLoop:
             "dropped": timing.dropped,
         }
         if timing.dropped:
-            events.append((t, "frame_dropped", f"frame {timing.index}"))
-            frames.append(row)
+            run.events.append((t, "frame_dropped", f"frame {timing.index}"))
+            run.frames.append(row)
             return
-        cap = captured["cap"]
-        pixels = isinstance(cap.marker_px, np.ndarray) and cap.marker_px.shape == (2, 2)
-        if pixels and np.all(np.isfinite(cap.true_px)):
+        cap: Capture = captured["cap"]
+        if np.all(np.isfinite(cap.true_px)):
             err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
         else:  # no marker truth (e.g. a textured rotor): the front end's own verdict only
             err = np.full(2, np.nan if cap.lost else 0.0)
         lost = bool(cap.lost or not np.all(err <= c.loss_threshold_px))
-        if lost != state["lost"]:
+        if lost != run.lost:
             detail = cap.reason or f"centre error {np.nanmax(err):.1f} px"
-            events.append((t, "tracking_loss" if lost else "reacquisition", detail))
-            state["lost"] = lost
-        meas = cap.marker_px if pixels else np.full((2, 2), np.nan)
+            run.events.append((t, "tracking_loss" if lost else "reacquisition", detail))
+            run.lost = lost
+        meas = cap.marker_px
         row.update(
             {
                 "true_red_u_px": cap.true_px[0, 0],
@@ -422,20 +428,20 @@ class ClosedLoop:
                 "observer_compute_s": cap.compute_time_s,
             }
         )
-        frames.append(row)
-        push(timing.t_release, "release", (len(frames) - 1, cap, t))
+        run.frames.append(row)
+        run.push(timing.t_release, "release", (len(run.frames) - 1, cap, t))
 
-    def _on_release(self, t, payload, push, frames, events, state, rng_ctrl) -> None:
-        """An estimate becomes available: the observer fuses the frame's pixels (at their
+    def _on_release(self, run: _Run, t: float, payload: tuple[int, Capture, float]) -> None:
+        """An estimate becomes available: the observer fuses the frame's measurement (at its
         exposure time) and hands over its estimate; compute the command, schedule it."""
-        c = self.config
         frame_row, cap, t_exposure = payload
-        self.observer.process(cap.marker_px, t_exposure, cap.lost, cap.reason, cap.compute_time_s)
+        self.observer.process(cap.measurement, t_exposure, cap.lost, cap.reason,
+                              cap.compute_time_s)
         est: Estimate = self.observer.release(t)
-        state["estimate"] = est
-        if hasattr(self.front_end, "tilt_hint_rad") and est.valid:
-            self.front_end.tilt_hint_rad = attitude.tilt(est.q)
-        frames[frame_row].update(
+        run.estimate = est
+        if est.valid:
+            self.front_end.tilt_hint(attitude.tilt(est.q))
+        run.frames[frame_row].update(
             {
                 "est_qw": est.q[0],
                 "est_qx": est.q[1],
@@ -446,49 +452,47 @@ class ClosedLoop:
                 "latency_s": est.latency_s,
             }
         )
-        if c.controller_rate_hz is None:
-            self._control(t, est, frame_row, push, frames, events, state, rng_ctrl)
+        if self.config.controller_rate_hz is None:
+            self._control(run, t, est, frame_row)
         elif not est.valid:
-            events.append((t, "invalid_estimate", est.reason))
+            run.events.append((t, "invalid_estimate", est.reason))
 
-    def _control(self, t, est, frame_row, push, frames, events, state, rng_ctrl) -> None:
-        """Run the controller on ``est`` at ``t`` (or the safe command) and schedule the
-        command after the controller latency. ``frame_row`` (None on a clock tick) gets the
-        measured compute time."""
+    def _control(self, run: _Run, t: float, est: Estimate, frame_row: int | None) -> None:
+        """Run the controller on ``est`` at ``t`` (an invalid estimate gets the controller's
+        ``invalid_command``) and schedule the command after the controller latency. A torque
+        that is not finite (3,) is replaced by zero torque. ``frame_row`` (None on a clock
+        tick) gets the measured compute time."""
         c = self.config
-        overridden = not est.valid
-        if not est.valid:
-            if frame_row is not None:
-                events.append((t, "invalid_estimate", est.reason))
-            torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]
-            ctrl_time = 0.0
-        else:
-            t0 = self.clock()
-            torque = np.asarray(self.controller.command(est, self.reference, t), dtype=float)
-            ctrl_time = self.clock() - t0
-            if torque.shape != (3,) or not np.all(np.isfinite(torque)):
-                events.append((t, "invalid_command", f"controller returned {torque!r}"))
-                torque = np.zeros(3) if c.on_invalid == "zero" else state["torque_cmd"]
-                overridden = True
+        if not est.valid and frame_row is not None:
+            run.events.append((t, "invalid_estimate", est.reason))
+        t0 = self.clock()
+        torque = np.asarray(self.controller.command(est, self.reference, t), dtype=float)
+        ctrl_time = self.clock() - t0
+        overridden = torque.shape != (3,) or not np.all(np.isfinite(torque))
+        if overridden:
+            run.events.append((t, "invalid_command", f"controller returned {torque!r}"))
+            torque = np.zeros(3)
         if frame_row is not None:
-            frames[frame_row]["controller_compute_s"] = ctrl_time
+            run.frames[frame_row]["controller_compute_s"] = ctrl_time
         latency = (
             ctrl_time
             if c.controller_latency == "measured"
-            else c.controller_latency.sample(rng_ctrl)
+            else c.controller_latency.sample(run.rng_ctrl)
         )
-        push(t + latency, "command", (torque, est, overridden))
+        run.push(t + latency, "command", (torque, est, overridden))
 
-    def _on_command(self, t, payload, plant, events, state) -> None:
+    def _on_command(self, run: _Run, t: float,
+                    payload: tuple[NDArray[np.float64], Estimate, bool]) -> None:
         """Apply a torque command: allocate currents within the limits, hold them."""
         torque, est, overridden = payload
-        if overridden and hasattr(self.controller, "record_command"):
+        if overridden:
             self.controller.record_command(t, torque)  # e.g. the MPC's delay compensation
+        plant = run.plant
         q_alloc = plant.q if self.config.allocate_with == "truth" or not est.valid else est.q
         alloc = plant.allocate(torque, q_alloc)
-        if alloc.saturated != state["saturated"]:
+        if alloc.saturated != run.saturated:
             if alloc.saturated:
-                events.append(
+                run.events.append(
                     (
                         t,
                         "saturation",
@@ -496,10 +500,10 @@ class ClosedLoop:
                         f" of {np.linalg.norm(torque):.3g} N·m",
                     )
                 )
-            state["saturated"] = alloc.saturated
-        state["currents"] = alloc.currents
-        state["torque_cmd"] = torque
-        state["delivered"] = alloc.delivered
+            run.saturated = alloc.saturated
+        run.currents = alloc.currents
+        run.torque_cmd = torque
+        run.delivered = alloc.delivered
         self.observer.record_torque(t, alloc.delivered)
 
 

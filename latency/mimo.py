@@ -1,4 +1,4 @@
-"""MIMO check of the three-axis attitude loop with the exact vision delay (issue 5 §4).
+"""MIMO check of the three-axis attitude loop with the exact vision delay.
 
 The per-axis analysis (:func:`latency.margins.attitude_margins`) treats the body axes as three
 independent loops ``P_i = 1/(J_ii s² + b s)``. They are coupled when the centre of mass sits off
@@ -126,14 +126,14 @@ def rotor_linearisation(
 ) -> RotorLinearisation:
     """Linearise the rotor of ``params`` about ``q_op`` at rest (module docstring).
 
-    ``J_O`` comes from the centre-of-mass inertia and the offset ``d`` by the parallel-axis
-    theorem, as in ``plant.twin.CasadiTwin``. Coulomb friction is not part of the model.
+    ``J_O`` is ``RotorParams.inertia_about_centre_kgm2`` (parallel-axis theorem). Coulomb
+    friction is not part of the model.
     """
     p = params or PlantParams()
     r = p.rotor
     q = attitude.normalize(q_op, "q_op")
     d = np.asarray(r.com_offset_m, dtype=float)
-    J_O = np.diag(r.inertia_com_kgm2) + r.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
+    J_O = r.inertia_about_centre_kgm2
     g_b = attitude.to_matrix(q).T @ (r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2]))
     tau_eq = -np.cross(d, g_b)
     G = _skew(d) @ _skew(g_b) + _skew(tau_eq)

@@ -36,11 +36,11 @@ from dataclasses import dataclass
 
 import control as ct
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from controller.base import RefSample
 from controller.mpc import MPCConfig, MPCController
+from latency.zoh import zoh_integrals
 from plant import attitude
 from plant.params import PlantParams
 
@@ -82,15 +82,6 @@ def mpc_state_gain(
             cols.append(mpc.first_torque(x0, ref))
         K[:, j] = -(cols[0] - cols[1]) / (2.0 * eps)
     return K
-
-
-def _zoh_integrals(A: NDArray, B: NDArray, h: float) -> tuple[NDArray, NDArray]:
-    """``(e^{Ah}, ∫_0^h e^{Aσ} dσ B)``."""
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n], M[:n, n:] = A, B
-    E = scipy.linalg.expm(M * h)
-    return E[:n, :n], E[:n, n:]
 
 
 def mpc_discrete_law(
@@ -139,14 +130,14 @@ def mpc_discrete_law(
     Phi = np.eye(2)
     Gam = [np.zeros((2, 1)) for _ in range(M)]
     if delay_aware and tau_p > 0:
-        Phi, _ = _zoh_integrals(A, B, tau_p)
+        Phi, _ = zoh_integrals(A, B, tau_p)
         for i in range(1, M + 1):
             # u_{k-i} acts on [τ - iT, τ - (i-1)T) relative to kT; the prediction spans [0, τ_p]
             lo = max(delay_s - i * T, 0.0)
             hi = min(delay_s - (i - 1) * T, tau_p)
             if hi > lo:
-                _, G = _zoh_integrals(A, B, hi - lo)
-                Gam[i - 1] = _zoh_integrals(A, B, tau_p - hi)[0] @ G
+                _, G = zoh_integrals(A, B, hi - lo)
+                Gam[i - 1] = zoh_integrals(A, B, tau_p - hi)[0] @ G
     # u_k = D y_k + Cz z_k, z_k = (θ_{k-1}, u_{k-1}, ..., u_{k-M})
     D = float(-(K @ Phi @ np.array([[1.0], [1.0 / T]]))[0, 0])
     Cz = np.zeros((1, M + 1))

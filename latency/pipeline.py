@@ -3,7 +3,7 @@
 Stages of one frame k (all times in s of simulated time):
 
 * exposure from ``k T_f`` to ``k T_f + t_exp``; its measurement belongs to mid-exposure
-  ``t_exposure = k T_f + t_exp/2``;
+  ``t_exposure = k T_f + t_exp/2`` (docs/architecture.md, "Conventions");
 * readout: the frame is in memory at ``t_ready = k T_f + t_exp + t_readout``;
 * processing by the observer, with a latency drawn from its model; released at ``t_release``.
 
@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from latency.models import Constant, LatencyModel
+from latency.models import SEED_LATENCY_S, Constant, LatencyModel
 from plant.params import CameraParams
 
 PipelineMode = Literal["sequential", "pipelined"]
@@ -54,7 +54,7 @@ class PipelineConfig(BaseModel):
         "observer's latency, as seed 000 Table 1's per-frame figures are end to end."
     )
     observer: LatencyModel = Field(
-        default_factory=lambda: Constant(value_s=16.33e-3),
+        default_factory=lambda: Constant(value_s=SEED_LATENCY_S["gk_transt"]),
         description="Observer processing latency; default seed 000 Table 1, GK-TransT.",
     )
     mode: PipelineMode = "sequential"

@@ -4,11 +4,11 @@ The sequence is rendered with the analytic renderer from a seed (a slow cone in 
 with motion blur) and the wall-clock time of each frame's processing is recorded. The first
 ``warmup`` frames are not recorded (caches, lazy initialisation). Rendering is not timed.
 
-* ``measure_locator_latency``: the marker rotor; a locator (tracker + GK assistance) started on
-  the first frame's true box, timed per ``locate`` call.
-* ``measure_pair_tracker_latency``: the marker rotor; a pair tracker (GK-TransT, the dual
-  TransT, ...) started on the first frame's true boxes, timed per ``step`` call.
-* ``measure_orb_latency``: the textured rotor (issue 8); an ``OrbObserver`` (ORB alone, ORB-EKF
+* ``measure_locator_latency``: the marker rotor; a pair tracker (``observer.tracking.PairTracker``,
+  e.g. a tracker inside the GK assistance, GK-TransT or the dual TransT) started on the first
+  frame's true boxes, timed per ``step`` call by the tracker's own clock.
+  ``measure_pair_tracker_latency`` is the same measurement, named after the tracker.
+* ``measure_orb_latency``: the textured rotor; an ``OrbObserver`` (ORB alone, ORB-EKF
   or ORB-AEKF) on a reference view at rest, timed per frame over its front end (ORB, matching,
   RANSAC, refinement) and back end (solve or filter update), as ``OrbObserver.update`` reports.
 
@@ -26,13 +26,12 @@ import numpy as np
 from tqdm import tqdm
 
 from latency.models import Empirical
-from observer.frame_observer import MarkerLocator
+from observer.tracking import PairTracker
 from plant import attitude
 from plant.params import PlantParams
 from plant.texture import TextureParams
 
 if TYPE_CHECKING:
-    from observer.trackers import MarkerPairTracker
     from plant.scene import Frame
 
 
@@ -78,7 +77,7 @@ def _time_frames(
 
 def measure_locator_latency(
     params: PlantParams,
-    locator: MarkerLocator,
+    locator: PairTracker,
     n_frames: int = 200,
     warmup: int = 5,
     seed: int = 0,
@@ -93,17 +92,17 @@ def measure_locator_latency(
     """
     times = _time_frames(
         params,
-        lambda f: locator.start(f.image, f.binning, f.boxes_px[0]),
-        lambda f: locator.locate(f.image, f.binning).compute_time_s,
+        lambda f: locator.start(f.image, f.boxes_px, f.binning),
+        lambda f: locator.step(f.image).compute_time_s,
         n_frames, warmup, seed, progress,
     )
-    name = source or f"{type(locator.tracker).__name__} + GK assistance"
+    name = source or locator.name
     return Empirical.from_measurements(times, source=f"{name}, {n_frames} analytic frames")
 
 
 def measure_pair_tracker_latency(
     params: PlantParams,
-    tracker: MarkerPairTracker,
+    tracker: PairTracker,
     n_frames: int = 200,
     warmup: int = 5,
     seed: int = 0,
@@ -111,16 +110,9 @@ def measure_pair_tracker_latency(
 ) -> Empirical:
     """Per-frame compute time (s) of a marker-pair tracker (e.g. GK-TransT or the dual TransT
     of seed 000 §3.2, ``observer.trackers.make_pair_tracker``) on ``n_frames`` rendered frames,
-    started on the first frame's true boxes; timed per ``step`` as the tracker reports it."""
-    times = _time_frames(
-        params,
-        lambda f: tracker.start(f.image, f.boxes_px, f.binning),
-        lambda f: tracker.step(f.image).compute_time_s,
-        n_frames, warmup, seed, progress,
-    )
-    return Empirical.from_measurements(
-        times, source=f"{tracker.name}, {n_frames} analytic frames"
-    )
+    started on the first frame's true boxes; timed per ``step`` as the tracker reports it
+    (``measure_locator_latency`` with the profile named after the tracker)."""
+    return measure_locator_latency(params, tracker, n_frames, warmup, seed, progress=progress)
 
 
 def measure_orb_latency(

@@ -1,1 +1,1 @@
-"""Frames -> attitude: trackers, attitude solvers, filters, the MEMS baseline (issues 3, 4, 8)."""
+"""Frames -> attitude: trackers, attitude solvers, filters, the MEMS baseline."""

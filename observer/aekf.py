@@ -12,7 +12,7 @@ by the commanded stator-frame torque (N·m), so the filter can predict across th
 * Update (App. C.2): K = P H^T (H P H^T + λ R)^-1, via filterpy's ``ExtendedKalmanFilter``.
 * Covariance matching (App. C.3): innovation e(k) = Z - h(X(k|k-1)); C_e = mean of e e^T over
   the last N innovations; C = H P H^T + R; λ = max(1, tr C_e / tr C).
-* Point observations (``update_points``, issue 8, seed 001 §4.2.2 Eq. 13): any rotor-frame
+* Point observations (``update_points``, seed 001 §4.2.2 Eq. 13): any rotor-frame
   points (for example ORB features on a printed texture, ``observer.orb``) and their pixels; the
   Jacobian of the pinhole projection with distortion is CasADi's, evaluated over the points
   with ``Function.map``. Points outside a per-point chi-square gate are dropped; the trace ratio
@@ -70,7 +70,7 @@ class AEKFConfig(BaseModel):
     )
     q_omega_rad2_per_s3: float = Field(
         0.1, ge=0.0, description="Our choice: rate random walk for unmodelled torque; a "
-        "starting point for the closed-loop Q/R tuning of issue 6."
+        "starting point for the closed-loop Q/R tuning (``experiments.tuning``)."
     )
     sigma_px: float = Field(
         1.0, gt=0.0, description="Our choice: marker-centre noise, sensor px (1 sensor px is "
@@ -333,7 +333,7 @@ class QuaternionAEKF:
         self._torque_t = [float(t0)]
         self._torque = [np.zeros(3)]
 
-    # --- point observations (issue 8) -------------------------------------------------------
+    # --- point observations ---------------------------------------------------------------------
     def project_points(
         self, points_rotor_m: ArrayLike, q: ArrayLike | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from observer.cor_model import CorModel
 from observer.types import SolverResult
@@ -288,18 +288,3 @@ class CorSolver:
                 "(far-side solution)",
             )
         return SolverResult(q=q, covariance=cov, residual_rms_px=rms, iterations=it)
-
-
-def solve_batch(
-    solver: CorSolver, marker_px: ArrayLike, q_start: ArrayLike | None = None
-) -> list[SolverResult]:
-    """Solve a sequence of frames (M, N, 2); each frame warm-starts from the previous valid
-    result (the first from ``q_start`` or cold)."""
-    out = []
-    q = None if q_start is None else np.asarray(q_start, dtype=float)
-    for uv in np.asarray(marker_px, dtype=float):
-        res = solver.solve(uv, q)
-        out.append(res)
-        if res.valid:
-            q = res.q
-    return out

@@ -1,4 +1,7 @@
-"""The MEMS baseline (seed 000 §5, issue 3 §4): an IMU on the rotor and its attitude estimator.
+"""The MEMS baseline (seed 000 §5): an IMU on the rotor and its attitude estimator.
+
+One module of about 900 lines: the IMU model and its estimator are one baseline, described
+together by seed 000 §5.3 (noise terms, zeroing, yaw decoupling, unwrapping), and tested as one.
 
 The seed compares its camera against an ICM42605 IMU sampled at 200 Hz with ranges ±2000 °/s and
 ±16 g (seed 000 Table 2), mounted on a fixture that stands in for the rotor's bottom (§5). Its yaw
@@ -132,7 +135,7 @@ class ImuConfig(_Strict):
         0.0,
         ge=0.0,
         description="Our choice: 1σ per-axis scale-factor error, drawn at turn-on; 0 by "
-        "default (not among the terms issue 3 asks for).",
+        "default (not among the terms modelled).",
     )
     accel_noise_density_ug_rthz: float = Field(
         70.0, ge=0.0, description="ICM-42605 datasheet: accelerometer noise 70 µg/√Hz."
@@ -479,6 +482,27 @@ def _quantize_saturate(
     return np.clip(x, -full_scale, full_scale), sat
 
 
+def _checked_trajectory(t: ArrayLike, q: ArrayLike, omega: ArrayLike,
+                        omega_dot: ArrayLike | None) -> Trajectory:
+    """The truth of ``simulate_imu`` checked: finite, unit quaternions, >= 2 rows of equal
+    length, strictly increasing times; ``ValueError`` naming the bad argument otherwise."""
+    t = attitude.check_finite("t", t).reshape(-1)
+    q = attitude.normalize(np.asarray(q, dtype=float).reshape(-1, 4), "q")
+    omega = attitude.check_finite("omega", omega).reshape(-1, 3)
+    if len(t) < 2 or not (len(q) == len(omega) == len(t)):
+        raise ValueError(
+            f"t, q, omega need >= 2 rows of equal length, got {len(t)}, {len(q)}, {len(omega)}"
+        )
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t must be strictly increasing")
+    wd = None
+    if omega_dot is not None:
+        wd = attitude.check_finite("omega_dot", omega_dot).reshape(-1, 3)
+        if len(wd) != len(t):
+            raise ValueError("omega_dot must have one row per time")
+    return Trajectory(t, q, omega, wd)
+
+
 def simulate_imu(
     t: ArrayLike,
     q: ArrayLike,
@@ -506,26 +530,13 @@ def simulate_imu(
     samples by slerp / linear interpolation).
     """
     cfg = config or ImuConfig()
-    t = attitude.check_finite("t", t).reshape(-1)
-    q = attitude.normalize(np.asarray(q, dtype=float).reshape(-1, 4), "q")
-    omega = attitude.check_finite("omega", omega).reshape(-1, 3)
-    if len(t) < 2 or not (len(q) == len(omega) == len(t)):
-        raise ValueError(
-            f"t, q, omega need >= 2 rows of equal length, got {len(t)}, {len(q)}, {len(omega)}"
-        )
-    if np.any(np.diff(t) <= 0):
-        raise ValueError("t must be strictly increasing")
-    wd = None
-    if omega_dot is not None:
-        wd = attitude.check_finite("omega_dot", omega_dot).reshape(-1, 3)
-        if len(wd) != len(t):
-            raise ValueError("omega_dot must have one row per time")
+    truth = _checked_trajectory(t, q, omega, omega_dot)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
 
     dt = cfg.dt_s
-    n = int(math.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
-    ts = t[0] + np.arange(n) * dt
-    q_s, w_s, wd_s = _resample(Trajectory(t, q, omega, wd), ts)
+    n = int(math.floor((truth.t[-1] - truth.t[0]) / dt + 1e-9)) + 1
+    ts = truth.t[0] + np.arange(n) * dt
+    q_s, w_s, wd_s = _resample(truth, ts)
 
     # Specific force at the sensor, body frame.
     r = np.asarray(cfg.position_m, dtype=float)

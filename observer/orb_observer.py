@@ -15,7 +15,7 @@ It has the two-phase seam of ``observer.pixel_observer`` that the timed loop use
 the frame is taken and ``release(t_release) -> Estimate`` when the result is handed over; the
 measurement is an ``observer.orb.OrbMeasurement`` (from ``measure(frame)``) instead of marker
 pixels. ``update(frame, t_exposure)`` does all of it at once and releases after the measured
-compute time (DESIGN.md's observer interface).
+compute time (the frame observer's interface, ``observer.frame_observer``).
 
 Bad input: a frame with too few matches (textureless, heavily blurred, empty or NaN) gives a
 measurement with ``valid=False`` and a reason. The filters then predict through it: the released

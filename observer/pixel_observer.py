@@ -245,8 +245,8 @@ class PixelKalmanObserver:
     """The seed's pixel Kalman filter (seed 000 §3.2.1: constant velocity, Δt = 1 frame) on
     each marker centre, then a per-frame solver on the filtered centres.
 
-    This is the filter whose Q and R the closed-loop tuning of issue 6 adjusts: a small Q/R
-    smooths the pixels but lags them; a large Q/R passes the noise through.
+    This is the filter whose Q and R the closed-loop tuning (``experiments.tuning``) adjusts: a
+    small Q/R smooths the pixels but lags them; a large Q/R passes the noise through.
     """
 
     def __init__(

@@ -1,5 +1,6 @@
-"""The observer's seams (DESIGN.md): what an attitude solver returns; ``Estimate`` (what an
-observer releases) lives in ``plant.estimate`` because the controllers need it too.
+"""The observer's interfaces (docs/architecture.md): what an attitude solver returns;
+``Estimate`` (what an observer releases) lives in ``plant.estimate`` because the controllers need
+it too.
 
 Pixels are full-sensor pixels (the seed's unit) unless a name says otherwise. A quaternion is
 (w, x, y, z), rotor to stator. A result that cannot be trusted is returned with ``valid=False``

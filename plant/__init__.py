@@ -2,8 +2,8 @@
 CasADi twin), the bottom camera, and the renderers of its view. Imports no other package here.
 
 MuJoCo chooses its OpenGL backend when it is first imported, and every module here that imports
-it is reached through this package, so the offscreen EGL default (CPU rendering on these
-machines, DESIGN.md) is set here, before any of them. An explicit ``MUJOCO_GL`` wins.
+it is reached through this package, so the offscreen EGL default (CPU rendering on machines
+without a GPU) is set here, before any of them. An explicit ``MUJOCO_GL`` wins.
 """
 
 import os

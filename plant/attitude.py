@@ -1,6 +1,6 @@
 """Attitude conversions: unit quaternion <-> rotation matrix <-> the seed's Z-Y-Z angles.
 
-Conventions (DESIGN.md):
+Conventions (docs/architecture.md):
 
 * A quaternion is ``(w, x, y, z)``, scalar first, and maps rotor-frame vectors into the
   stator frame: ``v_stator = R(q) @ v_rotor``.

@@ -1,12 +1,12 @@
 """The bottom camera: pinhole model, pose and the projection of rotor points.
 
-Geometry (DESIGN.md): the camera sits on the stator Z axis below the rotor and looks up (+Z).
-Its optical centre is at ``(0, 0, -(R + h_c))``, with R the rotor radius and h_c the distance
-from the optical centre to the rest plane of the bottom pole (seed 000 §2.5). The OpenCV camera
-frame has z along the optical axis (+Z), x along image u and y along image v; we align x with
-the stator X axis, so y is the stator Y axis and ``p_cam = p_stator - C``. Looking up mirrors the
-scene as seen from above: a counter-clockwise rotation about +Z (X toward Y) turns u toward v,
-which on screen (v down) is clockwise.
+Geometry (docs/architecture.md, "Conventions"): the camera sits on the stator Z axis below the
+rotor and looks up (+Z). Its optical centre is at ``(0, 0, -(R + h_c))``, with R the rotor
+radius and h_c the distance from the optical centre to the rest plane of the bottom pole (seed 000
+§2.5). The OpenCV camera frame has z along the optical axis (+Z), x along image u and y along
+image v; we align x with the stator X axis, so y is the stator Y axis and ``p_cam = p_stator -
+C``. Looking up mirrors the scene as seen from above: a counter-clockwise rotation about +Z (X
+toward Y) turns u toward v, which on screen (v down) is clockwise.
 
 Pixels follow OpenCV's convention: integer coordinates are pixel centres and the image centre of
 a W x H image is ((W - 1)/2, (H - 1)/2). *Sensor* pixels are full-resolution (the seed's unit);

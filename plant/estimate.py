@@ -1,7 +1,7 @@
 """What an observer releases for one frame: the seam between observers and controllers.
 
 It lives in ``plant`` (the lowest package) because both ``observer`` and ``controller`` use it
-(DESIGN.md: imports flow experiments -> latency -> controller, observer -> plant).
+(docs/architecture.md: imports flow experiments -> latency -> controller, observer -> plant).
 """
 
 from __future__ import annotations

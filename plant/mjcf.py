@@ -10,7 +10,7 @@
 * Scene: the bottom camera of ``plant.camera`` (MuJoCo cameras look along their -z with +y up in
   the image, so ``xyaxes = (1 0 0, 0 -1 0)`` gives image u along +X and v along +Y), a ring of
   lights around it, the dark VFC plate at the bottom pole with the red and yellow marker discs.
-* Textured variant (issue 8, ``texture=``; off by default): instead of the marker discs, a
+* Textured variant (``texture=``; off by default): instead of the marker discs, a
   square mesh on the plane z = -R carries the printed pattern of ``plant.texture`` as a 2-D
   texture asset (``mjcf_assets``), with texture coordinates at its corners so that texel
   (i, j) lands on the rotor point of ``plant.texture.Texture``'s convention.
@@ -80,7 +80,7 @@ def build_mjcf(
     attitude that much earlier through MuJoCo's native sensor delay (MuJoCo >= 3.5), an
     independent check of the timed loop's delay pipeline.
 
-    ``texture`` (issue 8; default None) replaces the two marker discs by the printed pattern
+    ``texture`` (default None) replaces the two marker discs by the printed pattern
     of ``plant.texture.generate_texture``; load the model with ``mjcf_assets(texture)``.
     """
     delayed = ""

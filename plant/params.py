@@ -11,7 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import yaml
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Vec3 = Annotated[tuple[float, float, float], Field(description="3-vector")]
@@ -40,7 +42,7 @@ class MotorParams(_Strict):
         ge=0.0,
         lt=45.0,
         description="Our choice: azimuth offset of the lower coil layer; "
-        "halves the worst condition number of K(q) (DESIGN.md).",
+        "halves the worst condition number of K(q) (docs/plant.md).",
     )
     cutoff_deg: float = Field(40.0, gt=5.0, lt=90.0, description="Our choice: f(phi)=0 beyond it.")
     k_T_Nm_per_A: float = Field(
@@ -86,6 +88,14 @@ class RotorParams(_Strict):
     )
     tilt_stop_deg: float = Field(15.0, gt=0.0, lt=60.0, description="Seed 000 §2.4: 0–15° tilt.")
     gravity_m_s2: float = Field(9.81, ge=0.0, description="Standard gravity along -Z.")
+
+    @property
+    def inertia_about_centre_kgm2(self) -> NDArray[np.float64]:
+        """(3, 3) inertia about the fixed centre O, kg·m², rotor frame: the centre-of-mass
+        inertia moved by the offset d (parallel-axis theorem),
+        J_O = J_c + m (|d|² I − d dᵀ)."""
+        d = np.asarray(self.com_offset_m, dtype=float)
+        return np.diag(self.inertia_com_kgm2) + self.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
 
 
 class CameraParams(_Strict):
@@ -158,7 +168,8 @@ class PlantParams(_Strict):
     camera: CameraParams = CameraParams()
     vfc: VFCParams = VFCParams()
     physics_dt_s: float = Field(
-        1.0e-3, gt=0.0, le=5e-3, description="Our choice: 1 kHz physics (issue 5: >= 1 kHz)."
+        1.0e-3, gt=0.0, le=5e-3,
+        description="Our choice: 1 kHz physics (the loop's timing needs >= 1 kHz).",
     )
 
     @classmethod

@@ -19,7 +19,7 @@ Camera effects, all optional and seeded: motion blur (the average of sub-exposur
 ``plant.scene.sub_exposure_attitudes``), illumination scale, gain, Gaussian read noise, and
 distractors: stationary specular highlights and a red or yellow sticker elsewhere on the rotor.
 
-Textured variant (issue 8, ``AnalyticRenderOptions.texture``; off by default): the bottom plate
+Textured variant (``AnalyticRenderOptions.texture``; off by default): the bottom plate
 carries the printed pattern of ``plant.texture`` instead of the dark plate and the two markers.
 Each pixel's viewing ray is intersected with the print's plane at the sub-frame's attitude (the
 plane-to-image map is the homography of ``plant.texture.plane_homography`` in normalised camera
@@ -154,7 +154,7 @@ class AnalyticRenderOptions(BaseModel):
     )
     texture: TextureParams | None = Field(
         None,
-        description="Issue 8: a printed texture (``plant.texture``) on the bottom plate "
+        description="A printed texture (``plant.texture``) on the bottom plate "
         "instead of the dark plate and the two markers; None (default) keeps the markers.",
     )
 
@@ -409,7 +409,7 @@ class AnalyticRenderer:
         img[y0:y1, x0:x1] = cv2.convertScaleAbs(roi)  # values are >= 0: rounds and saturates
         return img
 
-    # --- textured plate (issue 8) -------------------------------------------------------------
+    # --- textured plate ------------------------------------------------------------------------
     def _choose_texture_level(self) -> int:
         """Texels per side of the prefiltered texture level sampled when rendering: about one
         texel per supersampled pixel at the print's distance, never more than the print has."""

@@ -5,7 +5,7 @@ of view of ``plant.camera.Camera``, so frames agree with ``plant.render_analytic
 ground truth of ``plant.scene``. MuJoCo renders an ideal pinhole; a non-zero lens distortion
 (``CameraParams.dist_coeffs``) is applied afterwards by resampling the ideal image.
 
-Textured variant (issue 8; ``texture=`` a ``plant.texture.TextureParams``, default None): the
+Textured variant (``texture=`` a ``plant.texture.TextureParams``, default None): the
 plate carries the printed pattern of ``plant.texture`` instead of the two markers (see
 ``plant.mjcf``); OpenGL's mipmapped texture filtering does the anti-aliasing.
 
@@ -67,7 +67,7 @@ class MujocoRenderer:
     max_sub_frames : int
         Cap on the automatic number of sub-frames (our choice: 16).
     texture : TextureParams, optional
-        Issue 8: draw the printed texture of ``plant.texture`` on the bottom plate instead of
+        Draw the printed texture of ``plant.texture`` on the bottom plate instead of
         the two markers (default None: the markers).
 
     The renderer holds an OpenGL context: call ``close()`` or use it as a context manager.

@@ -1,4 +1,4 @@
-"""A procedural printed texture for the rotor's bottom plate (issue 8, seed 001 §4.2.1).
+"""A procedural printed texture for the rotor's bottom plate (seed 001 §4.2.1).
 
 Seed 001 estimates attitude from ORB feature matches on a textured scene. Our variant of the
 rotor replaces the two VFC markers by a print on the bottom plate that is rich in corners:

@@ -12,6 +12,7 @@ frame (N·m) for coil currents I (A).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -129,3 +130,40 @@ def allocate(
     delivered = K @ I
     saturated = s < 1.0 - 1e-9
     return Allocation(I, saturated, delivered)
+
+
+# --- torque capacity ------------------------------------------------------------------------
+def inradius(K: NDArray[np.float64], i_max: float) -> float:
+    """Largest torque (N·m) that the currents ``|I_k| <= i_max`` (A) deliver in every direction
+    through ``K`` (3 x n, N·m/A): the inradius about the origin of the zonotope ``K [-i_max,
+    i_max]^n``, ``min over facet normals n of i_max Σ_k |n · k_k|``."""
+    K = attitude.check_finite("K", K)
+    cols = K.T
+    ia, ib = np.triu_indices(cols.shape[0], k=1)
+    N = np.cross(cols[ia], cols[ib])
+    norms = np.linalg.norm(N, axis=1)
+    keep = norms > 1e-12 * max(float(np.max(norms)), 1e-300)
+    if not np.any(keep):
+        return 0.0
+    N = N[keep] / norms[keep, None]
+    return float(i_max * np.abs(N @ K).sum(axis=1).min())
+
+
+@lru_cache(maxsize=8)
+def worst_case_capacity(
+    motor: MotorParams,
+    tilt_max_deg: float = 15.0,
+    n_tilt: int = 6,
+    n_spin: int = 24,
+    n_yaw: int = 24,
+) -> float:
+    """Minimum over a grid of the tilt workspace (tilt 0..``tilt_max_deg``, all spins and yaws)
+    of the all-direction torque capacity ``inradius(K(q), i_max)``, N·m. Cached per motor (the
+    controllers' torque limit, ``controller.pid``)."""
+    tm = TorqueMap(motor)
+    worst = np.inf
+    for b in np.linspace(0.0, np.deg2rad(tilt_max_deg), n_tilt):
+        for a in np.linspace(0.0, 2 * np.pi, n_spin, endpoint=False):
+            for g in np.linspace(0.0, 2 * np.pi, n_yaw, endpoint=False):
+                worst = min(worst, inradius(tm(attitude.from_zyz(a, b, g)), motor.i_max_A))
+    return float(worst)

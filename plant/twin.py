@@ -131,9 +131,8 @@ class CasadiTwin:
         self.params = p = params or PlantParams()
         r, motor = p.rotor, p.motor
         self.dt = p.physics_dt_s
-        # Inertia about O from the centre-of-mass inertia (parallel-axis theorem).
         d = np.asarray(r.com_offset_m)
-        J_O = np.diag(r.inertia_com_kgm2) + r.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
+        J_O = r.inertia_about_centre_kgm2
         self.J_O = J_O
         J_inv = np.linalg.inv(J_O)
 

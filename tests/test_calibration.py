@@ -43,7 +43,7 @@ DISTORTED = PlantParams(camera=CameraParams(dist_coeffs=(-0.3, 0.0, 0.0, 0.0, 0.
 # principal point 1.5-1.8 % off with this lens.
 @pytest.mark.parametrize("seed", [0, 1, 5, 7])
 def test_recovers_a_distorted_lens(seed):
-    """Issue 2: focal length *and principal point* within 1 %, also with k1 = -0.3."""
+    """Focal length *and principal point* within 1 %, also with k1 = -0.3."""
     r = calibrate_from_renders(DISTORTED, seed=seed)
     K_true = Camera.from_plant(DISTORTED).matrix(4)
     assert r.n_used == len(r.views)

@@ -2,7 +2,7 @@
 problem, without a traceback, before any expensive work (docs/reliability.md).
 
 Every row runs in-process (typer's CliRunner). The expensive entry points (a run, a sweep, a
-latency measurement, the study, the demo, the tuning, rendering the tracking sequences, the
+latency measurement, the study, the tuning, rendering the tracking sequences, the
 margins) are replaced by functions that fail the test, so a row passes only if its mistake is
 caught first.
 """
@@ -424,7 +424,7 @@ CASES = [
             "sqlite:////nonexistent-pmspm/optuna.db", "--out", "{d}/t"),
     command("tune-out-is-a-file", "cannot write results there", "tune-kalman", "--out",
             "{d}/f.txt", files={"f.txt": "x"}),
-    # --- study and demo -------------------------------------------------------------------
+    # --- study -------------------------------------------------------------------------
     command("study-workers-zero", "--workers must be >= 1", "study", "--workers", "0",
             "--out", "{d}/o"),
     command("study-workers-negative", "--workers must be >= 1", "study", "--workers", "-1",
@@ -433,10 +433,6 @@ CASES = [
             "tcp:/host:8786", "--out", "{d}/o"),
     command("study-out-is-a-file", "cannot write results there", "study", "--out", "{d}/f.txt",
             files={"f.txt": "x"}),
-    command("demo-out-is-a-file", "cannot write results there", "demo", "--out", "{d}/f.txt",
-            files={"f.txt": "x"}),
-    command("demo-out-under-a-file", "cannot write results there", "demo", "--out",
-            "{d}/f.txt/a/b", files={"f.txt": "x"}),
     # --- the command line's own grammar ---------------------------------------------------
     command("unknown-command", "No such command", "simulat"),
     command("unknown-option", "No such option", "margins", "--crossover", "3"),
@@ -448,7 +444,6 @@ CASES = [
 
 def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
     """Replace the entry points of expensive work with functions that fail the test."""
-    import experiments.demo
     import experiments.scenario
     import experiments.sequences
     import experiments.study
@@ -464,7 +459,6 @@ def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
         (experiments.scenario, "run"),
         (experiments.sweep, "run_sweep"),
         (experiments.study, "run_study"),
-        (experiments.demo, "run_demo"),
         (experiments.tuning, "tune_kalman"),
         (experiments.sequences, "validation_suite"),
         (latency.profile, "measure_locator_latency"),

@@ -25,7 +25,7 @@ def balanced_currents(rng, amp_A, n_patterns=10, block_steps=25):
 
 @pytest.mark.parametrize("com", [(0.0, 0.0, 0.0), (3e-4, -2e-4, -2e-3)])
 def test_twin_and_mujoco_agree_over_one_second(com):
-    """Issue 2: same state, same 1 s current sequence, agreement within 1e-4 rad away from the
+    """Same state, same 1 s current sequence, agreement within 1e-4 rad away from the
     stop, at a realistic current level (±0.3 A = 15 % of i_max, new currents every 25 ms)."""
     p = PlantParams(rotor=RotorParams(com_offset_m=com))
     rng = np.random.default_rng(0)
@@ -186,7 +186,7 @@ def test_non_finite_dt_raises_a_value_error_naming_dt(dt):
 
 
 def test_allocate_takes_an_optional_current_limit():
-    """Issue 2's ``allocate(torque, q, i_max)``: a smaller limit binds where the motor's does
+    """``allocate(torque, q, i_max)``: a smaller limit binds where the motor's does
     not; the delivered torque keeps the requested direction and is the largest such torque
     within the smaller limit (an independent LP over the bounded currents)."""
     from scipy.optimize import linprog

@@ -1,14 +1,16 @@
-"""The DESIGN observer, update(frame, t_exposure) -> Estimate, on rendered frames."""
+"""The frame observer, update(frame, t_exposure) -> Estimate, on rendered frames."""
 
 import numpy as np
 import pytest
 
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.frame_observer import FrameObserver, MarkerLocator
+from observer.frame_observer import FrameObserver
 from observer.gk.hsv_gate import box_sensor_to_image
 from observer.opencv_trackers import OpenCVTracker
 from observer.pixel_observer import FilterObserver, SolverObserver
+from observer.trackers import make_pair_tracker
+from observer.trackers.gk_transt import GKTransTPairTracker
 from plant import attitude as A
 from plant.params import PlantParams
 from plant.render_analytic import AnalyticRenderer
@@ -25,9 +27,10 @@ def cone(t):
 
 def run(backend, n=40):
     renderer = AnalyticRenderer(P, seed=3)
-    # The estimate is released after the locator's measured time: an injected clock (2-10 ms
-    # per reading) keeps the release times, and so the validity, independent of machine load.
-    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
+    # The estimate is released after the pair tracker's measured time: an injected clock
+    # (2-10 ms per reading) keeps the release times, and so the validity, independent of
+    # machine load.
+    obs = FrameObserver(make_pair_tracker("kcf_gk", P, clock=StepClock(2e-3, 10e-3)), backend)
     obs.reset(cone(0.0), 0.0)
     errors, ests = [], []
     dt = 1.0 / P.camera.frame_rate_hz
@@ -35,7 +38,7 @@ def run(backend, n=40):
         t = k * dt
         frame = renderer.render(cone(t), t_exposure=t)
         if k == 0:
-            obs.start(frame.image, frame.binning, frame.boxes_px[0])
+            obs.start(frame.image, frame.binning, frame.boxes_px)
         est = obs.update(frame, t)
         ests.append(est)
         errors.append(A.geodesic_angle(est.q, cone(est.state_time)))
@@ -66,24 +69,24 @@ def test_filter_observer_on_rendered_frames_estimates_the_rate():
 
 def test_locator_predicts_through_blank_frames_and_reacquires():
     renderer = AnalyticRenderer(P, seed=4)
-    loc = MarkerLocator(P)
+    loc = make_pair_tracker("kcf_gk", P)
     frame = renderer.render(cone(0.0))
-    loc.start(frame.image, frame.binning, frame.boxes_px[0])
+    loc.start(frame.image, frame.boxes_px, frame.binning)
     dt = 1.0 / P.camera.frame_rate_hz
     for k in range(1, 4):
-        loc.locate(renderer.render(cone(k * dt)).image, frame.binning)
-    for _ in range(4, 8):  # the markers vanish: the Kalman prediction stands in, tracker restarts
-        blank = np.zeros_like(frame.image)
-        res = loc.locate(blank, frame.binning)
-        assert res.gk.red_source == "prediction"
+        loc.step(renderer.render(cone(k * dt)).image)
+    for _ in range(4, 8):  # the markers vanish: the Kalman prediction stands in
+        res = loc.step(np.zeros_like(frame.image))
+        assert not res.red_measured and np.all(np.isfinite(res.red_px))
+        assert loc.last_gk.red_source == "prediction"
     for k in range(8, 12):
         f = renderer.render(cone(k * dt))
-        res = loc.locate(f.image, f.binning)
-    assert not res.lost and res.gk.red_source == "measurement"
+        res = loc.step(f.image)
+    assert not res.lost and res.red_measured and loc.last_gk.red_source == "measurement"
     assert np.linalg.norm(res.marker_px - f.marker_px, axis=1).max() < 3.0
 
 
-# --- bad frames (DESIGN.md: a flagged estimate with a reason, never a crash mid-loop) ----------
+# --- bad frames (a flagged estimate with a reason, never a crash mid-loop) ---------------------
 
 def _bad_frames(image):
     """Name -> (bad image, words its reason must contain)."""
@@ -106,10 +109,10 @@ class _Frame:
 
 def _started_observer(backend, seed=5):
     renderer = AnalyticRenderer(P, seed=seed)
-    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
+    obs = FrameObserver(make_pair_tracker("kcf_gk", P, clock=StepClock(2e-3, 10e-3)), backend)
     obs.reset(cone(0.0), 0.0)
     first = renderer.render(cone(0.0), t_exposure=0.0)
-    obs.start(first.image, first.binning, first.boxes_px[0])
+    obs.start(first.image, first.binning, first.boxes_px)
     assert obs.update(first, 0.0).valid
     return obs, renderer, first
 
@@ -125,12 +128,6 @@ def test_bad_frames_give_an_invalid_estimate_with_a_reason():
             assert est.lost, name
             assert est.reason.startswith("bad frame: "), (name, est.reason)
             assert words in est.reason, (name, est.reason)
-
-
-def test_bad_binning_is_flagged_not_raised():
-    obs, _, first = _started_observer(SolverObserver(CorSolver(CorModel.nominal(P))))
-    est = obs.update(_Frame(first.image, 3), 1.0 / P.camera.frame_rate_hz)
-    assert not est.valid and est.lost and "binning" in est.reason
 
 
 def test_observer_recovers_after_bad_frames():
@@ -153,15 +150,15 @@ def test_locator_flags_a_bad_frame_without_showing_it_to_the_tracker():
     calls = []
 
     class Spy(OpenCVTracker):
-        def track(self, frame):
+        def track(self, frame, search_centre_image_px=None):
             calls.append(frame.shape)
-            return super().track(frame)
+            return super().track(frame, search_centre_image_px)
 
-    loc = MarkerLocator(P, tracker=Spy("kcf"))
+    loc = GKTransTPairTracker(Spy("kcf"), P, guide_search=False, restart_on_prediction=True)
     f = renderer.render(cone(0.0))
-    loc.start(f.image, f.binning, f.boxes_px[0])
-    loc.locate(f.image, f.binning)
-    res = loc.locate(f.image.astype(np.float32), f.binning)
+    loc.start(f.image, f.boxes_px, f.binning)
+    loc.step(f.image)
+    res = loc.step(f.image.astype(np.float32))
     assert calls == [f.image.shape]
     assert res.lost and "float32" in res.bad_frame and res.reason.startswith("bad frame: ")
     assert res.reason.count("float32") == 1  # said once, not repeated by the GK stage
@@ -173,58 +170,84 @@ def test_opencv_tracker_rejects_bad_frames_with_a_reason():
     box = box_sensor_to_image(f.boxes_px[0], f.binning)
     for kind in ("kcf", "csrt"):
         tr = OpenCVTracker(kind)
-        b, s = tr.track(f.image)
-        assert np.all(np.isnan(b)) and s == 0.0 and "not initialised" in tr.reason
+        res = tr.track(f.image)
+        b, s = res.box_image_px, res.score
+        assert np.all(np.isnan(b)) and s == 0.0 and "not initialised" in res.reason
         with pytest.raises(ValueError, match="uint8"):
-            tr.init(f.image.astype(float), box)
-        tr.init(f.image, box)
+            tr.initialize(f.image.astype(float), box)
+        tr.initialize(f.image, box)
         for name, (img, words) in _bad_frames(f.image).items():
-            b, s = tr.track(img)  # must not raise (it raised cv2.error before)
+            res = tr.track(img)  # must not raise (it raised cv2.error before)
+            b, s = res.box_image_px, res.score
             assert np.all(np.isnan(b)) and s == 0.0, (kind, name)
             # The tracker knows only its init frame, not the sensor.
             words = "differs from the init frame" if name == "wrong_size" else words
-            assert words in tr.reason, (kind, name, tr.reason)
-        b, s = tr.track(f.image)  # a good frame still tracks after the bad ones
-        assert s == 1.0 and tr.reason == ""
+            assert words in res.reason, (kind, name, res.reason)
+        res = tr.track(f.image)  # a good frame still tracks after the bad ones
+        b, s = res.box_image_px, res.score
+        assert s == 1.0 and res.valid and res.reason == ""
         c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
         assert np.linalg.norm(c - f.marker_px[0]) < 3.0
 
 
 # --- coasting through frames without markers, and re-acquisition ------------------------------
 
+def _hide_markers(frame):
+    """The frame's image with a square of twice each marker's box size painted over in the
+    median colour of its border: a usable frame (not bad) in which no marker can be measured."""
+    img = frame.image.copy()
+    for box in frame.boxes_px:
+        x, y, w, h = box_sensor_to_image(box, frame.binning)
+        cx, cy, r = x + 0.5 * w, y + 0.5 * h, max(w, h)
+        r0, r1 = int(max(cy - r, 0)), int(min(cy + r, img.shape[0]))
+        c0, c1 = int(max(cx - r, 0)), int(min(cx + r, img.shape[1]))
+        border = np.concatenate([img[r0, c0:c1], img[r1 - 1, c0:c1],
+                                 img[r0:r1, c0], img[r0:r1, c1 - 1]])
+        img[r0:r1, c0:c1] = np.median(border, axis=0).astype(np.uint8)
+    return img
+
+
 @pytest.mark.parametrize("kind", ["solver", "aekf"])
-def test_coasting_through_black_frames_is_flagged_and_bounded_then_reacquired(kind):
-    """10 good frames of the cone, 30 all-black frames, 85 good frames. During the black frames
-    the GK prediction stands in for the marker: every estimate is ``lost`` and says it is
-    coasting, and once no marker has been measured for more than ``max_coast_s`` it is invalid
-    (the prediction drifted 1.3° on this cone). After them the track resumes and the estimate
-    is valid again. The AEKF's model has the rotor's friction, which the kinematically imposed
-    cone does not have: its prediction drifts outside the innovation gate, and it re-acquires
-    only by restarting from the per-frame solve. Whenever an estimate is valid its error
-    against the cone is small."""
+def test_coasting_through_lost_markers_is_flagged_and_bounded_then_reacquired(kind):
+    """10 good frames of the cone, 30 frames with both markers hidden, 30 good, 30 all-black
+    frames, 50 good. While the markers are hidden the GK prediction stands in for them: every
+    estimate is ``lost`` and says it is coasting, and once no marker has been measured for more
+    than ``max_coast_s`` it is invalid. An all-black frame fails the frame check: its estimate
+    is invalid at once, its reason names the bad frame first and then the coasting. After each
+    outage the track resumes and the estimate is valid again. The AEKF's model has the rotor's
+    friction, which the kinematically imposed cone does not have: its prediction drifts outside
+    the innovation gate, and it re-acquires only by restarting from the per-frame solve.
+    Whenever an estimate is valid its error against the cone is small."""
     backend = (SolverObserver(CorSolver(CorModel.nominal(P))) if kind == "solver"
                else FilterObserver(P, compensate_delay=False))
-    obs = FrameObserver(MarkerLocator(P, clock=StepClock(2e-3, 10e-3)), backend)
+    obs = FrameObserver(make_pair_tracker("kcf_gk", P, clock=StepClock(2e-3, 10e-3)), backend)
     assert obs.max_coast_s == 0.1
     renderer = AnalyticRenderer(P, seed=3)
     obs.reset(cone(0.0), 0.0)
     dt = 1.0 / P.camera.frame_rate_hz
-    ests, black = [], range(10, 40)
-    for k in range(125):
+    ests, hidden, black = [], range(10, 40), range(70, 100)
+    for k in range(150):
         f = renderer.render(cone(k * dt), t_exposure=k * dt)
         if k == 0:
-            obs.start(f.image, f.binning, f.boxes_px[0])
-        image = np.zeros_like(f.image) if k in black else f.image
+            obs.start(f.image, f.binning, f.boxes_px)
+        image = (_hide_markers(f) if k in hidden else np.zeros_like(f.image) if k in black
+                 else f.image)
         ests.append(obs.update(_Frame(image, f.binning), k * dt))
-    last_measured = (black.start - 1) * dt
-    for k in black:
+    last_measured = (hidden.start - 1) * dt
+    for k in hidden:
         e = ests[k]
         assert e.lost and e.reason.startswith("coasting: "), (k, e.reason)
         assert e.valid == (k * dt - last_measured <= obs.max_coast_s), k
-    assert sum(ests[k].valid for k in black) == 3  # 0.1 s at 36 fps
-    after = ests[black.stop:]
+    assert sum(ests[k].valid for k in hidden) == 3  # 0.1 s at 36 fps
+    for k in black:
+        e = ests[k]
+        assert e.lost and not e.valid, k
+        assert e.reason.startswith("bad frame: frame is uniform") and "; coasting: " in e.reason, \
+            (k, e.reason)
+    # Re-acquired within 15 frames of each outage, and it stays.
+    assert all(e.valid for e in ests[hidden.stop + 15:black.start])
+    assert all(e.valid for e in ests[black.stop + 15:])
     assert not ests[-1].lost and ests[-1].reason == ""
-    assert all(e.valid for e in after[15:])  # re-acquired within 15 frames, and it stays
     if kind == "aekf":
         assert backend.restarts >= 1
     # Valid estimates are right: within 0.3° of the cone when measured (measured: the AEKF's
@@ -248,14 +271,16 @@ def test_trackers_flag_featureless_frames():
     featureless = {"black": np.zeros_like(f.image), "white": np.full_like(f.image, 255),
                    "grey": np.full_like(f.image, 128)}
     for tr in (OpenCVTracker("kcf"), OpenCVTracker("csrt"), NumpyKCF()):
-        tr.init(f.image, box)
+        tr.initialize(f.image, box)
         for name, img in featureless.items():
-            b, s = tr.track(img)
-            assert np.all(np.isnan(b)) and s == 0.0, (tr, name)
+            res = tr.track(img)
+            b, s = res.box_image_px, res.score
+            assert np.all(np.isnan(b)) and s == 0.0 and not res.valid, (tr, name)
             if isinstance(tr, OpenCVTracker):
-                assert "frame is uniform" in tr.reason, (tr.kind, name, tr.reason)
-        b, s = tr.track(f.image)
-        assert s > 0
+                assert "frame is uniform" in res.reason, (tr.kind, name, res.reason)
+        res = tr.track(f.image)
+        b, s = res.box_image_px, res.score
+        assert s > 0 and res.valid
         c = (b[:2] + 0.5 * b[2:] + 0.5) * f.binning - 0.5
         assert np.linalg.norm(c - f.marker_px[0]) < 3.0
 

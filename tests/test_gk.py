@@ -1,5 +1,8 @@
 """The GK assistance (seed 000 §3.2; seed 004 §4) against ground truth and independent maths.
 
+One file of about 700 lines: the five GK stages and their composition share the rendered
+sequences built once per module by its fixtures.
+
 Frames come from ``plant.render_analytic.AnalyticRenderer`` (default camera, 4× binned, read
 noise 2 DN); its ground truth ``Frame.marker_px`` / ``Frame.boxes_px`` is in full-sensor pixels.
 The "tracker" in front of ``GKAssist`` is the ground-truth box of the red marker: the assistance

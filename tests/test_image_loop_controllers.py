@@ -1,4 +1,4 @@
-"""Both real controllers close the loop in image-in-the-loop mode (issue 5 "Done when"): rendered
+"""Both real controllers close the loop in image-in-the-loop mode: rendered
 frames (analytic renderer), the KCF + GK observer, the PID and the delay-aware MPC (with its
 measured compute time as latency), a 3° tilt step at GK-TransT's seed latency."""
 

@@ -1,5 +1,5 @@
 """The stationary-cost analysis (latency.jitterbug) against Monte Carlo runs of the
-measurement-model closed loop (issue 5 §4).
+measurement-model closed loop.
 
 Same loop on both sides: the per-axis rotor 1/(J s^2 + b s) about body y with white disturbance
 torque of intensity q, the PID exactly as it runs (its discrete transfer function at the frame

@@ -83,7 +83,7 @@ def releases(profile, mode, duration=1.0):
 
 def test_sequential_observer_drops_frames_while_busy():
     # 31.23 ms of processing at a 27.8 ms frame period: every second frame is dropped, so the
-    # update rate halves (issue 5); CSRT's 67.62 ms keeps one frame in three.
+    # update rate halves; CSRT's 67.62 ms keeps one frame in three.
     for profile, keep_every in [("kcf", 1), ("gk_transt", 1), ("dual_transt", 2), ("csrt", 3)]:
         frames = releases(profile, "sequential")
         kept = [f.index for f in frames if not f.dropped]
@@ -109,24 +109,25 @@ def test_exposure_longer_than_the_frame_period_is_rejected():
 
 def test_measuring_a_profile_is_one_call(tmp_path):
     from latency.profile import measure_locator_latency
-    from observer.frame_observer import MarkerLocator
+    from observer.trackers import make_pair_tracker
     from plant.params import PlantParams
 
     p = PlantParams()
-    # An injected clock (each reading 1-5 ms after the last) times each locate call as one
+    # An injected clock (each reading 1-5 ms after the last) times each step as one clock
     # step, independently of the machine's load; the warm-up frames are not recorded.
     clock = StepClock(1e-3, 5e-3, seed=6)
-    prof = measure_locator_latency(p, MarkerLocator(p, clock=clock), n_frames=15, warmup=2)
+    prof = measure_locator_latency(p, make_pair_tracker("kcf_gk", p, clock=clock), n_frames=15,
+                                   warmup=2)
     assert len(prof.samples_s) == 15 and clock.calls == 2 * 17
     assert all(1e-3 - 1e-12 <= s <= 5e-3 + 1e-12 for s in prof.samples_s)
-    assert "KCF" in prof.source or "OpenCVTracker" in prof.source
+    assert "kcf_gk" in prof.source
     prof.save(tmp_path / "kcf.json")
     cfg = PipelineConfig(observer=Empirical.load(tmp_path / "kcf.json"))
     assert cfg.observer.mean_s == pytest.approx(prof.mean_s)
 
 
 def test_measuring_the_orb_observer_profile_is_one_call(tmp_path):
-    """The textured rotor's ORB-AEKF (issue 8): one call gives its per-frame compute time as a
+    """The textured rotor's ORB-AEKF: one call gives its per-frame compute time as a
     profile, which a scenario with an ORB observer then takes as its (reproducible) latency."""
     from experiments.scenario import Scenario, build_loop
     from latency.profile import measure_orb_latency

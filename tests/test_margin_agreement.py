@@ -1,4 +1,4 @@
-"""Analysis and simulation agree (issue 5 acceptance): the PID loop simulated in the
+"""Analysis and simulation agree : the PID loop simulated in the
 measurement-model mode is stable at 0.9x and unstable at 1.1x the predicted delay margin, at two
 crossover frequencies.
 

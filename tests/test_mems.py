@@ -1,4 +1,4 @@
-"""MEMS baseline (seed 000 §5, §5.3; issue 3 §4): the IMU model against its noise densities and
+"""MEMS baseline (seed 000 §5, §5.3): the IMU model against its noise densities and
 closed-form kinematics, and the estimator against ground truth and closed-form error budgets.
 
 Statistical tolerances are multiples (5σ unless said) of the sampling spread of the statistic,

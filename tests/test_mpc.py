@@ -132,7 +132,7 @@ def test_tilt_step_closes_the_loop():
     assert not stop
     stats = mpc.solve_stats()
     assert stats["n"] == 80 and np.isfinite(stats["solve_median_s"])
-    assert len(mpc.command_times_s) == 80 and mpc.failures == 0
+    assert len(mpc.compute_times_s) == 80 and mpc.failures == 0
 
 
 def test_request_beyond_the_stop_is_held_inside_the_tilt_constraint():

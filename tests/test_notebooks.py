@@ -1,4 +1,4 @@
-"""Every notebook in experiments/notebooks/ executes with small parameters (issue 6 §4).
+"""Every notebook in experiments/notebooks/ executes with small parameters.
 
 Each notebook reads its size from a cell tagged ``parameters`` at the top. The test inserts a
 cell with small values right after it (as papermill does), executes the notebook in memory

@@ -1,4 +1,4 @@
-"""ORB-AEKF on a textured rotor (issue 8, seed 001): texture, renderers, front end, solve and
+"""ORB-AEKF on a textured rotor (seed 001): texture, renderers, front end, solve and
 filters against ground truth and independent computations."""
 
 from __future__ import annotations

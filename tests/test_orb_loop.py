@@ -1,4 +1,4 @@
-"""The ORB-AEKF observer closes the timed loop on the textured rotor (issue 8: it plugs into the
+"""The ORB-AEKF observer closes the timed loop on the textured rotor (it plugs into the
 closed loop with its measured latency)."""
 
 import numpy as np

@@ -13,17 +13,15 @@ from scipy.optimize import linprog
 from controller.pid import (
     PIDConfig,
     PIDController,
-    inradius,
     phase_margin_of_rule,
     truth_estimate,
     tuning_rule,
-    worst_case_capacity,
 )
 from controller.reference import Steps, pure_tilt
 from plant import attitude as A
 from plant.dynamics import MujocoPlant
 from plant.params import MotorParams, PlantParams, RotorParams
-from plant.torque import TorqueMap
+from plant.torque import TorqueMap, inradius, worst_case_capacity
 
 FRICTIONLESS = PlantParams(rotor=RotorParams(coulomb_Nm=0.0, viscous_Nms_per_rad=0.0))
 J_XY, J_Z = 2.2e-3, 2.5e-3  # plant/params.py, centre of mass at O

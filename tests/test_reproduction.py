@@ -1,4 +1,4 @@
-"""Tests of the paper reproduction (issue 7 §1, §3; seed 000 §5): the steady-state extraction on
+"""Tests of the paper reproduction (seed 000 §5): the steady-state extraction on
 synthetic signals with hand-computed answers, the rotary table against SeedSteps and finite
 differences, a shortened step test against ground truth, and the structure of the tables."""
 

@@ -375,7 +375,7 @@ def test_zyz_jacobian_matches_finite_differences() -> None:
 
 
 def test_least_squares_rmse_reaches_the_crb_over_the_workspace() -> None:
-    """Issue 3: 1,000 random workspace poses, σ = 0.5 px, the seed's two markers. The LS
+    """1,000 random workspace poses, σ = 0.5 px, the seed's two markers. The LS
     solver's RMS error must be within 1.2× the RMS of the per-pose bound, per axis (camera axes,
     all poses) and per Z-Y-Z angle (poses with β ≥ 2°, where the angle chart is linear enough);
     an efficient estimator also cannot be far below it."""

@@ -68,13 +68,15 @@ def test_numpy_kcf_recovers_a_known_shift(clean):
     c0 = box[:2] + 0.5 * box[2:]
     for d in [(6.0, -4.0), (-9.5, 2.25)]:
         kcf = NumpyKCF()
-        kcf.init(img, box)
+        kcf.initialize(img, box)
         moved = _translated(img, d)
-        b1, s1 = kcf.track(moved)
+        res = kcf.track(moved)
+        b1, s1 = res.box_image_px, res.score
         first = b1[:2] + 0.5 * b1[2:] - c0
         assert np.all(np.sign(first) == np.sign(d))
         assert s1 > 0.3
-        b2, _ = kcf.track(moved)
+        res = kcf.track(moved)
+        b2, _ = res.box_image_px, res.score
         assert np.allclose(b2[:2] + 0.5 * b2[2:] - c0, d, atol=0.3)
 
 
@@ -87,21 +89,23 @@ def test_numpy_kcf_searches_at_an_external_centre(clean):
     d = np.array([40.0, 0.0])
     moved = _translated(img, tuple(d))
     guided = NumpyKCF()
-    guided.init(img, box)
-    bg, _ = guided.track(moved, search_centre_image_px=c0 + d + [3.0, -2.0])
+    guided.initialize(img, box)
+    res = guided.track(moved, search_centre_image_px=c0 + d + [3.0, -2.0])
+    bg, _ = res.box_image_px, res.score
     assert np.linalg.norm(bg[:2] + 0.5 * bg[2:] - (c0 + d)) < 1.0
 
 
 def test_numpy_kcf_comparable_to_opencv_kcf(clean):
-    """Issue 4: the numpy KCF against OpenCV's KCF on the same clean sequence, red marker."""
+    """the numpy KCF against OpenCV's KCF on the same clean sequence, red marker."""
     gt = clean.marker_px[:, 0]
     box0 = box_sensor_to_image(clean.boxes_px[0, 0], clean.binning)
     errs = {}
     for name, tr in (("numpy", NumpyKCF()), ("opencv", OpenCVTracker("kcf"))):
-        tr.init(clean.images[0], box0)
+        tr.initialize(clean.images[0], box0)
         pred = []
         for k in range(1, clean.n_frames):
-            b, _ = tr.track(clean.images[k])
+            res = tr.track(clean.images[k])
+            b, _ = res.box_image_px, res.score
             c = b[:2] + 0.5 * b[2:]
             pred.append((c + 0.5) * clean.binning - 0.5)
         errs[name] = centre_errors(np.array(pred), gt[1:])
@@ -135,13 +139,14 @@ def test_k2cf_follows_fast_constant_velocity_better_than_plain_kcf(clean):
     c0 = box[:2] + 0.5 * box[2:]
     v = np.array([14.0, -3.0])
     k2, kcf = K2CF(), NumpyKCF()
-    k2.init(img, box)
-    kcf.init(img, box)
+    k2.initialize(img, box)
+    kcf.initialize(img, box)
     e2, e1 = [], []
     for k in range(1, 12):
         frame = _translated(img, tuple(k * v))
         for tr, e in ((k2, e2), (kcf, e1)):
-            b, _ = tr.track(frame)
+            res = tr.track(frame)
+            b, _ = res.box_image_px, res.score
             e.append(np.linalg.norm(b[:2] + 0.5 * b[2:] - (c0 + k * v)))
     assert np.median(e2[4:]) < 1.0
     assert np.median(e2[4:]) < np.median(e1[4:])
@@ -271,7 +276,7 @@ def test_step_before_start_and_internal_failure_are_flagged(clean):
     class Broken:
         compute_time_s = 0.0
 
-        def init(self, frame, box):
+        def initialize(self, frame, box):
             pass
 
         def track(self, frame, search_centre_image_px=None):

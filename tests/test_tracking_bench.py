@@ -223,8 +223,9 @@ def test_benchmark_pipeline_with_known_errors(tmp_path):
     assert t1.loc[0, "algorithm"] == "offset" and t1.loc[0, "frames"] == 19
     s = summary_table(metrics)
     assert s.loc[0, "main_precision_20px"] == 1.0
-    p1 = plot_precision_curves(runs, seqs, "clean", tmp_path / "p.png")
-    p2 = plot_error_curves(runs, seq, tmp_path / "e.png")
+    p1, p2 = tmp_path / "p.png", tmp_path / "e.png"
+    plot_precision_curves(runs, seqs, "clean").savefig(p1)
+    plot_error_curves(runs, seq).savefig(p2)
     assert cv2.imread(str(p1)) is not None and cv2.imread(str(p2)) is not None
     assert evaluate(runs[0], seq)["frames"] == 19
 

@@ -393,11 +393,12 @@ def test_tracker_decodes_as_transt() -> None:
     frame = (np.random.default_rng(0).integers(0, 255, (240, 320, 3))).astype(np.uint8)
     trk = TransTTracker.from_config("small")
     box0 = np.array([100.0, 80.0, 30.0, 20.0])
-    trk.init(frame, box0)
+    trk.initialize(frame, box0)
     n = SMALL.search_feature_size
     pred = np.array([0.6, 0.45, 0.25, 0.18])
     trk._runner = _StubRunner(n, peak=n * 7 + 8, box=pred)
-    box, score = trk.track(frame)
+    res = trk.track(frame)
+    box, score = res.box_image_px, res.score
     side = context_side(box0[2:], 4.0)
     c0 = box0[:2] + box0[2:] / 2
     cx, cy = c0 - side / 2 + pred[:2] * side
@@ -407,10 +408,11 @@ def test_tracker_decodes_as_transt() -> None:
     assert trk.last.ok and trk.last.search_side_px == pytest.approx(side)
     # an external search centre moves the crop, not the decoding rule
     trk2 = TransTTracker.from_config("small")
-    trk2.init(frame, box0)
+    trk2.initialize(frame, box0)
     trk2._runner = _StubRunner(n, peak=0, box=pred)
     ext = np.array([150.0, 120.0])
-    box2, _ = trk2.track(frame, search_centre_image_px=ext)
+    res = trk2.track(frame, search_centre_image_px=ext)
+    box2, _ = res.box_image_px, res.score
     assert np.allclose(trk2.last.search_centre_image_px, ext)
     assert np.allclose(box2[:2] + box2[2:] / 2, ext - side / 2 + pred[:2] * side)
     assert trk2.compute_time_s > 0
@@ -419,7 +421,7 @@ def test_tracker_decodes_as_transt() -> None:
 def test_window_prefers_the_centre_on_a_tie() -> None:
     frame = (np.random.default_rng(1).integers(0, 255, (240, 320, 3))).astype(np.uint8)
     trk = TransTTracker.from_config("small")
-    trk.init(frame, [100.0, 80.0, 30.0, 30.0])
+    trk.initialize(frame, [100.0, 80.0, 30.0, 30.0])
     n = SMALL.search_feature_size
 
     class Flat(_StubRunner):
@@ -432,7 +434,8 @@ def test_window_prefers_the_centre_on_a_tie() -> None:
             return logits, boxes
 
     trk._runner = Flat(n, 0, np.zeros(4))
-    box, score = trk.track(frame)
+    res = trk.track(frame)
+    box, score = res.box_image_px, res.score
     side = context_side((30.0, 30.0), 4.0)
     centre = box[:2] + box[2:] / 2
     # equal probabilities everywhere: the window picks a central cell (7 or 8 of 0..15)
@@ -461,15 +464,16 @@ def test_init_rejects_bad_input(clean_frame) -> None:
     ]
     for frame, b, match in bad_inits:
         with pytest.raises(ValueError, match=match):
-            trk.init(frame, b)
+            trk.initialize(frame, b)
     assert not trk.initialised
 
 
 def test_track_survives_bad_input(clean_frame) -> None:
     trk = TransTTracker.from_config("small")
-    box, score = trk.track(clean_frame.image)  # before init
+    res = trk.track(clean_frame.image)  # before init
+    box, score = res.box_image_px, res.score
     assert np.all(np.isnan(box)) and score == 0.0 and "init" in trk.last.status
-    trk.init(clean_frame.image, red_box_image(clean_frame))
+    trk.initialize(clean_frame.image, red_box_image(clean_frame))
     state = trk.centre_image_px.copy()
     nan_frame = clean_frame.image.astype(np.float64)
     nan_frame[10, 10] = np.nan
@@ -482,22 +486,28 @@ def test_track_survives_bad_input(clean_frame) -> None:
         np.full_like(clean_frame.image, 255),  # all white
     ]
     for frame in bad:
-        box, score = trk.track(frame)
+        res = trk.track(frame)
+        box, score = res.box_image_px, res.score
         assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
         assert np.allclose(trk.centre_image_px, state)
     # A valid RGB frame of another size than the init frame (it scored 0.99 before): its
     # pixels are not the coordinates the track is kept in.
     img = clean_frame.image
     for other in (np.ascontiguousarray(img[::2, ::2]), np.pad(img, ((0, 8), (0, 8), (0, 0)))):
-        box, score = trk.track(other)
-        assert np.all(np.isnan(box)) and score == 0.0 and not trk.last.ok
+        res = trk.track(other)
+        assert np.all(np.isnan(res.box_image_px)) and res.score == 0.0 and not res.valid
+        assert not trk.last.ok
         assert "differs from the init frame" in trk.last.status, trk.last.status
+        assert "differs from the init frame" in res.reason, res.reason
         assert np.allclose(trk.centre_image_px, state)
-    box, score = trk.track(clean_frame.image, search_centre_image_px=[np.nan, 3.0])
+    res = trk.track(clean_frame.image, search_centre_image_px=[np.nan, 3.0])
+    box, score = res.box_image_px, res.score
     assert np.all(np.isnan(box)) and "search_centre" in trk.last.status
-    box, score = trk.track(clean_frame.image, search_centre_image_px=[-5000.0, -5000.0])
+    res = trk.track(clean_frame.image, search_centre_image_px=[-5000.0, -5000.0])
+    box, score = res.box_image_px, res.score
     assert np.all(np.isnan(box)) and "outside" in trk.last.status
-    box, score = trk.track(clean_frame.image)  # the track goes on
+    res = trk.track(clean_frame.image)  # the track goes on
+    box, score = res.box_image_px, res.score
     assert trk.last.ok and np.all(np.isfinite(box))
 
 
@@ -510,9 +520,10 @@ def test_shipped_small_tracks_the_markers(marker: int) -> None:
     errs, scores = [], []
     for seed in TEST_SEQUENCE_SEEDS:
         frames = validation_sequence(seed, 30)
-        trk.init(frames[0].image, marker_box_image(frames[0], marker))
+        trk.initialize(frames[0].image, marker_box_image(frames[0], marker))
         for f in frames[1:]:
-            box, score = trk.track(f.image)
+            res = trk.track(f.image)
+            box, score = res.box_image_px, res.score
             c_sensor = (box[:2] + box[2:] / 2 + 0.5) * f.binning - 0.5
             errs.append(np.hypot(*(c_sensor - f.marker_px[marker])))
             scores.append(score)
@@ -525,12 +536,14 @@ def test_shipped_small_tracks_the_markers(marker: int) -> None:
 def test_shipped_small_scores_occlusion_low() -> None:
     frames = validation_sequence(2002, 3)
     trk = TransTTracker.small()
-    trk.init(frames[0].image, red_box_image(frames[0]))
-    _, s_visible = trk.track(frames[1].image)
+    trk.initialize(frames[0].image, red_box_image(frames[0]))
+    res = trk.track(frames[1].image)
+    _, s_visible = res.box_image_px, res.score
     img = frames[2].image.copy()
     x, y, w, h = red_box_image(frames[2])
     img[int(y - 10):int(y + h + 10), int(x - 10):int(x + w + 10)] = 0  # black box + margin
-    _, s_hidden = trk.track(img)
+    res = trk.track(img)
+    _, s_hidden = res.box_image_px, res.score
     assert s_hidden < 0.5 < s_visible
 
 
@@ -541,8 +554,9 @@ def test_onnx_backend_matches_eager(clean_frame) -> None:
     out = []
     for backend in ("eager", "onnx"):
         trk = TransTTracker(net, backend=backend)
-        trk.init(clean_frame.image, red_box_image(clean_frame))
-        out.append(trk.track(clean_frame.image))
+        trk.initialize(clean_frame.image, red_box_image(clean_frame))
+        res = trk.track(clean_frame.image)
+        out.append((res.box_image_px, res.score))
     assert np.allclose(out[0][0], out[1][0], atol=1e-2)
     assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
 

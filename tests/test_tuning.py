@@ -1,4 +1,4 @@
-"""Kalman Q/R tuning against closed-loop cost (experiments/tuning.py, issue 6 §3).
+"""Kalman Q/R tuning against closed-loop cost (experiments.tuning).
 
 The steady-state filter is checked against filterpy's filter run on a test signal; the margins
 with a transparent filter against the margins without one; the objective's lost-frame penalty

@@ -7,13 +7,12 @@ import math
 
 import control as ct
 import numpy as np
-import scipy.linalg
-import scipy.optimize
 from numpy.typing import NDArray
 
 from latency.margins.model import _check_delay
 from latency.margins.nyquist import _refine
 from latency.margins.result import Margins, _crossings, _margins_from_crossings
+from latency.zoh import zoh_integrals
 
 
 def sampled_plant(plant: ct.LTI, period_s: float, delay_s: float = 0.0) -> ct.StateSpace:
@@ -59,16 +58,9 @@ def sampled_plant(plant: ct.LTI, period_s: float, delay_s: float = 0.0) -> ct.St
     if frac < 1e-12 * T:
         frac = 0.0
 
-    def phi_gamma(h: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        M = np.zeros((n + nu, n + nu))
-        M[:n, :n] = A
-        M[:n, n:] = B
-        E = scipy.linalg.expm(M * h)
-        return E[:n, :n], E[:n, n:]
-
-    Phi, _ = phi_gamma(T)
-    Phi_a, Gamma0 = phi_gamma(T - frac)
-    _, G1 = phi_gamma(frac)
+    Phi, _ = zoh_integrals(A, B, T)
+    Phi_a, Gamma0 = zoh_integrals(A, B, T - frac)
+    _, G1 = zoh_integrals(A, B, frac)
     Gamma1 = Phi_a @ G1
     d = m + 1  # delay-line length: u[k-1] .. u[k-m-1]
     N = n + d * nu

@@ -1,7 +1,7 @@
 """The GK assistance of GK-TransT (seed 000 §3.2), behind any tracker of the main marker.
 
 ``GKAssist.step`` runs seed 000 §3.2.3's per-frame workflow on the output of whatever tracks the
-red main marker (a TransT network in issue 4, an OpenCV tracker, a detector, ground truth with
+red main marker (a TransT network, an OpenCV tracker, a detector, ground truth with
 noise): it takes the frame and the tracker's box (or centre) and score, and returns both marker
 centres with where each came from.
 
@@ -62,13 +62,12 @@ from observer.gk.hsv_gate import (
     HSVGate,
     HSVGateConfig,
     box_sensor_to_image,
-    check_rgb_image,
+    check_frame,
 )
 from observer.gk.pixel_kalman import PixelKalman, PixelKalmanConfig
 from observer.gk.scale import PixelScaleEMA, ScaleEMAConfig, scale_from_camera
-from observer.gk.subpixel import SubpixelConfig, SubpixelResult, refine_marker_centre
+from observer.gk.subpixel import SubpixelConfig, SubpixelResult, refine_in_box
 from plant.params import PlantParams
-from plant.scene import check_binning
 
 RedSource = Literal["measurement", "prediction", "none"]
 
@@ -227,19 +226,6 @@ class GKAssist:
         return 0.5 * self.params.vfc.marker_diameter_mm / 1000.0 * self.scale.S
 
     # --- the workflow --------------------------------------------------------------------------
-    def _check_frame(self, image: object, binning: object) -> tuple[str, int]:
-        bad = check_rgb_image(image)
-        try:
-            b = check_binning(self.params, binning)  # type: ignore[arg-type]
-        except (ValueError, TypeError) as exc:
-            return bad or f"bad binning: {exc}", 1
-        if not bad:
-            w, h = self.params.camera.sensor_width_px // b, self.params.camera.sensor_height_px // b
-            if image.shape[:2] != (h, w):  # type: ignore[union-attr]
-                bad = (f"frame shape {image.shape} does not match the sensor at binning {b} "  # type: ignore[union-attr]
-                       f"({h}, {w}, 3)")
-        return bad, b
-
     def _tracker_box(
         self, box_sensor_px: ArrayLike | None, centre_sensor_px: ArrayLike | None
     ) -> tuple[NDArray | None, NDArray | None, str]:
@@ -298,7 +284,8 @@ class GKAssist:
         t0 = time.perf_counter()
         cfg = self.config
         reasons: list[str] = []
-        bad_frame, b = self._check_frame(image, binning)
+        bad_frame = check_frame(image, self.params, binning)
+        b = 1 if bad_frame else int(binning)
         if bad_frame:
             reasons.append(bad_frame)
         prior = self.kalman.predict()
@@ -326,14 +313,10 @@ class GKAssist:
         if confident:
             z = centre
             if cfg.refine_red:
-                m = cfg.refine_roi_margin
-                roi = np.r_[box[:2] - m * box[2:], box[2:] * (1 + 2 * m)]
-                red_fit = refine_marker_centre(image, cfg.gate.red,
-                                               box_sensor_to_image(roi, b), cfg.subpixel)
-                if red_fit.valid:
-                    fc = red_fit.centre_sensor_px(b)
-                    if np.all((fc >= box[:2]) & (fc <= box[:2] + box[2:])):
-                        z, refined = fc, True
+                fc, red_fit = refine_in_box(image, cfg.gate.red, box, b, cfg.subpixel,
+                                            cfg.refine_roi_margin)
+                if fc is not None:
+                    z, refined = fc, True
             if self._lost or not self.kalman.initialised:
                 self.kalman.initialise(z)
             else:

@@ -32,11 +32,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from plant.params import PlantParams
+from plant.scene import check_binning
+
 Colour = Literal["red", "yellow"]
 
 #: OpenCV's 8-bit hue range is [0, 180) (degrees / 2); 180 is allowed as an inclusive bound.
 _H_MAX = 180
 _SV_MAX = 255
+
+#: A frame or region whose values span at most this many DN is featureless (all black, all
+#: white or blank): nothing to track (our choice; ``check_frame`` applies it to whole frames,
+#: the TransT tracker to its search region).
+UNIFORM_PTP_DN = 2
 
 
 class HSVRange(BaseModel):
@@ -135,18 +143,44 @@ def check_rgb_image(image: object) -> str:
     return ""
 
 
-#: A frame whose values span at most this many DN is featureless (all black, all white or
-#: blank): there is nothing to track (our choice; the TransT tracker applies the same rule to
-#: its search region).
-UNIFORM_PTP_DN = 2
+def check_frame(
+    image: object,
+    params: PlantParams | None = None,
+    binning: object = None,
+    *,
+    init_shape: tuple[int, ...] | None = None,
+) -> str:
+    """"" if ``image`` is a usable frame, else why not. Never raises.
 
+    The one frame check of the trackers and the GK assistance, in this order:
 
-def check_featureless(image: NDArray[np.uint8]) -> str:
-    """Return "" unless the RGB uint8 frame ``image`` (already checked by ``check_rgb_image``)
-    is uniform (its values span at most ``UNIFORM_PTP_DN``), else the reason. A correlation
-    tracker scores such a frame as a perfect match (OpenCV KCF reports success on a black
-    frame), so the trackers refuse it."""
-    lo, hi, _, _ = cv2.minMaxLoc(np.ascontiguousarray(image).reshape(image.shape[0], -1))
+    * RGB uint8 (H, W, 3), non-empty (``check_rgb_image``);
+    * with ``params``: of the sensor's size at a valid ``binning``
+      (``plant.scene.check_binning``), for the pair trackers and the GK assistance, which know
+      the camera;
+    * with ``init_shape``: the shape of the frame the tracker was initialised on, for the
+      single-object trackers, which keep their track in that frame's pixels;
+    * not featureless: values spanning more than ``UNIFORM_PTP_DN`` DN. An all-black, all-white
+      or blank frame shows nothing to track, and a correlation tracker scores it as a perfect
+      match (OpenCV's KCF reports success on a black frame), so every tracker refuses it.
+    """
+    bad = check_rgb_image(image)
+    if bad:
+        return bad
+    img: NDArray[np.uint8] = image  # type: ignore[assignment]
+    if params is not None:
+        try:
+            b = check_binning(params, binning)  # type: ignore[arg-type]
+        except (TypeError, ValueError) as exc:
+            return f"bad binning: {exc}"
+        cam = params.camera
+        expected = (cam.sensor_height_px // b, cam.sensor_width_px // b, 3)
+        if img.shape != expected:
+            return (f"frame shape {img.shape} does not match the sensor at binning {b}: "
+                    f"expected {expected}")
+    if init_shape is not None and img.shape != tuple(init_shape):
+        return f"frame shape {img.shape} differs from the init frame's {tuple(init_shape)}"
+    lo, hi, _, _ = cv2.minMaxLoc(np.ascontiguousarray(img).reshape(img.shape[0], -1))
     if hi - lo <= UNIFORM_PTP_DN:
         return f"frame is uniform (values {lo:.0f}-{hi:.0f} DN: all black, all white or blank)"
     return ""

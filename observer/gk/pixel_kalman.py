@@ -35,12 +35,13 @@ from filterpy.kalman import KalmanFilter
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
-#: State transition of the constant-velocity model with Δt = 1 frame (seed 000 §3.2.1).
-F_CV: NDArray[np.float64] = np.array(
-    [[1.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
-)
-#: Observation matrix: the tracker observes the position only (seed 000 §3.2.1).
-H_CV: NDArray[np.float64] = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+#: The constant-velocity model of one image coordinate, state (position, velocity), Δt = 1 frame:
+#: transition and observation of the position only (seed 000 §3.2.1).
+F_CV_AXIS: NDArray[np.float64] = np.array([[1.0, 1.0], [0.0, 1.0]])
+H_CV_AXIS: NDArray[np.float64] = np.array([[1.0, 0.0]])
+#: The same model of both coordinates, state (u, v, u̇, v̇): the F and H above (seed 000 §3.2.1).
+F_CV: NDArray[np.float64] = np.kron(F_CV_AXIS, np.eye(2))
+H_CV: NDArray[np.float64] = np.kron(H_CV_AXIS, np.eye(2))
 
 #: Relative tolerance of the symmetry and eigenvalue checks of Q and R.
 _PSD_RTOL = 1e-9

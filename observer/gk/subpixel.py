@@ -50,7 +50,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.gk.hsv_gate import RED, YELLOW, Colour, HSVRange, check_rgb_image, colour_mask
+from observer.gk.hsv_gate import (
+    RED,
+    YELLOW,
+    Colour,
+    HSVRange,
+    box_sensor_to_image,
+    check_rgb_image,
+    colour_mask,
+)
 from plant.camera import image_to_sensor
 
 _ELLIPSE3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
@@ -241,6 +249,94 @@ def _range_of(colour: Colour | HSVRange) -> HSVRange:
     return {"red": RED, "yellow": YELLOW}[colour]
 
 
+def _coverage(
+    crop: NDArray[np.uint8], region: NDArray[np.uint8], cfg: SubpixelConfig
+) -> NDArray[np.float32] | SubpixelResult:
+    """The colour coverage map α = ((p − b)·(f − b)) / |f − b|² of ``crop`` (f, b: median RGB
+    inside the eroded marker ``region`` and in a ring around it; seed 004 §4.2). Returns an
+    invalid ``SubpixelResult`` when no background is visible or the contrast |f − b| is below
+    ``min_contrast_dn``."""
+    inner = cv2.erode(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(inner) < 3:
+        inner = region
+    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
+    if cv2.countNonZero(ring) < 3:
+        return SubpixelResult.invalid("no background visible around the marker in the roi")
+    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
+    crop_f = crop.astype(np.float32)
+    d = fg - bg
+    dd = float(d @ d)
+    if math.sqrt(dd) < cfg.min_contrast_dn:
+        return SubpixelResult.invalid(f"marker contrast {math.sqrt(dd):.1f} DN too low")
+    return ((crop_f - bg) @ (d / dd)).astype(np.float32)
+
+
+def _subpixel_edge(
+    region: NDArray[np.uint8], alpha: NDArray[np.float32], cfg: SubpixelConfig
+) -> NDArray[np.float64] | SubpixelResult:
+    """Sub-pixel edge points (crop px) of the marker ``region``: each outer contour pixel moved
+    along the ray from the region's centroid to where the coverage ``alpha`` crosses 1/2
+    (seed 004 §4.2). Contour pixels on the crop's border are dropped (the region may continue
+    outside it). Returns an invalid ``SubpixelResult`` when too few points remain."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    contour = max(contours, key=len).reshape(-1, 2).astype(float)
+    m = cv2.moments(region, binaryImage=True)
+    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    ray = contour - centroid
+    norm = np.hypot(ray[:, 0], ray[:, 1])
+    keep = norm > 0.5
+    hh, ww = region.shape
+    on_border = (
+        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
+        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
+    )
+    # Pixels on the crop's border: the region may continue outside it, not a real edge.
+    keep &= ~on_border
+    contour, ray, norm = contour[keep], ray[keep], norm[keep]
+    if len(contour) < cfg.min_points:
+        return SubpixelResult.invalid("too few contour points", len(contour))
+    u = ray / norm[:, None]
+    t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
+    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
+    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
+    prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=float("nan"))
+    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
+    cross = inside & outside
+    t_mid = 0.5 * (t[:-1] + t[1:])
+    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
+    found = cross[np.arange(len(j)), j]
+    a0 = prof[np.arange(len(j)), j].astype(float)
+    a1 = prof[np.arange(len(j)), j + 1].astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
+    found &= np.isfinite(ts)
+    edge = contour[found] + u[found] * ts[found, None]
+    if len(edge) < cfg.min_points:
+        return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
+    return edge
+
+
+def _robust_circle(
+    pts: NDArray[np.float64], c0: NDArray[np.float64], R0: float, cfg: SubpixelConfig
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64], NDArray[np.float64], int]:
+    """Geometric circle fit from ``(c0, R0)`` with up to three rounds of rejecting points whose
+    residual exceeds ``outlier_k`` robust sigmas (MAD) or ``outlier_floor_px``, keeping at least
+    ``min_points``. Returns (centre, radius, residuals, points kept, points rejected)."""
+    c, R, res = fit_circle_geometric(pts, c0, R0, cfg.max_iter)
+    n_out = 0
+    for _ in range(3):
+        med = float(np.median(res))
+        sigma = 1.4826 * float(np.median(np.abs(res - med)))
+        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
+        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
+            break
+        n_out += int(bad_pts.sum())
+        pts = pts[~bad_pts]
+        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
+    return c, R, res, pts, n_out
+
+
 def refine_marker_centre(
     image_rgb: NDArray[np.uint8],
     colour: Colour | HSVRange,
@@ -309,57 +405,15 @@ def refine_marker_centre(
     r_area = math.sqrt(area / math.pi)
 
     # marker and background colours -> coverage map alpha
-    inner = cv2.erode(region, _ELLIPSE3, iterations=2)
-    if cv2.countNonZero(inner) < 3:
-        inner = region
-    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
-    if cv2.countNonZero(ring) < 3:
-        return SubpixelResult.invalid("no background visible around the marker in the roi")
-    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
-    crop_f = crop.astype(np.float32)
-    d = fg - bg
-    dd = float(d @ d)
-    if math.sqrt(dd) < cfg.min_contrast_dn:
-        return SubpixelResult.invalid(f"marker contrast {math.sqrt(dd):.1f} DN too low")
-    alpha = ((crop_f - bg) @ (d / dd)).astype(np.float32)
+    alpha = _coverage(crop, region, cfg)
+    if isinstance(alpha, SubpixelResult):
+        return alpha
 
     # 2. contour, moved to the alpha = 1/2 crossing along the ray from the centroid
-    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    contour = max(contours, key=len).reshape(-1, 2).astype(float)
-    m = cv2.moments(region, binaryImage=True)
-    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
-    ray = contour - centroid
-    norm = np.hypot(ray[:, 0], ray[:, 1])
-    keep = norm > 0.5
+    edge = _subpixel_edge(region, alpha, cfg)
+    if isinstance(edge, SubpixelResult):
+        return edge
     hh, ww = region.shape
-    on_border = (
-        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
-        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
-    )
-    # Pixels on the crop's border: the region may continue outside it, not a real edge.
-    keep &= ~on_border
-    contour, ray, norm = contour[keep], ray[keep], norm[keep]
-    if len(contour) < cfg.min_points:
-        return SubpixelResult.invalid("too few contour points", len(contour))
-    u = ray / norm[:, None]
-    t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
-    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
-    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
-    prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                     borderValue=float("nan"))
-    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
-    cross = inside & outside
-    t_mid = 0.5 * (t[:-1] + t[1:])
-    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
-    found = cross[np.arange(len(j)), j]
-    a0 = prof[np.arange(len(j)), j].astype(float)
-    a1 = prof[np.arange(len(j)), j + 1].astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
-    found &= np.isfinite(ts)
-    edge = contour[found] + u[found] * ts[found, None]
-    if len(edge) < cfg.min_points:
-        return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
 
     # 3. burr removal (seed 004 eq. 25)
     spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
@@ -380,17 +434,7 @@ def refine_marker_centre(
     c_alg, R_alg = fit_circle_algebraic(pts)
     if not np.all(np.isfinite(c_alg)):
         return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
-    c, R, res = fit_circle_geometric(pts, c_alg, R_alg, cfg.max_iter)
-    n_out = 0
-    for _ in range(3):
-        med = float(np.median(res))
-        sigma = 1.4826 * float(np.median(np.abs(res - med)))
-        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
-        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
-            break
-        n_out += int(bad_pts.sum())
-        pts = pts[~bad_pts]
-        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
+    c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
     rms = float(np.sqrt(np.mean(res * res)))
     cover = _arc_coverage(pts, c)
     centre = c + offset
@@ -408,3 +452,31 @@ def refine_marker_centre(
         return SubpixelResult(np.full(2, np.nan), math.nan, rms, len(pts), n_burrs, n_out,
                               cover, False, reason)
     return result
+
+
+def refine_in_box(
+    image_rgb: NDArray[np.uint8],
+    colour: Colour | HSVRange,
+    box_sensor_px: ArrayLike,
+    binning: int,
+    config: SubpixelConfig | None = None,
+    roi_margin: float = 0.3,
+) -> tuple[NDArray[np.float64] | None, SubpixelResult]:
+    """The circle-fit acceptance rule for a tracker's box (seed 004 §4).
+
+    The fit (``refine_marker_centre``) runs in the box (x, y, w, h, full-sensor px) enlarged by
+    ``roi_margin`` of its size on each side (our choice 0.3: the whole marker stays in the ROI
+    when the box is off by a third of its size). Its centre is accepted when the fit is valid
+    and the centre lies inside the box: a fit that wandered to another blob is not the tracked
+    marker. Returns (centre in sensor px or None, the fit); a box that is not finite or has
+    w, h <= 0 gives (None, an invalid fit).
+    """
+    box = np.asarray(box_sensor_px, dtype=float).reshape(4)
+    if not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
+        return None, SubpixelResult.invalid("box not finite or has w, h <= 0")
+    roi = np.r_[box[:2] - roi_margin * box[2:], box[2:] * (1.0 + 2.0 * roi_margin)]
+    fit = refine_marker_centre(image_rgb, colour, box_sensor_to_image(roi, binning), config)
+    if not fit.valid:
+        return None, fit
+    c = fit.centre_sensor_px(binning)
+    return (c if np.all((c >= box[:2]) & (c <= box[:2] + box[2:])) else None), fit

@@ -23,6 +23,12 @@ one network runs per frame: that is the seed's latency argument (C_T + C_K + C_G
 with the annotated red box, which initialises the filter, the red→yellow vector V_rel and the
 scale; if the yellow marker was not found there, V_rel is taken from the two annotated boxes.
 
+A tracker that cannot search at a given centre (OpenCV's KCF and CSRT: ``kcf_gk``, ``csrt_gk``
+in ``observer.trackers.make_pair_tracker``) is run with ``guide_search=False`` and
+``restart_on_prediction=True``: whenever the prediction stood in for its box, it is restarted
+on a box of 3.2 expected marker radii (our choice: the marker with its rim) centred on the
+prediction, so that it searches there in the next frame.
+
 Units: sensor px in and out (``observer.trackers``); the network sees image px of the binned frame.
 ``tilt_hint_rad`` (None by default: cos β = 1 and the scale EMA locked) may be set by the caller
 from the latest attitude estimate before each ``step``.
@@ -31,14 +37,14 @@ from the latest attitude estimate before each ``step``.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from observer.gk.assist import GKAssist, GKConfig, GKResult
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
-from observer.trackers import MarkerPairTracker, PairResult, box_around
+from observer.trackers import MarkerPairTracker, box_around
+from observer.tracking import PairResult, SingleObjectTracker
 from plant.camera import sensor_to_image
 from plant.params import PlantParams
 
@@ -48,9 +54,8 @@ class GKTransTPairTracker(MarkerPairTracker):
 
     Parameters
     ----------
-    tracker : the red marker's single-object tracker with the TransT API: ``init(frame, box)``,
-        ``track(frame, search_centre_image_px=None) -> (box, score)``, ``compute_time_s``
-        (image px). ``TransTTracker.small()``; a ``NumpyKCF`` is a fast stand-in.
+    tracker : SingleObjectTracker
+        The red marker's tracker: ``TransTTracker.small()``; a ``NumpyKCF`` is a fast stand-in.
     params : PlantParams, optional
     gk_config : GKConfig, optional
         Seed 000 §3.2 defaults.
@@ -59,16 +64,20 @@ class GKTransTPairTracker(MarkerPairTracker):
         keeps ``gk_config`` as given (default: both on).
     guide_search : bool
         Pass the Kalman prediction to the network as its search centre (seed 000 §3.2).
+    restart_on_prediction : bool
+        Restart the tracker on the prediction when it stood in (for trackers that cannot search
+        at a given centre; see the module docstring).
     name : str
     """
 
     def __init__(
         self,
-        tracker: Any,
+        tracker: SingleObjectTracker,
         params: PlantParams | None = None,
         gk_config: GKConfig | None = None,
         refine: bool | None = True,
         guide_search: bool = True,
+        restart_on_prediction: bool = False,
         name: str = "gk_transt",
     ) -> None:
         cfg = gk_config or GKConfig()
@@ -81,13 +90,19 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.tracker = tracker
         self.gk = GKAssist(self.params, cfg)
         self.guide_search = bool(guide_search)
+        self.restart_on_prediction = bool(restart_on_prediction)
         self.name = name
-        self.tilt_hint_rad: float | None = None
         self.last_gk: GKResult | None = None
+
+    def reset(self) -> None:
+        """Forget the track and the GK assistance's state."""
+        super().reset()
+        self.gk.reset()
+        self.last_gk = None
 
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
-        self.tracker.init(image, box_sensor_to_image(boxes_sensor_px[0], self.binning))
+        self.tracker.initialize(image, box_sensor_to_image(boxes_sensor_px[0], self.binning))
         self.gk.reset()
         self.last_gk = self.gk.step(image, self.binning, box_sensor_px=boxes_sensor_px[0],
                                     tilt_prev_rad=self.tilt_hint_rad)
@@ -121,31 +136,41 @@ class GKTransTPairTracker(MarkerPairTracker):
             reason=res.reason, compute_time_s=0.0, red_lost=res.lost, yellow_lost=yellow_lost,
             red_measured=red_measured, yellow_measured=res.yellow_source == "measurement",
             red_box_px=red_box, yellow_box_px=yellow_box, red_score=score,
-            tracker_time_s=net_time_s,
+            tracker_time_s=net_time_s, red_refined=res.red_refined,
         )
 
     def _step(self, image: NDArray[np.uint8]) -> PairResult:
         assert self.binning is not None
-        centre = self.search_centre_image_px()
-        box_img, score = self.tracker.track(image, search_centre_image_px=centre)
-        net_time = float(getattr(self.tracker, "compute_time_s", np.nan))
-        box_img = np.asarray(box_img, dtype=float).reshape(-1)
+        tr = self.tracker.track(image, search_centre_image_px=self.search_centre_image_px())
+        box_img = np.asarray(tr.box_image_px, dtype=float).reshape(-1)
         box = box_image_to_sensor(box_img, self.binning) \
             if box_img.shape == (4,) and np.all(np.isfinite(box_img)) else None
-        score_f = float(score) if score is not None else float("nan")
-        res = self.gk.step(image, self.binning, box_sensor_px=box, score=score_f,
+        score = float(tr.score) if tr.score is not None else float("nan")
+        res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
                            tilt_prev_rad=self.tilt_hint_rad)
         self.last_gk = res
-        return self._result(res, box, score_f, net_time)
+        out = self._result(res, box, score, float(tr.compute_time_s))
+        if self.restart_on_prediction and res.red_source == "prediction":
+            out = self._restart(image, res, out)
+        return out
+
+    def _restart(self, image: NDArray[np.uint8], res: GKResult, out: PairResult) -> PairResult:
+        """Restart the tracker where the prediction puts the red marker (see the module
+        docstring); a prediction the tracker refuses (e.g. outside the frame) keeps the old
+        track and says so."""
+        assert self.binning is not None
+        r = 1.6 * self.gk.marker_radius_px
+        guess = np.r_[res.red_px - r, 2 * r, 2 * r]
+        try:
+            self.tracker.initialize(image, box_sensor_to_image(guess, self.binning))
+        except ValueError as exc:
+            why = f"tracker not restarted: {exc}"
+            return replace(out, reason=f"{out.reason}; {why}" if out.reason else why)
+        return out
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """An unusable frame: the network does not run; GK coasts on its prediction."""
         assert self.binning is not None
         res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
         self.last_gk = res
-        out = self._result(res, None, float("nan"), 0.0)
-        return out if reason in out.reason else _add_reason(out, f"frame unusable: {reason}")
-
-
-def _add_reason(res: PairResult, reason: str) -> PairResult:
-    return replace(res, reason="; ".join(r for r in (reason, res.reason) if r))
+        return self._result(res, None, float("nan"), 0.0)

@@ -23,9 +23,9 @@ False) and neither the filter nor the KCF model is updated; after ``max_coast_fr
 in a row the tracker reports ``lost`` (it keeps predicting and searching at the prediction, and the
 next good peak re-acquires).
 
-API: the tracker seam (``init(frame, box_image_px)``, ``track(frame[, search_centre_image_px]) ->
-(box_image_px, score)``, ``compute_time_s``) plus ``lost``, ``measured`` and ``reason`` after each
-``track``. Boxes and positions are in *image* px of the frame; the score is the KCF peak.
+API: ``observer.tracking.SingleObjectTracker``; the result is ``valid`` unless the track is
+lost and ``measured`` unless the prediction stood in. Boxes and positions are in *image* px of the
+frame; the score is the KCF peak.
 """
 
 from __future__ import annotations
@@ -39,10 +39,11 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from observer.gk.hsv_gate import check_rgb_image
+from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.trackers.kcf_numpy import KCFConfig, NumpyKCF
+from observer.tracking import TrackResult
 
-_A = np.array([[1.0, 0, 1, 0], [0, 1.0, 0, 1], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
-_H = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
+_A, _H = F_CV, H_CV  # the constant-velocity model, T = 1 frame (seed 004 eq. 12)
 
 
 class K2CFConfig(BaseModel):
@@ -85,7 +86,7 @@ class K2CF:
 
     Attributes
     ----------
-    compute_time_s : wall-clock time of the last ``init``/``track``, s.
+    compute_time_s : wall-clock time of the last ``initialize``/``track``, s.
     x : (4,) state (u, v, u̇, v̇), image px and px/frame.
     P : (4, 4) state covariance.
     q_scale : current adaptive Q scale (Q = q_scale·I₄), image px².
@@ -110,15 +111,11 @@ class K2CF:
     def initialised(self) -> bool:
         return self.kcf.initialised
 
-    def prediction_image_px(self) -> NDArray[np.float64]:
-        """Position predicted for the next frame, H A s (image px; NaN before ``init``)."""
-        return (_H @ _A @ self.x) if self.initialised else np.full(2, np.nan)
-
-    def init(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
+    def initialize(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
         """Start on the target in ``box_image_px`` (x, y, w, h), image px; ``ValueError`` for
-        an unusable frame or box (see ``NumpyKCF.init``)."""
+        an unusable frame or box (see ``NumpyKCF.initialize``)."""
         t0 = time.perf_counter()
-        self.kcf.init(frame, box_image_px)
+        self.kcf.initialize(frame, box_image_px)
         c = self.kcf.centre_image_px
         cfg = self.config
         self.x = np.array([c[0], c[1], 0.0, 0.0])
@@ -143,17 +140,17 @@ class K2CF:
 
     def track(
         self, frame: NDArray[np.uint8], search_centre_image_px: ArrayLike | None = None
-    ) -> tuple[NDArray[np.float64], float]:
+    ) -> TrackResult:
         """Box (x, y, w, h), image px, and score (the KCF peak) in the next frame.
 
         The window is placed at the Kalman prediction (or at ``search_centre_image_px`` if
         given). An unusable frame coasts (prediction, ``measured`` False) and returns score 0.
         """
         t0 = time.perf_counter()
-        try:
-            return self._track(frame, search_centre_image_px)
-        finally:
-            self.compute_time_s = time.perf_counter() - t0
+        box, score = self._track(frame, search_centre_image_px)
+        self.compute_time_s = time.perf_counter() - t0
+        return TrackResult(box, score, not self.lost, self.reason, self.compute_time_s,
+                           self.measured)
 
     def _track(
         self, frame: NDArray[np.uint8], search_centre: ArrayLike | None
@@ -171,9 +168,8 @@ class K2CF:
         score = 0.0
         if not bad and np.all(np.isfinite(centre)):
             # 2. detect at the prediction (eqs. 13-16)
-            box, score = self.kcf.track(frame, centre)
-            if not math.isfinite(score):
-                score = 0.0
+            det = self.kcf.track(frame, centre)
+            box, score = det.box_image_px, det.score if math.isfinite(det.score) else 0.0
         else:
             box = np.full(4, np.nan)
         if score >= cfg.min_peak and np.all(np.isfinite(box)):

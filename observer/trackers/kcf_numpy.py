@@ -19,15 +19,17 @@ correlation filters", TPAMI 2015, which seed 004 builds on):
   position. Our addition: the update is skipped when the response peak is below
   ``min_update_peak``, so that an occluder is not learnt as the target.
 
-The API is that of the tracker seam (DESIGN.md) and of ``observer.transt.tracker.TransTTracker``:
-``init(frame, box_image_px)``, ``track(frame, search_centre_image_px=None) -> (box, score)``,
-``compute_time_s``. So the tracker also serves as a fast stand-in for the TransT network behind
-GK-TransT. Frames are RGB uint8; boxes (x, y, w, h) and centres are in *image* pixels of the frame
-(OpenCV pixel-centre convention). The box keeps the initial size (the markers barely change
-size: cos 15° = 0.966 at the tilt stop), so there is no scale search.
+The API is ``observer.tracking.SingleObjectTracker``, as for
+``observer.transt.tracker.TransTTracker``: ``initialize(frame, box_image_px)``, ``track(frame,
+search_centre_image_px=None) -> TrackResult``. So the tracker also serves as a fast stand-in for
+the TransT network behind GK-TransT. Frames are RGB uint8; boxes (x, y, w, h) and centres are in
+*image* pixels of the frame (OpenCV pixel-centre convention). The box keeps the initial size (the
+markers barely change size: cos 15° = 0.966 at the tilt stop), so there is no scale search.
 
 The score is the response peak: about 1 for an unchanged target at the predicted place (y has
-peak 1), near 0 when nothing resembles the model. Bad frames give a NaN box and score 0.
+peak 1), near 0 when nothing resembles the model. Bad frames give a failed result (NaN box,
+score 0, not valid); any finite box is ``valid`` (the KCF has no verdict of its own: its users
+judge the score).
 """
 
 from __future__ import annotations
@@ -41,7 +43,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.gk.hsv_gate import check_featureless, check_rgb_image
+from observer.gk.hsv_gate import check_frame, check_rgb_image
+from observer.tracking import TrackResult
 
 
 class KCFConfig(BaseModel):
@@ -110,7 +113,7 @@ class NumpyKCF:
 
     Attributes
     ----------
-    compute_time_s : wall-clock time of the last ``init`` or ``track`` call, s.
+    compute_time_s : wall-clock time of the last ``initialize`` or ``track`` call, s.
     centre_image_px : (2,) current target centre, image px (NaN before ``init``).
     size_image_px : (2,) target box size (w, h), image px.
     last_peak : response peak of the last ``track`` (the score).
@@ -165,7 +168,7 @@ class NumpyKCF:
         return self._yf / (kf + self.config.lambda_), xf
 
     # --- the tracker seam -----------------------------------------------------------------------
-    def init(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
+    def initialize(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
         """Start on the target in ``box_image_px`` (x, y, w, h), image px of ``frame`` (RGB).
 
         Raises ``ValueError`` for an unusable frame or a box that is not finite, has w or h <= 0
@@ -219,27 +222,28 @@ class NumpyKCF:
 
     def track(
         self, frame: NDArray[np.uint8], search_centre_image_px: ArrayLike | None = None
-    ) -> tuple[NDArray[np.float64], float]:
+    ) -> TrackResult:
         """Box (x, y, w, h), image px, and score (the response peak) in ``frame``.
 
         ``search_centre_image_px`` (u, v) places the detection window (seed 004 §3.2.2); by
-        default it is the previous position (plain KCF). A bad frame (see
-        ``observer.gk.hsv_gate.check_rgb_image``, a shape other than the init frame's, or a
-        featureless frame, ``check_featureless``), a non-finite search centre or no ``init``
-        gives a NaN box and score 0.
+        default it is the previous position (plain KCF). A bad frame
+        (``observer.gk.hsv_gate.check_frame``: not RGB uint8, a shape other than the init
+        frame's, or featureless: all black or all white), a non-finite search centre or no
+        ``initialize`` gives a failed result (NaN box, score 0).
         """
         t0 = time.perf_counter()
-        try:
-            return self._track(frame, search_centre_image_px)
-        finally:
-            self.compute_time_s = time.perf_counter() - t0
+        box, peak = self._track(frame, search_centre_image_px)
+        self.compute_time_s = time.perf_counter() - t0
+        if not np.all(np.isfinite(box)):
+            return TrackResult.failed("no box: bad frame or search centre, or not initialised",
+                                      self.compute_time_s)
+        return TrackResult(box, peak, True, "", self.compute_time_s)
 
     def _track(
         self, frame: NDArray[np.uint8], search_centre: ArrayLike | None
     ) -> tuple[NDArray[np.float64], float]:
         nan_box = np.full(4, np.nan)
-        if (not self.initialised or check_rgb_image(frame) or frame.shape != self._frame_shape
-                or check_featureless(frame)):
+        if not self.initialised or check_frame(frame, init_shape=self._frame_shape):
             self.last_peak = 0.0
             return nan_box, 0.0
         centre = self.centre_image_px if search_centre is None else \

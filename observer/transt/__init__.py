@@ -3,9 +3,9 @@ loss, training on analytic renders, and the tracker (seed 000 §3.1 builds GK-Tr
 
 * ``network``: ``TransTNet`` in two configurations, ``TRANST50`` (the published layout, loads the
   official checkpoint with ``load_official_state_dict``) and ``SMALL`` (trained here, shipped).
-* ``tracker``: ``TransTTracker`` with ``init(frame, box)`` / ``track(frame,
-  search_centre_image_px=None) -> (box, score)``; ``TransTTracker.small()`` loads the shipped
-  weights.
+* ``tracker``: ``TransTTracker``, an ``observer.tracking.SingleObjectTracker``
+  (``initialize(frame, box)`` / ``track(frame, search_centre_image_px=None) -> TrackResult``);
+  ``TransTTracker.small()`` loads the shipped weights.
 * ``losses``, ``data``, ``train``: TransT's loss, the cached crop pairs, the training script.
 * ``weights``: SHA-256-checked weight files.
 
@@ -23,7 +23,7 @@ from observer.transt.network import (
     count_parameters,
     load_official_state_dict,
 )
-from observer.transt.tracker import TrackResult, TransTTracker
+from observer.transt.tracker import TransTStep, TransTTracker
 from observer.transt.weights import SMALL_WEIGHTS, WeightsError, load_weights
 
 __all__ = [
@@ -32,9 +32,9 @@ __all__ = [
     "SMALL_WEIGHTS",
     "TRANST50",
     "LoadReport",
-    "TrackResult",
     "TransTConfig",
     "TransTNet",
+    "TransTStep",
     "TransTTracker",
     "WeightsError",
     "build_transt",

@@ -1,6 +1,6 @@
 """Training and validation crop pairs for TransT, pre-rendered into a cache (analytic renderer).
 
-Rendering on the fly was too slow for CPU training (DESIGN.md), so the pairs are rendered once,
+Rendering on the fly was too slow for CPU training (docs/transt.md), so the pairs are rendered once,
 deterministically from a seed, into a folder of ``.npy`` arrays (``runs/transt_cache/`` by
 default, not committed) and read back memory-mapped by ``CropPairs``.
 

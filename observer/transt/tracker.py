@@ -1,8 +1,8 @@
-"""TransT tracking as the published tracker does it, behind the tracker seam of DESIGN.md.
+"""TransT tracking as the published tracker does it (an ``observer.tracking.SingleObjectTracker``).
 
-``TransTTracker.init(frame_rgb, box_image_px)`` crops the template (context factor 2, the
+``TransTTracker.initialize(frame_rgb, box_image_px)`` crops the template (context factor 2, the
 frame's mean colour outside it), ImageNet-normalises it and caches its backbone tokens.
-``track(frame_rgb, search_centre_image_px=None) -> (box_image_px, score)`` then, per frame
+``track(frame_rgb, search_centre_image_px=None) -> TrackResult`` then, per frame
 (Chen et al., "Transformer Tracking", CVPR 2021, §3.4 "Tracking with TransT"):
 
 1. crops the search region (context factor 4 of the current box size) around the previous box
@@ -16,16 +16,16 @@ frame's mean colour outside it), ImageNet-normalises it and caches its backbone 
 
 The returned score is the network's target probability at the chosen cell (in [0, 1], before
 the window). ``compute_time_s`` is the wall-clock time of the whole ``track`` call
-(``time.perf_counter``: checks, crop, network, decoding), and ``last`` holds the full
-``TrackResult`` of the last call.
+(``time.perf_counter``: checks, crop, network, decoding), and ``last`` holds the
+``TransTStep`` of the last call (with the search crop used).
 
 Frames are RGB uint8 (H, W, 3) as the renderers produce them; boxes are (x, y, w, h) in image
 pixels of that frame (pixel-centre convention, centre = (x + w/2, y + h/2), see
-``observer.transt.crop``). Bad input never raises in ``track``: an unusable frame (or one
-whose shape differs from the init frame's), search centre or network output gives a NaN box,
-score 0.0 and ``last.status`` saying why, and the tracker state stays as it was, so the next
-good frame continues the track. ``init`` raises ``ValueError`` for a frame or box it cannot
-start from.
+``observer.transt.crop``). Bad input never raises in ``track``: an unusable frame (see
+``observer.gk.hsv_gate.check_frame``: not RGB uint8, a shape other than the init frame's, or
+featureless), search centre or network output gives a failed result (NaN box, score 0.0, not
+valid) saying why, and the tracker state stays as it was, so the next good frame continues the
+track. ``initialize`` raises ``ValueError`` for a frame or box it cannot start from.
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
+from observer.gk.hsv_gate import UNIFORM_PTP_DN, check_frame, check_rgb_image
+from observer.tracking import TrackResult
 from observer.transt.crop import context_side, crop_square, crop_to_box, normalise
 from observer.transt.network import TransTConfig, TransTNet, build_transt
 from observer.transt.weights import SMALL_WEIGHTS, load_weights
@@ -48,10 +50,9 @@ Backend = Literal["eager", "compile", "onnx"]
 #: Our choice: the smallest box side the tracker keeps, image px (TransT clips at 10 px of
 #: full-resolution video; our binned frames show the 8 mm marker at about 48 px).
 MIN_BOX_PX = 4.0
-#: Our choice: a search region (the part of the frame under the search crop) whose pixel values
-#: span at most this many DN holds no target (an all-black or blank frame); track() then reports
-#: a failure without running the network. The same test refuses a blank template in init().
-UNIFORM_PTP_DN = 2
+# A search region (the part of the frame under the search crop) whose pixel values span at most
+# UNIFORM_PTP_DN holds no target (an all-black or blank frame); track() then reports a failure
+# without running the network. The same test refuses a blank template in initialize().
 
 #: Backend preference of ``TransTTracker.small()`` when none is given: ONNX Runtime was the
 #: fastest here (benchmarks/bench_transt.py: track-step median 6.1 ms against 9.6 ms with
@@ -61,8 +62,8 @@ DEFAULT_BACKEND: Backend = "onnx"
 
 
 @dataclass(frozen=True)
-class TrackResult:
-    """One ``track`` result.
+class TransTStep:
+    """One ``track`` call in detail (``TransTTracker.last``).
 
     Attributes
     ----------
@@ -88,19 +89,6 @@ def hanning_window(n: int) -> NDArray[np.float32]:
     """TransT's cosine window over an n x n score map, flattened row-major (np.hanning outer)."""
     h = np.hanning(n)
     return np.outer(h, h).astype(np.float32).reshape(-1)
-
-
-def check_frame(frame: object) -> str | None:
-    """None if ``frame`` is a usable RGB uint8 image (H, W, 3), else why not."""
-    if not isinstance(frame, np.ndarray):
-        return f"frame is a {type(frame).__name__}, not a numpy array"
-    if frame.dtype != np.uint8:
-        return f"frame dtype is {frame.dtype}, expected uint8 RGB"
-    if frame.ndim != 3 or frame.shape[2] != 3:
-        return f"frame shape is {frame.shape}, expected (H, W, 3) RGB"
-    if frame.shape[0] < 2 or frame.shape[1] < 2:
-        return f"frame is empty or degenerate: shape {frame.shape}"
-    return None
 
 
 class _Runner:
@@ -153,7 +141,7 @@ class TransTTracker:
     Attributes
     ----------
     compute_time_s : wall-clock time of the last ``init`` or ``track`` call, s.
-    last : the ``TrackResult`` of the last ``track`` call (None before).
+    last : the ``TransTStep`` of the last ``track`` call (None before).
     centre_image_px, size_image_px : the current state (box centre and size), image px.
     """
 
@@ -180,7 +168,7 @@ class TransTTracker:
         self.size_image_px: NDArray[np.float64] | None = None
         self._pad: NDArray[np.float64] | None = None
         self.compute_time_s = 0.0
-        self.last: TrackResult | None = None
+        self.last: TransTStep | None = None
 
     # --- constructors ---------------------------------------------------------------------------
     @classmethod
@@ -219,7 +207,7 @@ class TransTTracker:
     def initialised(self) -> bool:
         return self.centre_image_px is not None
 
-    def init(self, frame_rgb: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
+    def initialize(self, frame_rgb: NDArray[np.uint8], box_image_px: ArrayLike) -> None:
         """Start tracking the target in ``box_image_px`` (x, y, w, h), image px, of
         ``frame_rgb`` (RGB uint8, (H, W, 3)).
 
@@ -228,20 +216,20 @@ class TransTTracker:
         uniform template region (an all-black frame).
         """
         t0 = time.perf_counter()
-        why = check_frame(frame_rgb)
-        if why is not None:
-            raise ValueError(f"TransTTracker.init: {why}")
+        why = check_rgb_image(frame_rgb)
+        if why:
+            raise ValueError(f"TransTTracker.initialize: {why}")
         box = np.asarray(box_image_px, dtype=float)
         if box.shape != (4,) or not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
             raise ValueError(
-                f"TransTTracker.init: box_image_px must be a finite (x, y, w, h) with w, h > 0, "
-                f"got {box_image_px!r}"
+                "TransTTracker.initialize: box_image_px must be a finite (x, y, w, h) with "
+                f"w, h > 0, got {box_image_px!r}"
             )
         h_img, w_img = frame_rgb.shape[:2]
         centre = box[:2] + box[2:] / 2.0
         if not (-0.5 <= centre[0] <= w_img - 0.5 and -0.5 <= centre[1] <= h_img - 0.5):
             raise ValueError(
-                f"TransTTracker.init: the box centre {centre.tolist()} lies outside the "
+                f"TransTTracker.initialize: the box centre {centre.tolist()} lies outside the "
                 f"{w_img} x {h_img} frame"
             )
         pad = frame_rgb.reshape(-1, 3).mean(axis=0)
@@ -249,7 +237,7 @@ class TransTTracker:
         crop = crop_square(frame_rgb, centre, side, self.config.template_size, pad)
         if int(crop.max()) - int(crop.min()) <= UNIFORM_PTP_DN:
             raise ValueError(
-                "TransTTracker.init: the template region is uniform (an all-black or blank "
+                "TransTTracker.initialize: the template region is uniform (an all-black or blank "
                 "frame?); nothing to track"
             )
         self._runner.set_template(normalise(crop[None]))
@@ -264,36 +252,36 @@ class TransTTracker:
         self,
         frame_rgb: NDArray[np.uint8],
         search_centre_image_px: ArrayLike | None = None,
-    ) -> tuple[NDArray[np.float64], float]:
+    ) -> TrackResult:
         """Box (x, y, w, h), image px, and score of the target in the next frame.
 
         ``search_centre_image_px`` (2,), image px, places the search crop there instead of at
         the previous box centre. A failure (bad frame or centre, a frame shape other than the
-        init frame's, uniform search region, non-finite network output, not initialised)
-        returns a NaN box and score 0.0 and leaves the state unchanged; ``last.status`` says
-        why.
+        init frame's, a featureless frame or search region, non-finite network output, not
+        initialised) returns a NaN box and score 0.0 and leaves the state unchanged;
+        ``last.status`` says why.
         """
         t0 = time.perf_counter()
         res = self._track(frame_rgb, search_centre_image_px, t0)
         self.compute_time_s = time.perf_counter() - t0
-        self.last = TrackResult(
+        self.last = TransTStep(
             res[0], res[1], self.compute_time_s, res[2] == "ok", res[2], res[3], res[4]
         )
-        return self.last.box_image_px.copy(), self.last.score
+        ok = self.last.ok
+        return TrackResult(self.last.box_image_px.copy(), self.last.score, ok,
+                           "" if ok else self.last.status, self.compute_time_s, ok)
 
     def _track(
         self, frame: object, search_centre: ArrayLike | None, t0: float
     ) -> tuple[NDArray[np.float64], float, str, NDArray[np.float64], float]:
         nan_box = np.full(4, np.nan)
         if self.centre_image_px is None or self.size_image_px is None:
-            return nan_box, 0.0, "not initialised: call init first", np.full(2, np.nan), 0.0
+            return nan_box, 0.0, "not initialised: call initialize first", np.full(2, np.nan), 0.0
         side = context_side(self.size_image_px, self.config.search_factor)
         centre = self.centre_image_px
-        why = check_frame(frame)
-        if why is None and frame.shape != self._frame_shape:  # type: ignore[union-attr]
-            # Another frame size: the box and search centre would be read in the wrong pixels.
-            why = (f"frame shape {frame.shape} differs from the init frame's "  # type: ignore[union-attr]
-                   f"{self._frame_shape}")
+        # The init frame's shape is required: in a frame of another size the box and search
+        # centre would be read in the wrong pixels.
+        why = check_frame(frame, init_shape=self._frame_shape) or None
         if why is None and search_centre is not None:
             try:
                 sc = np.asarray(search_centre, dtype=float).reshape(2)

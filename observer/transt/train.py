@@ -1,12 +1,11 @@
 """Train the ``small`` TransT on cached analytic-render crop pairs (CPU, resumable).
 
-Recipe (DESIGN.md "Facts about the dependencies": a 1.9 M-parameter TransT-shaped model with
-TransT's loss weights, AdamW 5e-4 and batch 32 reached 0.1 marker diameters median error in 300
-steps here): TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
-weight 0.0625), AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32,
-a 30-step linear warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1
-(our choice), dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched
-here).
+Recipe (a 1.9 M-parameter TransT-shaped model with TransT's loss weights, AdamW 5e-4 and batch
+32 reached 0.1 marker diameters median error in 300 steps in a first trial here, docs/transt.md):
+TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background weight 0.0625),
+AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32, a 30-step linear
+warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1 (our choice),
+dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched here).
 
 Data: ``observer.transt.data``, a training cache (seed 1) and a validation cache (seed 2) that is
 never trained on; both are rendered first if missing. Every ``--eval-every`` steps the script
@@ -117,10 +116,11 @@ def evaluate_sequences(
     for seed in seeds:
         frames = validation_sequence(seed, n_frames)
         trk = TransTTracker(net.eval())
-        trk.init(frames[0].image, marker_box_image(frames[0], marker))
+        trk.initialize(frames[0].image, marker_box_image(frames[0], marker))
         for f in frames[1:]:
-            box, _ = trk.track(f.image)
-            times.append(trk.compute_time_s)
+            r = trk.track(f.image)
+            box = r.box_image_px
+            times.append(r.compute_time_s)
             c = (box[:2] + box[2:] / 2 + 0.5) * f.binning - 0.5  # image -> sensor px
             errs.append(float(np.hypot(*(c - f.marker_px[marker]))))
     e = np.asarray(errs)
