@@ -178,7 +178,7 @@ def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.cli", "sweep", str(spec), "--out", str(out),
-         "--workers", "2", *backend],
+         "--workers", "2", "--engine", "event", *backend],  # one run per job: stops mid-way
         cwd=os.getcwd(), start_new_session=True, stderr=subprocess.PIPE, text=True,
     )
     try:
