@@ -1,0 +1,506 @@
+"""Track the marker pair on a recorded video, a folder of images or a live camera, and turn the
+centres into attitudes and a latency profile (``pmspm track``).
+
+Per frame: read (and decode) the frame, ``PairTracker.step`` (``observer.trackers``), the
+centre-of-rotation least-squares attitude (``observer.cor_solver.CorSolver``, seed 002 §2.4)
+from the two centres, warm-started from the previous frame, and an annotated copy for the MP4.
+Outputs in the run folder:
+
+* ``frames.parquet``: one row per processed frame: frame index, capture time (s), both centres
+  (sensor px), lost flags and reasons, the attitude (quaternion; spin, tilt, yaw in deg) and the
+  per-stage compute times (read, tracker, solver; s);
+* ``annotated.mp4``: the frames with boxes, centres and the attitude;
+* ``latency_profile.json``: an ``latency.models.Empirical`` profile of tracker + solver time,
+  the format ``pipeline.observer`` of a scenario (``pmspm simulate``) takes;
+* ``report.md`` with ``attitude.png`` and ``latency.png``.
+
+Sources. A path to a folder reads its images in name order (``experiments.cvat.list_frames``);
+another path is a video file (OpenCV ``VideoCapture``); an integer or a URL is a live camera.
+Recorded sources are processed frame by frame. A live camera runs in real time: the camera
+delivers a frame every ``1/fps`` s; when the tracker is slower, the frames delivered while it
+was busy are grabbed and discarded (not decoded), and only the newest is processed, so nothing
+queues up; the number discarded is reported. The capture object (anything with OpenCV's
+``read``/``grab``/``release``) and the clock are injectable, so the timing logic runs in tests on
+a simulated clock. Ctrl-C stops the run; everything processed until then is written.
+
+Bad input raises ``TrackInputError`` with the reason (the CLI exits with status 2).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike, NDArray
+
+from experiments.cvat import list_frames, read_cvat_xml
+from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
+from latency.models import Empirical
+from observer.cor_model import CorModel, Intrinsics
+from observer.cor_solver import CorSolver
+from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.tracking import PairTracker
+from plant import attitude
+from plant.camera import image_to_sensor, sensor_to_image
+from plant.camera_file import CameraFile
+from plant.params import PlantParams
+
+Clock = Callable[[], float]
+
+
+class TrackInputError(ValueError):
+    """The user's input cannot be tracked (unreadable video, bad boxes, mismatched files)."""
+
+
+class Capture(Protocol):
+    """The part of ``cv2.VideoCapture`` a run uses: frames in OpenCV's BGR order."""
+
+    def read(self) -> tuple[bool, NDArray[np.uint8] | None]:
+        """The next frame (grab + decode)."""
+        ...
+
+    def grab(self) -> bool:
+        """Take the next frame off the source without decoding it."""
+        ...
+
+    def release(self) -> None:
+        """Close the source."""
+        ...
+
+    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+        """The source is open."""
+        ...
+
+    def get(self, prop_id: int) -> float:
+        """A property (``cv2.CAP_PROP_*``; 0 when unknown)."""
+        ...
+
+
+class FolderCapture:
+    """A folder of images as a ``Capture`` (name order, ``experiments.cvat.list_frames``)."""
+
+    def __init__(self, folder: Path | str) -> None:
+        try:
+            self.files = list_frames(folder)
+        except ValueError as exc:
+            raise TrackInputError(str(exc)) from exc
+        self.index = 0
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def grab(self) -> bool:
+        self.index += 1
+        return self.index <= len(self.files)
+
+    def read(self) -> tuple[bool, NDArray[np.uint8] | None]:
+        if self.index >= len(self.files):
+            return False, None
+        img = cv2.imread(str(self.files[self.index]), cv2.IMREAD_COLOR)
+        self.index += 1
+        return img is not None, img
+
+    def release(self) -> None:
+        self.index = len(self.files)
+
+    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+        return self.index < len(self.files)
+
+    def get(self, prop_id: int) -> float:
+        return float(len(self.files)) if prop_id == cv2.CAP_PROP_FRAME_COUNT else 0.0
+
+
+@dataclass
+class Source:
+    """An opened frame source.
+
+    Attributes
+    ----------
+    capture : the frames.
+    kind : ``"video"``, ``"folder"`` or ``"live"``.
+    fps : frame rate, Hz (the video's, or the camera's nominal rate).
+    n_frames : frames in a recording (None for a live camera or when the container omits it).
+    name : what was opened.
+    """
+
+    capture: Capture
+    kind: str
+    fps: float
+    n_frames: int | None
+    name: str
+
+
+def open_source(spec: str, fps: float | None = None,
+                capture_factory: Callable[[int | str], Capture] | None = None) -> Source:
+    """Open ``spec``: a folder of images, a video file, a camera index (``"0"``) or a URL.
+
+    ``fps`` overrides the frame rate (default: the video's, else 36 Hz, seed 000 §5).
+    ``capture_factory`` (default ``cv2.VideoCapture``) opens files, indices and URLs.
+    Raises ``TrackInputError`` when the source cannot be opened.
+    """
+    factory = capture_factory or cv2.VideoCapture
+    default_fps = PlantParams().camera.frame_rate_hz
+    path = Path(spec)
+    if path.is_dir():
+        cap = FolderCapture(path)
+        return Source(cap, "folder", fps or default_fps, len(cap), str(path))
+    live = spec.isdigit() or "://" in spec
+    if not live and not path.is_file():
+        raise TrackInputError(f"{spec}: no such file, folder or camera")
+    cap = factory(int(spec) if spec.isdigit() else spec)
+    if not cap.isOpened():
+        raise TrackInputError(f"{spec}: cannot open (unreadable video or camera)")
+    rate = float(cap.get(cv2.CAP_PROP_FPS))
+    count = 0 if live else int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    return Source(cap, "live" if live else "video", fps or (rate if rate > 0 else default_fps),
+                  count if count > 0 else None, spec)
+
+
+def parse_boxes(text: str) -> NDArray[np.float64]:
+    """``"x,y,w,h;x,y,w,h"`` (red then yellow, image px of the frames) -> (2, 4) array."""
+    try:
+        rows = [[float(v) for v in part.split(",")] for part in text.split(";")]
+        boxes = np.array(rows, dtype=float)
+    except ValueError as exc:
+        raise TrackInputError(f"--boxes {text!r}: expected 'x,y,w,h;x,y,w,h' ({exc})") from exc
+    if boxes.shape != (2, 4):
+        raise TrackInputError(f"--boxes {text!r}: expected two boxes of four numbers "
+                              "(red;yellow), image px")
+    return boxes
+
+
+def check_boxes(boxes_image_px: ArrayLike, width: int, height: int) -> NDArray[np.float64]:
+    """Both first-frame boxes (2, 4), image px, must be finite, non-empty and inside the
+    ``width`` x ``height`` frame; returns them as an array."""
+    boxes = np.asarray(boxes_image_px, dtype=float).reshape(2, 4)
+    for name, (x, y, w, h) in zip(("red", "yellow"), boxes, strict=True):
+        if not (np.all(np.isfinite([x, y, w, h])) and w > 0 and h > 0):
+            raise TrackInputError(f"{name} box {[x, y, w, h]} must be finite with w, h > 0")
+        if x < -0.5 or y < -0.5 or x + w > width - 0.5 or y + h > height - 0.5:
+            raise TrackInputError(f"{name} box {[x, y, w, h]} (x, y, w, h) is outside the "
+                                  f"{width} x {height} px image")
+    return boxes
+
+
+@dataclass
+class GroundTruth:
+    """Annotated centres (N, 2, 2), image px of the frames, NaN where a marker is absent."""
+
+    centres_image_px: NDArray[np.float64]
+    first_boxes_image_px: NDArray[np.float64]
+
+
+def load_ground_truth(xml_path: Path | str, width: int, height: int,
+                      n_frames: int | None) -> GroundTruth:
+    """CVAT for video 1.1 boxes of a recording of ``width`` x ``height`` px and ``n_frames``
+    frames (None: unknown). Raises ``TrackInputError`` if the file belongs to another video
+    (other size or frame count) or lacks the first frame's boxes."""
+    try:
+        tracks = read_cvat_xml(xml_path)
+    except (ValueError, OSError) as exc:
+        raise TrackInputError(str(exc)) from exc
+    if tracks.width and (tracks.width, tracks.height) != (width, height):
+        raise TrackInputError(f"{xml_path}: annotated frames are {tracks.width} x "
+                              f"{tracks.height} px, the video's are {width} x {height} px "
+                              "(a CVAT file for another video?)")
+    if n_frames is not None and tracks.n_frames != n_frames:
+        raise TrackInputError(f"{xml_path}: annotates {tracks.n_frames} frames, the video has "
+                              f"{n_frames} (a CVAT file for another video?)")
+    boxes = np.stack([tracks.boxes_px["red"], tracks.boxes_px["yellow"]], axis=1)
+    if not np.all(np.isfinite(boxes[0])):
+        raise TrackInputError(f"{xml_path}: both markers must be annotated in the first frame")
+    return GroundTruth(boxes[:, :, :2] + 0.5 * boxes[:, :, 2:], boxes[0])
+
+
+def cor_model(camera: CameraFile, params: PlantParams) -> CorModel:
+    """The attitude solver's model: the calibrated intrinsics when the camera file has them,
+    else the nominal camera (``CorModel.nominal``); markers and CoR depth from ``params``."""
+    nominal = CorModel.nominal(params)
+    cal = camera.calibration
+    if cal is None:
+        return nominal
+    k1, k2, _, _, k3 = cal.dist_coeffs
+    return nominal.replace(intrinsics=Intrinsics(cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px,
+                                                 k1, k2, k3))
+
+
+@dataclass
+class TrackOutcome:
+    """What a run produced.
+
+    Attributes
+    ----------
+    table : the per-frame table (also ``frames.parquet``).
+    out_dir : the run folder.
+    dropped : live frames discarded because the tracker was busy.
+    interrupted : the run was stopped by Ctrl-C.
+    metrics : precision at 20 px and centre errors per marker (with ground truth), else empty.
+    """
+
+    table: pd.DataFrame
+    out_dir: Path
+    dropped: int = 0
+    interrupted: bool = False
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    def summary_lines(self) -> list[str]:
+        """Human-readable lines for the terminal and the report."""
+        t = self.table
+        ok = t["attitude_valid"].to_numpy(bool) if len(t) else np.zeros(0, bool)
+        lines = [f"frames processed: {len(t)}, dropped (live): {self.dropped}"
+                 + (" (stopped by Ctrl-C)" if self.interrupted else ""),
+                 f"attitude solved on {int(ok.sum())} of {len(t)} frames; markers lost on "
+                 f"{int(t['lost'].sum()) if len(t) else 0}"]
+        if len(t):
+            total = (t["tracker_time_s"] + t["solver_time_s"]).to_numpy() * 1e3
+            lines.append(f"tracker + solver time: median {np.median(total):.2f} ms, "
+                         f"p95 {np.percentile(total, 95):.2f} ms")
+        for k, v in self.metrics.items():
+            lines.append(f"{k}: {v:.3f}")
+        return lines
+
+
+def _annotate(bgr: NDArray[np.uint8], res, binning: int, text: str) -> NDArray[np.uint8]:  # noqa: ANN001 - PairResult
+    """Boxes, centres and a text line drawn on a copy of a BGR frame."""
+    out = bgr.copy()
+    colours = ((0, 0, 255), (0, 215, 255))  # red, yellow in BGR
+    for box, centre, lost, colour in zip(res.boxes_px, res.marker_px,
+                                         (res.red_lost, res.yellow_lost), colours, strict=True):
+        if np.all(np.isfinite(box)):
+            x, y, w, h = box_sensor_to_image(box, binning)
+            cv2.rectangle(out, (round(x), round(y)), (round(x + w), round(y + h)), colour,
+                          1 if lost else 2)
+        if np.all(np.isfinite(centre)):
+            u, v = sensor_to_image(centre, binning)
+            cv2.drawMarker(out, (round(u), round(v)), colour, cv2.MARKER_CROSS, 8, 1)
+    cv2.putText(out, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return out
+
+
+class _LiveSchedule:
+    """Which frame of a live camera to process next: the newest one delivered by now.
+
+    The camera delivers frame k at ``t0 + k / fps`` on ``clock``. Frames delivered while the
+    tracker was busy, except the newest, are grabbed and discarded.
+    """
+
+    def __init__(self, fps: float, clock: Clock, t0: float) -> None:
+        self.period_s = 1.0 / fps
+        self.clock = clock
+        self.t0 = t0
+        self.last = 0
+        self.dropped = 0
+
+    def skip_stale(self, capture: Capture) -> bool:
+        """Discard the stale frames; False when the source ends."""
+        newest = math.floor((self.clock() - self.t0) / self.period_s + 1e-9)
+        stale = max(newest - self.last - 1, 0)
+        for _ in range(stale):
+            if not capture.grab():
+                return False
+        self.dropped += stale
+        self.last += stale + 1
+        return True
+
+
+def _read_first(source: Source) -> NDArray[np.uint8]:
+    ok, frame = source.capture.read()
+    if not ok or frame is None or frame.size == 0:
+        raise TrackInputError(f"{source.name}: no frame could be read (empty or unreadable)")
+    return frame
+
+
+def run_track(
+    source: Source,
+    tracker: PairTracker,
+    out_dir: Path | str,
+    boxes_image_px: ArrayLike | None = None,
+    ground_truth: Path | str | None = None,
+    camera: CameraFile | None = None,
+    params: PlantParams | None = None,
+    max_frames: int | None = None,
+    clock: Clock = time.perf_counter,
+    write_video: bool = True,
+) -> TrackOutcome:
+    """Track ``source`` and write the outputs of the module docstring into ``out_dir``.
+
+    Parameters
+    ----------
+    source : from ``open_source``.
+    tracker : a pair tracker (``observer.trackers.make_pair_tracker``) built with ``params``.
+    boxes_image_px : (2, 4) first-frame boxes, red then yellow (x, y, w, h), image px; may be
+        omitted when ``ground_truth`` gives them.
+    ground_truth : a CVAT for video 1.1 XML of the recording: its first-frame boxes start the
+        tracker (unless ``boxes_image_px`` is given) and its centres score the run (precision at
+        20 px and centre errors, ``experiments.tracking_bench``).
+    camera : the camera file (default: ``params``' camera); its image size must be the frames'.
+    params : the plant (markers, CoR; default ``PlantParams()``); its camera is replaced by
+        ``camera.camera``.
+    max_frames : stop after this many processed frames.
+    clock : seconds, monotonic; times the stages and paces a live source.
+    write_video : write ``annotated.mp4``.
+    """
+    p = params or PlantParams()
+    cam = camera or CameraFile(camera=p.camera)
+    p = p.model_copy(update={"camera": cam.camera})
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    first = _read_first(source)
+    h, w = first.shape[:2]
+    if (w, h) != cam.image_size:
+        raise TrackInputError(f"the camera file's image size is {cam.image_size[0]} x "
+                              f"{cam.image_size[1]} px (sensor / binning) but the frames are "
+                              f"{w} x {h} px")
+    truth = None if ground_truth is None else load_ground_truth(
+        ground_truth, w, h, source.n_frames if source.kind != "live" else None)
+    if boxes_image_px is None:
+        if truth is None:
+            raise TrackInputError("give the first-frame boxes (--boxes) or a CVAT file")
+        boxes_image_px = truth.first_boxes_image_px
+    boxes = check_boxes(boxes_image_px, w, h)
+    b = cam.camera.binning
+    try:
+        tracker.start(cv2.cvtColor(first, cv2.COLOR_BGR2RGB),
+                      np.array([box_image_to_sensor(x, b) for x in boxes]), b)
+    except ValueError as exc:
+        raise TrackInputError(f"cannot start the tracker: {exc}") from exc
+    solver = CorSolver(cor_model(cam, p))
+    writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                             source.fps, (w, h)) if write_video else None
+    t0 = clock()
+    live = _LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
+    rows: list[dict] = []
+    q_prev = None
+    frame, read_s, index = first, 0.0, 0
+    interrupted = False
+    try:
+        while frame is not None and (max_frames is None or len(rows) < max_frames):
+            t_capture = clock() - t0 if live else index / source.fps
+            rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+            res = tracker.step(rgb)
+            ts = clock()
+            sol = solver.solve(res.marker_px, q_prev)
+            solver_s = clock() - ts
+            q = sol.q if sol.valid else np.full(4, np.nan)
+            q_prev = sol.q if sol.valid else q_prev
+            angles = np.rad2deg(attitude.to_zyz_array(q[None])[0]) if sol.valid \
+                else np.full(3, np.nan)
+            rows.append({
+                "frame_index": index, "capture_time_s": t_capture,
+                "red_u_px": res.red_px[0], "red_v_px": res.red_px[1],
+                "yellow_u_px": res.yellow_px[0], "yellow_v_px": res.yellow_px[1],
+                "lost": res.lost, "red_lost": res.red_lost, "yellow_lost": res.yellow_lost,
+                "reason": res.reason, "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
+                "spin_deg": angles[0], "tilt_deg": angles[1], "yaw_deg": angles[2],
+                "attitude_valid": sol.valid, "attitude_reason": sol.reason,
+                "residual_rms_px": sol.residual_rms_px,
+                "read_time_s": read_s, "tracker_time_s": res.compute_time_s,
+                "solver_time_s": solver_s,
+            })
+            if writer is not None:
+                text = (f"#{index} tilt {angles[1]:.2f} yaw {angles[2]:.1f} spin "
+                        f"{angles[0]:.1f} deg" if sol.valid else f"#{index} no attitude")
+                writer.write(_annotate(frame, res, b, text))
+            if live is not None and not live.skip_stale(source.capture):
+                break
+            tr = clock()
+            ok, frame = source.capture.read()
+            read_s = clock() - tr
+            frame = frame if ok and frame is not None and frame.shape[:2] == (h, w) else None
+            index = live.last if live is not None else index + 1
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        source.capture.release()
+        if writer is not None:
+            writer.release()
+    table = pd.DataFrame(rows)
+    outcome = TrackOutcome(table, out, live.dropped if live else 0, interrupted)
+    if truth is not None:
+        outcome.metrics = score(table, truth, b)
+    write_outputs(outcome, source, tracker)
+    return outcome
+
+
+def score(table: pd.DataFrame, truth: GroundTruth, binning: int) -> dict[str, float]:
+    """Precision at 20 px and mean / median centre errors (sensor px, as the benchmark) of each
+    marker against the annotated centres of the processed frames."""
+    idx = table["frame_index"].to_numpy(int)
+    idx = idx[idx < len(truth.centres_image_px)]
+    metrics: dict[str, float] = {}
+    for m, name in enumerate(("red", "yellow")):
+        pred = table[[f"{name}_u_px", f"{name}_v_px"]].to_numpy()[: len(idx)]
+        true = image_to_sensor(truth.centres_image_px[idx, m], binning)
+        e = centre_errors(pred, true)
+        scored = e[~np.isnan(e)]
+        metrics[f"{name} precision@{PRECISION_PX:g}px"] = precision_at(e)
+        metrics[f"{name} mean centre error px"] = float(np.mean(scored)) if scored.size else np.nan
+        metrics[f"{name} median centre error px"] = float(np.median(scored)) if scored.size \
+            else np.nan
+    return metrics
+
+
+def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -> None:
+    """The Parquet table, the latency profile, the plots and ``report.md``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out, t = outcome.out_dir, outcome.table
+    t.to_parquet(out / "frames.parquet", index=False)
+    name = tracker.name
+    if len(t):
+        total = (t["tracker_time_s"] + t["solver_time_s"]).to_numpy()
+        Empirical.from_measurements(
+            total, source=f"{name} + CoR solver, {len(t)} frames of {source.name}"
+        ).save(out / "latency_profile.json")
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for col in ("tilt_deg", "yaw_deg", "spin_deg"):
+        if len(t):
+            ax.plot(t["capture_time_s"], t[col], label=col.replace("_deg", ""))
+    ax.set_xlabel("capture time, s")
+    ax.set_ylabel("angle, deg")
+    ax.legend()
+    ax.set_title("attitude (ZYZ spin, tilt, yaw)")
+    fig.tight_layout()
+    fig.savefig(out / "attitude.png", dpi=100)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for col in ("read_time_s", "tracker_time_s", "solver_time_s"):
+        if len(t):
+            ax.plot(t["capture_time_s"], t[col] * 1e3, label=col.replace("_time_s", ""))
+    ax.set_xlabel("capture time, s")
+    ax.set_ylabel("compute time, ms")
+    ax.legend()
+    ax.set_title("per-stage compute time")
+    fig.tight_layout()
+    fig.savefig(out / "latency.png", dpi=100)
+    plt.close(fig)
+    lines = [f"# Tracking run: {source.name}", "",
+             f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}.", "",
+             *[f"- {s}" for s in outcome.summary_lines()], "",
+             "![attitude](attitude.png)", "", "![latency](latency.png)", "",
+             "Files: `frames.parquet` (per frame), `annotated.mp4`, `latency_profile.json` "
+             "(a scenario's `pipeline.observer`).", ""]
+    (out / "report.md").write_text("\n".join(lines))
+
+
+def attitude_errors_deg(table: pd.DataFrame, q_true: Sequence[ArrayLike]) -> NDArray[np.float64]:
+    """Geodesic angle (deg) between each row's attitude and ``q_true[frame_index]``; NaN where
+    the run has no attitude."""
+    q = table[["q_w", "q_x", "q_y", "q_z"]].to_numpy()
+    qt = np.asarray(q_true, dtype=float)[table["frame_index"].to_numpy(int)]
+    err = np.full(len(q), np.nan)
+    ok = np.all(np.isfinite(q), axis=1)
+    if ok.any():
+        err[ok] = np.rad2deg(attitude.geodesic_angle(q[ok], qt[ok]))
+    return err
