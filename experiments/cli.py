@@ -413,5 +413,47 @@ def tune_kalman_cmd(
     typer.echo(f"results: {out}")
 
 
+
+@app.command()
+def track(
+    source: Annotated[str, typer.Argument(help="Video file, image folder, camera index or URL.")],
+    out: OutOption = Path("track_run"),
+    tracker: Annotated[str, typer.Option(help="Pair tracker (observer.trackers.PAIR_TRACKERS).")]
+    = "gk_transt",
+    boxes: Annotated[
+        str | None, typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px.")
+    ] = None,
+    cvat: Annotated[
+        Path | None, typer.Option(help="CVAT for video 1.1 XML: first boxes and ground truth.")
+    ] = None,
+    camera: Annotated[Path | None, typer.Option(help="Camera YAML (pmspm calibrate).")] = None,
+    motor: Annotated[Path | None, typer.Option(help="Motor YAML (markers, rotor radius).")] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (default: the source's).")]
+    = None,
+    max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
+) -> None:
+    """Track the two markers on a recording or a live camera; write the per-frame table, the
+    attitudes, an annotated MP4, a latency profile and a report.
+
+    Example: pmspm track lab.mp4 --boxes "300,240,12,12;330,240,12,12" --tracker kcf_gk --out run
+    """
+    from experiments.track import TrackInputError, open_source, parse_boxes, run_track
+    from experiments.user_files import load_setup
+    from observer.trackers import PAIR_TRACKERS, make_pair_tracker
+
+    if tracker not in PAIR_TRACKERS:
+        _config_error(ValueError(f"--tracker must be one of {PAIR_TRACKERS}"), "options")
+    try:
+        setup = load_setup(motor, camera)
+        src = open_source(source, fps)
+        outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
+                            None if boxes is None else parse_boxes(boxes), cvat, setup,
+                            max_frames)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, "input" if isinstance(exc, TrackInputError) else "configuration")
+    typer.echo("\n".join(outcome.summary_lines()))
+    typer.echo(f"results: {out}")
+
+
 if __name__ == "__main__":
     app()

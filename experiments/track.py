@@ -6,7 +6,9 @@ centre-of-rotation least-squares attitude (``observer.cor_solver.CorSolver``, se
 from the two centres, warm-started from the previous frame, and an annotated copy for the MP4.
 Outputs in the run folder:
 
-* ``frames.parquet``: one row per processed frame: frame index, capture time (s), both centres
+* ``frames.parquet``: one row per processed frame: frame index, capture time (s; frame index /
+  fps: a live camera's frame k is taken as delivered at k / fps after the first), the time the
+  frame was in hand (s after the first frame, on the run's clock), both centres
   (sensor px), lost flags and reasons, the attitude (quaternion; spin, tilt, yaw in deg) and the
   per-stage compute times (read, tracker, solver; s);
 * ``annotated.mp4``: the frames with boxes, centres and the attitude;
@@ -42,6 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from experiments.cvat import list_frames, read_cvat_xml
 from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
+from experiments.user_files import UserSetup
 from latency.models import Empirical
 from observer.cor_model import CorModel, Intrinsics
 from observer.cor_solver import CorSolver
@@ -49,7 +52,6 @@ from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
 from observer.tracking import PairTracker
 from plant import attitude
 from plant.camera import image_to_sensor, sensor_to_image
-from plant.camera_file import CameraFile
 from plant.params import PlantParams
 
 Clock = Callable[[], float]
@@ -219,11 +221,12 @@ def load_ground_truth(xml_path: Path | str, width: int, height: int,
     return GroundTruth(boxes[:, :, :2] + 0.5 * boxes[:, :, 2:], boxes[0])
 
 
-def cor_model(camera: CameraFile, params: PlantParams) -> CorModel:
+def cor_model(setup: UserSetup) -> CorModel:
     """The attitude solver's model: the calibrated intrinsics when the camera file has them,
-    else the nominal camera (``CorModel.nominal``); markers and CoR depth from ``params``."""
-    nominal = CorModel.nominal(params)
-    cal = camera.calibration
+    else the nominal camera (``CorModel.nominal``); the setup's markers; the CoR depth
+    R + h_c from its plant."""
+    nominal = CorModel.nominal(setup.params, markers_m=setup.markers_m)
+    cal = setup.camera.calibration
     if cal is None:
         return nominal
     k1, k2, _, _, k3 = cal.dist_coeffs
@@ -324,8 +327,7 @@ def run_track(
     out_dir: Path | str,
     boxes_image_px: ArrayLike | None = None,
     ground_truth: Path | str | None = None,
-    camera: CameraFile | None = None,
-    params: PlantParams | None = None,
+    setup: UserSetup | None = None,
     max_frames: int | None = None,
     clock: Clock = time.perf_counter,
     write_video: bool = True,
@@ -341,16 +343,14 @@ def run_track(
     ground_truth : a CVAT for video 1.1 XML of the recording: its first-frame boxes start the
         tracker (unless ``boxes_image_px`` is given) and its centres score the run (precision at
         20 px and centre errors, ``experiments.tracking_bench``).
-    camera : the camera file (default: ``params``' camera); its image size must be the frames'.
-    params : the plant (markers, CoR; default ``PlantParams()``); its camera is replaced by
-        ``camera.camera``.
+    setup : the user's motor and camera (``experiments.user_files.load_setup``; default the
+        seed's motor and the default camera); the camera's image size must be the frames'.
     max_frames : stop after this many processed frames.
     clock : seconds, monotonic; times the stages and paces a live source.
     write_video : write ``annotated.mp4``.
     """
-    p = params or PlantParams()
-    cam = camera or CameraFile(camera=p.camera)
-    p = p.model_copy(update={"camera": cam.camera})
+    setup = setup or UserSetup()
+    cam = setup.camera
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = _read_first(source)
@@ -372,7 +372,7 @@ def run_track(
                       np.array([box_image_to_sensor(x, b) for x in boxes]), b)
     except ValueError as exc:
         raise TrackInputError(f"cannot start the tracker: {exc}") from exc
-    solver = CorSolver(cor_model(cam, p))
+    solver = CorSolver(cor_model(setup))
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
     t0 = clock()
@@ -383,7 +383,8 @@ def run_track(
     interrupted = False
     try:
         while frame is not None and (max_frames is None or len(rows) < max_frames):
-            t_capture = clock() - t0 if live else index / source.fps
+            t_capture = index / source.fps
+            t_received = clock() - t0
             rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
             res = tracker.step(rgb)
             ts = clock()
@@ -395,6 +396,7 @@ def run_track(
                 else np.full(3, np.nan)
             rows.append({
                 "frame_index": index, "capture_time_s": t_capture,
+                "received_time_s": t_received,
                 "red_u_px": res.red_px[0], "red_v_px": res.red_px[1],
                 "yellow_u_px": res.yellow_px[0], "yellow_v_px": res.yellow_px[1],
                 "lost": res.lost, "red_lost": res.red_lost, "yellow_lost": res.yellow_lost,
