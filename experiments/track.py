@@ -25,7 +25,7 @@ queues up; the number discarded is reported. The capture object (anything with O
 ``read``/``grab``/``release``) and the clock are injectable, so the timing logic runs in tests on
 a simulated clock. Ctrl-C stops the run; everything processed until then is written.
 
-Bad input raises ``TrackInputError`` with the reason (the CLI exits with status 2).
+Bad input raises ``UserInputError`` with the reason (the CLI exits with status 2).
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from plant.params import PlantParams
 Clock = Callable[[], float]
 
 
-class TrackInputError(ValueError):
+class UserInputError(ValueError):
     """The user's input cannot be tracked (unreadable video, bad boxes, mismatched files)."""
 
 
@@ -92,7 +92,7 @@ class FolderCapture:
         try:
             self.files = list_frames(folder)
         except ValueError as exc:
-            raise TrackInputError(str(exc)) from exc
+            raise UserInputError(str(exc)) from exc
         self.index = 0
 
     def __len__(self) -> int:
@@ -145,7 +145,7 @@ def open_source(spec: str, fps: float | None = None,
 
     ``fps`` overrides the frame rate (default: the video's, else 36 Hz, seed 000 §5).
     ``capture_factory`` (default ``cv2.VideoCapture``) opens files, indices and URLs.
-    Raises ``TrackInputError`` when the source cannot be opened.
+    Raises ``UserInputError`` when the source cannot be opened.
     """
     factory = capture_factory or cv2.VideoCapture
     default_fps = PlantParams().camera.frame_rate_hz
@@ -155,10 +155,10 @@ def open_source(spec: str, fps: float | None = None,
         return Source(cap, "folder", fps or default_fps, len(cap), str(path))
     live = spec.isdigit() or "://" in spec
     if not live and not path.is_file():
-        raise TrackInputError(f"{spec}: no such file, folder or camera")
+        raise UserInputError(f"{spec}: no such file, folder or camera")
     cap = factory(int(spec) if spec.isdigit() else spec)
     if not cap.isOpened():
-        raise TrackInputError(f"{spec}: cannot open (unreadable video or camera)")
+        raise UserInputError(f"{spec}: cannot open (unreadable video or camera)")
     rate = float(cap.get(cv2.CAP_PROP_FPS))
     count = 0 if live else int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     return Source(cap, "live" if live else "video", fps or (rate if rate > 0 else default_fps),
@@ -171,9 +171,9 @@ def parse_boxes(text: str) -> NDArray[np.float64]:
         rows = [[float(v) for v in part.split(",")] for part in text.split(";")]
         boxes = np.array(rows, dtype=float)
     except ValueError as exc:
-        raise TrackInputError(f"--boxes {text!r}: expected 'x,y,w,h;x,y,w,h' ({exc})") from exc
+        raise UserInputError(f"--boxes {text!r}: expected 'x,y,w,h;x,y,w,h' ({exc})") from exc
     if boxes.shape != (2, 4):
-        raise TrackInputError(f"--boxes {text!r}: expected two boxes of four numbers "
+        raise UserInputError(f"--boxes {text!r}: expected two boxes of four numbers "
                               "(red;yellow), image px")
     return boxes
 
@@ -184,9 +184,9 @@ def check_boxes(boxes_image_px: ArrayLike, width: int, height: int) -> NDArray[n
     boxes = np.asarray(boxes_image_px, dtype=float).reshape(2, 4)
     for name, (x, y, w, h) in zip(("red", "yellow"), boxes, strict=True):
         if not (np.all(np.isfinite([x, y, w, h])) and w > 0 and h > 0):
-            raise TrackInputError(f"{name} box {[x, y, w, h]} must be finite with w, h > 0")
+            raise UserInputError(f"{name} box {[x, y, w, h]} must be finite with w, h > 0")
         if x < -0.5 or y < -0.5 or x + w > width - 0.5 or y + h > height - 0.5:
-            raise TrackInputError(f"{name} box {[x, y, w, h]} (x, y, w, h) is outside the "
+            raise UserInputError(f"{name} box {[x, y, w, h]} (x, y, w, h) is outside the "
                                   f"{width} x {height} px image")
     return boxes
 
@@ -202,22 +202,22 @@ class GroundTruth:
 def load_ground_truth(xml_path: Path | str, width: int, height: int,
                       n_frames: int | None) -> GroundTruth:
     """CVAT for video 1.1 boxes of a recording of ``width`` x ``height`` px and ``n_frames``
-    frames (None: unknown). Raises ``TrackInputError`` if the file belongs to another video
+    frames (None: unknown). Raises ``UserInputError`` if the file belongs to another video
     (other size or frame count) or lacks the first frame's boxes."""
     try:
         tracks = read_cvat_xml(xml_path)
     except (ValueError, OSError) as exc:
-        raise TrackInputError(str(exc)) from exc
+        raise UserInputError(str(exc)) from exc
     if tracks.width and (tracks.width, tracks.height) != (width, height):
-        raise TrackInputError(f"{xml_path}: annotated frames are {tracks.width} x "
+        raise UserInputError(f"{xml_path}: annotated frames are {tracks.width} x "
                               f"{tracks.height} px, the video's are {width} x {height} px "
                               "(a CVAT file for another video?)")
     if n_frames is not None and tracks.n_frames != n_frames:
-        raise TrackInputError(f"{xml_path}: annotates {tracks.n_frames} frames, the video has "
+        raise UserInputError(f"{xml_path}: annotates {tracks.n_frames} frames, the video has "
                               f"{n_frames} (a CVAT file for another video?)")
     boxes = np.stack([tracks.boxes_px["red"], tracks.boxes_px["yellow"]], axis=1)
     if not np.all(np.isfinite(boxes[0])):
-        raise TrackInputError(f"{xml_path}: both markers must be annotated in the first frame")
+        raise UserInputError(f"{xml_path}: both markers must be annotated in the first frame")
     return GroundTruth(boxes[:, :, :2] + 0.5 * boxes[:, :, 2:], boxes[0])
 
 
@@ -317,7 +317,7 @@ class _LiveSchedule:
 def _read_first(source: Source) -> NDArray[np.uint8]:
     ok, frame = source.capture.read()
     if not ok or frame is None or frame.size == 0:
-        raise TrackInputError(f"{source.name}: no frame could be read (empty or unreadable)")
+        raise UserInputError(f"{source.name}: no frame could be read (empty or unreadable)")
     return frame
 
 
@@ -356,14 +356,14 @@ def run_track(
     first = _read_first(source)
     h, w = first.shape[:2]
     if (w, h) != cam.image_size:
-        raise TrackInputError(f"the camera file's image size is {cam.image_size[0]} x "
+        raise UserInputError(f"the camera file's image size is {cam.image_size[0]} x "
                               f"{cam.image_size[1]} px (sensor / binning) but the frames are "
                               f"{w} x {h} px")
     truth = None if ground_truth is None else load_ground_truth(
         ground_truth, w, h, source.n_frames if source.kind != "live" else None)
     if boxes_image_px is None:
         if truth is None:
-            raise TrackInputError("give the first-frame boxes (--boxes) or a CVAT file")
+            raise UserInputError("give the first-frame boxes (--boxes) or a CVAT file")
         boxes_image_px = truth.first_boxes_image_px
     boxes = check_boxes(boxes_image_px, w, h)
     b = cam.camera.binning
@@ -371,7 +371,7 @@ def run_track(
         tracker.start(cv2.cvtColor(first, cv2.COLOR_BGR2RGB),
                       np.array([box_image_to_sensor(x, b) for x in boxes]), b)
     except ValueError as exc:
-        raise TrackInputError(f"cannot start the tracker: {exc}") from exc
+        raise UserInputError(f"cannot start the tracker: {exc}") from exc
     solver = CorSolver(cor_model(setup))
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
