@@ -35,6 +35,7 @@ from pydantic import (
 from controller.mpc import MPCConfig, MPCController
 from controller.pid import PIDConfig, PIDController
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
+from experiments.user_files import plant_from_files
 from latency.frontends import (
     ImageFrontEnd,
     MeasurementConfig,
@@ -208,6 +209,11 @@ class Scenario(_Model):
     per-frame time as the observer latency (``observer_latency: measured``; set ``model`` to
     use ``pipeline.observer`` instead, e.g. a profile from
     ``latency.profile.measure_orb_latency``, for reproducible runs).
+
+    A user's motor and camera: ``motor_file`` and ``camera_file`` (paths of the YAML files of
+    ``plant.motor_file`` and ``plant.camera_file``, e.g. ``examples/motor.yaml`` and the
+    ``camera.yaml`` of ``pmspm calibrate``) in place of ``plant``
+    (``experiments.user_files.plant_from_files``).
     """
 
     name: str = "scenario"
@@ -266,6 +272,12 @@ class Scenario(_Model):
             data.setdefault("texture", TextureParams())
             data.setdefault("observer_latency", "measured")
         return data
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plant_from_files(cls, data):
+        """``motor_file`` / ``camera_file`` (a user's motor and camera YAML) give ``plant``."""
+        return plant_from_files(dict(data)) if isinstance(data, dict) else data
 
     @field_validator("observer")
     @classmethod

@@ -78,6 +78,18 @@ class MotorFile(BaseModel):
             return marker_points(self.rotor, self.vfc)
         return np.array([m.offset_m for m in self.markers], dtype=float)
 
+    def markers_follow_vfc(self, tol_m: float = 1e-6) -> bool:
+        """The explicit layout (if any) is the one ``vfc`` and ``rotor.radius_m`` give
+        (``plant.geometry.marker_points``, discs of ``vfc.marker_diameter_mm``) within
+        ``tol_m``."""
+        if self.markers is None:
+            return True
+        same_place = np.allclose(self.markers_m(), marker_points(self.rotor, self.vfc),
+                                 atol=tol_m, rtol=0.0)
+        radius = 0.5 * self.vfc.marker_diameter_mm
+        return bool(same_place and all(abs(m.radius_mm - radius) <= tol_m * 1e3
+                                       for m in self.markers))
+
     def plant(self, camera: CameraParams | None = None) -> PlantParams:
         """The plant of this motor seen by ``camera`` (default ``CameraParams()``)."""
         return PlantParams(motor=self.motor, rotor=self.rotor, vfc=self.vfc,

@@ -249,3 +249,32 @@ def test_cli_prints_precision_with_ground_truth(recording, tmp_path):
     assert "red precision@20px: 1.000" in res.output
     assert "yellow precision@20px: 1.000" in res.output
     assert (tmp_path / "frames.parquet").exists()
+
+
+def test_calibrated_camera_and_motor_file_give_the_rendered_attitudes(recording, tmp_path):
+    from pathlib import Path
+
+    from experiments.calibrate import calibrate_frames
+    from experiments.user_files import load_setup
+    from plant.calibration import random_board_poses, render_checkerboard
+
+    p = PlantParams()
+    views = [(f"{k}", render_checkerboard(p, r, t, 4))
+             for k, (r, t) in enumerate(random_board_poses(p, 15, np.random.default_rng(2), 4))]
+    calibrate_frames(views, (12, 9), 5.0, p.camera).camera.save(tmp_path / "camera.yaml")
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    setup = load_setup(examples / "motor.yaml", tmp_path / "camera.yaml")
+    cal = setup.camera.calibration
+    assert cal is not None
+    outcome = run_track(open_source(str(recording["dir"] / "png")),
+                        make_pair_tracker("kcf_gk", setup.params), tmp_path / "run",
+                        recording["boxes"], setup=setup)
+    err = attitude_errors_deg(outcome.table, recording["q"])
+    # A principal point off by d px turns the markers' rays by d/f rad, i.e. moves them by
+    # d h_c / f m at their depth h_c, which reads as a tilt of d h_c / (f R) rad about the CoR
+    # (markers at R from it). Bound: 3 sigma of the calibration's reported cx, cy uncertainty
+    # on top of the tracking error on clean frames.
+    d_px = 3.0 * float(np.hypot(cal.std_px[2], cal.std_px[3]))
+    bound_deg = np.rad2deg(d_px * p.camera.h_c_m / (cal.fx_px * p.rotor.radius_m))
+    assert np.all(np.isfinite(err))
+    assert err.max() < MAX_ATTITUDE_ERROR_DEG + bound_deg, (err.max(), bound_deg)
