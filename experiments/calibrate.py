@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from experiments.track import UserInputError, open_source
+from experiments.sources import UserInputError, open_source
 from plant.calibration import DEFAULT_FLAGS, board_points, detect_corners
 from plant.camera import image_to_sensor
 from plant.camera_file import CalibratedIntrinsics, CameraFile

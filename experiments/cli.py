@@ -413,7 +413,6 @@ def tune_kalman_cmd(
     typer.echo(f"results: {out}")
 
 
-
 @app.command()
 def track(
     source: Annotated[str, typer.Argument(help="Video file, image folder, camera index or URL.")],
@@ -437,7 +436,8 @@ def track(
 
     Example: pmspm track lab.mp4 --boxes "300,240,12,12;330,240,12,12" --tracker kcf_gk --out run
     """
-    from experiments.track import UserInputError, open_source, parse_boxes, run_track
+    from experiments.sources import UserInputError, open_source
+    from experiments.track import parse_boxes, run_track
     from experiments.user_files import load_setup
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
@@ -453,7 +453,6 @@ def track(
         _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
     typer.echo("\n".join(outcome.summary_lines()))
     typer.echo(f"results: {out}")
-
 
 
 @app.command()

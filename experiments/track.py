@@ -16,153 +16,39 @@ Outputs in the run folder:
   the format ``pipeline.observer`` of a scenario (``pmspm simulate``) takes;
 * ``report.md`` with ``attitude.png`` and ``latency.png``.
 
-Sources. A path to a folder reads its images in name order (``experiments.cvat.list_frames``);
-another path is a video file (OpenCV ``VideoCapture``); an integer or a URL is a live camera.
-Recorded sources are processed frame by frame. A live camera runs in real time: the camera
-delivers a frame every ``1/fps`` s; when the tracker is slower, the frames delivered while it
-was busy are grabbed and discarded (not decoded), and only the newest is processed, so nothing
-queues up; the number discarded is reported. The capture object (anything with OpenCV's
-``read``/``grab``/``release``) and the clock are injectable, so the timing logic runs in tests on
-a simulated clock. Ctrl-C stops the run; everything processed until then is written.
+Sources (``experiments.sources``): a folder of images, a video file, or a live camera (an
+integer or a URL). Recorded sources are processed frame by frame; a live camera in real time,
+dropping (not queueing) the frames that arrive while the tracker is busy; the number dropped is
+reported. The capture and the clock are injectable, so the timing logic runs in tests on a
+simulated clock. Ctrl-C stops the run; everything processed until then is written.
 
 Bad input raises ``UserInputError`` with the reason (the CLI exits with status 2).
 """
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
 
 import cv2
 import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
-from experiments.cvat import list_frames, read_cvat_xml
+from experiments.cvat import read_cvat_xml
+from experiments.sources import Clock, LiveSchedule, Source, UserInputError, read_first
 from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
 from experiments.user_files import UserSetup
 from latency.models import Empirical
 from observer.cor_model import CorModel, Intrinsics
 from observer.cor_solver import CorSolver
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
-from observer.tracking import PairTracker
+from observer.tracking import PairResult, PairTracker
+from observer.types import SolverResult
 from plant import attitude
 from plant.camera import image_to_sensor, sensor_to_image
-from plant.params import PlantParams
-
-Clock = Callable[[], float]
-
-
-class UserInputError(ValueError):
-    """The user's input cannot be tracked (unreadable video, bad boxes, mismatched files)."""
-
-
-class Capture(Protocol):
-    """The part of ``cv2.VideoCapture`` a run uses: frames in OpenCV's BGR order."""
-
-    def read(self) -> tuple[bool, NDArray[np.uint8] | None]:
-        """The next frame (grab + decode)."""
-        ...
-
-    def grab(self) -> bool:
-        """Take the next frame off the source without decoding it."""
-        ...
-
-    def release(self) -> None:
-        """Close the source."""
-        ...
-
-    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
-        """The source is open."""
-        ...
-
-    def get(self, prop_id: int) -> float:
-        """A property (``cv2.CAP_PROP_*``; 0 when unknown)."""
-        ...
-
-
-class FolderCapture:
-    """A folder of images as a ``Capture`` (name order, ``experiments.cvat.list_frames``)."""
-
-    def __init__(self, folder: Path | str) -> None:
-        try:
-            self.files = list_frames(folder)
-        except ValueError as exc:
-            raise UserInputError(str(exc)) from exc
-        self.index = 0
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    def grab(self) -> bool:
-        self.index += 1
-        return self.index <= len(self.files)
-
-    def read(self) -> tuple[bool, NDArray[np.uint8] | None]:
-        if self.index >= len(self.files):
-            return False, None
-        img = cv2.imread(str(self.files[self.index]), cv2.IMREAD_COLOR)
-        self.index += 1
-        return img is not None, img
-
-    def release(self) -> None:
-        self.index = len(self.files)
-
-    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
-        return self.index < len(self.files)
-
-    def get(self, prop_id: int) -> float:
-        return float(len(self.files)) if prop_id == cv2.CAP_PROP_FRAME_COUNT else 0.0
-
-
-@dataclass
-class Source:
-    """An opened frame source.
-
-    Attributes
-    ----------
-    capture : the frames.
-    kind : ``"video"``, ``"folder"`` or ``"live"``.
-    fps : frame rate, Hz (the video's, or the camera's nominal rate).
-    n_frames : frames in a recording (None for a live camera or when the container omits it).
-    name : what was opened.
-    """
-
-    capture: Capture
-    kind: str
-    fps: float
-    n_frames: int | None
-    name: str
-
-
-def open_source(spec: str, fps: float | None = None,
-                capture_factory: Callable[[int | str], Capture] | None = None) -> Source:
-    """Open ``spec``: a folder of images, a video file, a camera index (``"0"``) or a URL.
-
-    ``fps`` overrides the frame rate (default: the video's, else 36 Hz, seed 000 §5).
-    ``capture_factory`` (default ``cv2.VideoCapture``) opens files, indices and URLs.
-    Raises ``UserInputError`` when the source cannot be opened.
-    """
-    factory = capture_factory or cv2.VideoCapture
-    default_fps = PlantParams().camera.frame_rate_hz
-    path = Path(spec)
-    if path.is_dir():
-        cap = FolderCapture(path)
-        return Source(cap, "folder", fps or default_fps, len(cap), str(path))
-    live = spec.isdigit() or "://" in spec
-    if not live and not path.is_file():
-        raise UserInputError(f"{spec}: no such file, folder or camera")
-    cap = factory(int(spec) if spec.isdigit() else spec)
-    if not cap.isOpened():
-        raise UserInputError(f"{spec}: cannot open (unreadable video or camera)")
-    rate = float(cap.get(cv2.CAP_PROP_FPS))
-    count = 0 if live else int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    return Source(cap, "live" if live else "video", fps or (rate if rate > 0 else default_fps),
-                  count if count > 0 else None, spec)
 
 
 def parse_boxes(text: str) -> NDArray[np.float64]:
@@ -270,7 +156,8 @@ class TrackOutcome:
         return lines
 
 
-def _annotate(bgr: NDArray[np.uint8], res, binning: int, text: str) -> NDArray[np.uint8]:  # noqa: ANN001 - PairResult
+def _annotate(bgr: NDArray[np.uint8], res: PairResult, binning: int,
+              text: str) -> NDArray[np.uint8]:
     """Boxes, centres and a text line drawn on a copy of a BGR frame."""
     out = bgr.copy()
     colours = ((0, 0, 255), (0, 215, 255))  # red, yellow in BGR
@@ -282,43 +169,10 @@ def _annotate(bgr: NDArray[np.uint8], res, binning: int, text: str) -> NDArray[n
                           1 if lost else 2)
         if np.all(np.isfinite(centre)):
             u, v = sensor_to_image(centre, binning)
-            cv2.drawMarker(out, (round(u), round(v)), colour, cv2.MARKER_CROSS, 8, 1)
+            cv2.drawMarker(out, (round(u), round(v)), (255, 255, 0), cv2.MARKER_CROSS, 8, 1)
     cv2.putText(out, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
                 cv2.LINE_AA)
     return out
-
-
-class _LiveSchedule:
-    """Which frame of a live camera to process next: the newest one delivered by now.
-
-    The camera delivers frame k at ``t0 + k / fps`` on ``clock``. Frames delivered while the
-    tracker was busy, except the newest, are grabbed and discarded.
-    """
-
-    def __init__(self, fps: float, clock: Clock, t0: float) -> None:
-        self.period_s = 1.0 / fps
-        self.clock = clock
-        self.t0 = t0
-        self.last = 0
-        self.dropped = 0
-
-    def skip_stale(self, capture: Capture) -> bool:
-        """Discard the stale frames; False when the source ends."""
-        newest = math.floor((self.clock() - self.t0) / self.period_s + 1e-9)
-        stale = max(newest - self.last - 1, 0)
-        for _ in range(stale):
-            if not capture.grab():
-                return False
-        self.dropped += stale
-        self.last += stale + 1
-        return True
-
-
-def _read_first(source: Source) -> NDArray[np.uint8]:
-    ok, frame = source.capture.read()
-    if not ok or frame is None or frame.size == 0:
-        raise UserInputError(f"{source.name}: no frame could be read (empty or unreadable)")
-    return frame
 
 
 def run_track(
@@ -353,7 +207,7 @@ def run_track(
     cam = setup.camera
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    first = _read_first(source)
+    first = read_first(source)
     h, w = first.shape[:2]
     if (w, h) != cam.image_size:
         raise UserInputError(f"the camera file's image size is {cam.image_size[0]} x "
@@ -376,40 +230,25 @@ def run_track(
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
     t0 = clock()
-    live = _LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
+    live = LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
     rows: list[dict] = []
     q_prev = None
     frame, read_s, index = first, 0.0, 0
     interrupted = False
     try:
         while frame is not None and (max_frames is None or len(rows) < max_frames):
-            t_capture = index / source.fps
             t_received = clock() - t0
             rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
             res = tracker.step(rgb)
             ts = clock()
             sol = solver.solve(res.marker_px, q_prev)
             solver_s = clock() - ts
-            q = sol.q if sol.valid else np.full(4, np.nan)
             q_prev = sol.q if sol.valid else q_prev
-            angles = np.rad2deg(attitude.to_zyz_array(q[None])[0]) if sol.valid \
-                else np.full(3, np.nan)
-            rows.append({
-                "frame_index": index, "capture_time_s": t_capture,
-                "received_time_s": t_received,
-                "red_u_px": res.red_px[0], "red_v_px": res.red_px[1],
-                "yellow_u_px": res.yellow_px[0], "yellow_v_px": res.yellow_px[1],
-                "lost": res.lost, "red_lost": res.red_lost, "yellow_lost": res.yellow_lost,
-                "reason": res.reason, "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
-                "spin_deg": angles[0], "tilt_deg": angles[1], "yaw_deg": angles[2],
-                "attitude_valid": sol.valid, "attitude_reason": sol.reason,
-                "residual_rms_px": sol.residual_rms_px,
-                "read_time_s": read_s, "tracker_time_s": res.compute_time_s,
-                "solver_time_s": solver_s,
-            })
+            row = _frame_row(index, source.fps, t_received, res, sol, read_s, solver_s)
+            rows.append(row)
             if writer is not None:
-                text = (f"#{index} tilt {angles[1]:.2f} yaw {angles[2]:.1f} spin "
-                        f"{angles[0]:.1f} deg" if sol.valid else f"#{index} no attitude")
+                text = (f"#{index} tilt {row['tilt_deg']:.2f} yaw {row['yaw_deg']:.1f} spin "
+                        f"{row['spin_deg']:.1f} deg" if sol.valid else f"#{index} no attitude")
                 writer.write(_annotate(frame, res, b, text))
             if live is not None and not live.skip_stale(source.capture):
                 break
@@ -430,6 +269,24 @@ def run_track(
         outcome.metrics = score(table, truth, b)
     write_outputs(outcome, source, tracker)
     return outcome
+
+
+def _frame_row(index: int, fps: float, received_s: float, res: PairResult, sol: SolverResult,
+               read_s: float, solver_s: float) -> dict[str, object]:
+    """One row of ``frames.parquet`` (see the module docstring)."""
+    q = sol.q if sol.valid else np.full(4, np.nan)
+    angles = np.rad2deg(attitude.to_zyz_array(q[None])[0]) if sol.valid else np.full(3, np.nan)
+    return {
+        "frame_index": index, "capture_time_s": index / fps, "received_time_s": received_s,
+        "red_u_px": res.red_px[0], "red_v_px": res.red_px[1],
+        "yellow_u_px": res.yellow_px[0], "yellow_v_px": res.yellow_px[1],
+        "lost": res.lost, "red_lost": res.red_lost, "yellow_lost": res.yellow_lost,
+        "reason": res.reason, "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
+        "spin_deg": angles[0], "tilt_deg": angles[1], "yaw_deg": angles[2],
+        "attitude_valid": sol.valid, "attitude_reason": sol.reason,
+        "residual_rms_px": sol.residual_rms_px,
+        "read_time_s": read_s, "tracker_time_s": res.compute_time_s, "solver_time_s": solver_s,
+    }
 
 
 def score(table: pd.DataFrame, truth: GroundTruth, binning: int) -> dict[str, float]:
