@@ -420,7 +420,9 @@ def track(
     tracker: Annotated[str, typer.Option(help="Pair tracker (observer.trackers.PAIR_TRACKERS).")]
     = "gk_transt",
     boxes: Annotated[
-        str | None, typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px.")
+        str | None,
+        typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px, or "
+                     "'auto' (found by colour: check them in the report)."),
     ] = None,
     cvat: Annotated[
         Path | None, typer.Option(help="CVAT for video 1.1 XML: first boxes and ground truth.")
@@ -447,7 +449,7 @@ def track(
         setup = load_setup(motor, camera)
         src = open_source(source, fps)
         outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
-                            None if boxes is None else parse_boxes(boxes), cvat, setup,
+                            boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
                             max_frames)
     except (ValidationError, ValueError) as exc:
         _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")

@@ -44,7 +44,13 @@ from experiments.user_files import UserSetup
 from latency.models import Empirical
 from observer.cor_model import CorModel, Intrinsics
 from observer.cor_solver import CorSolver
-from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.gk.hsv_gate import (
+    RED,
+    YELLOW,
+    box_image_to_sensor,
+    box_sensor_to_image,
+    colour_mask,
+)
 from observer.tracking import PairResult, PairTracker
 from observer.types import SolverResult
 from plant import attitude
@@ -62,6 +68,35 @@ def parse_boxes(text: str) -> NDArray[np.float64]:
         raise UserInputError(f"--boxes {text!r}: expected two boxes of four numbers "
                               "(red;yellow), image px")
     return boxes
+
+
+#: Auto initialisation: smallest colour blob taken for a marker, image px (our choice: a disc of
+#: about 5 px diameter), and how much larger the biggest blob of a colour must be than the next
+#: for the choice to be unambiguous.
+AUTO_MIN_AREA_PX = 20
+AUTO_DOMINANCE = 2.0
+
+
+def auto_boxes(bgr: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """First-frame boxes (2, 4), red then yellow (x, y, w, h, image px), from colour: the
+    bounding box of the largest blob of each marker colour (the HSV ranges of seed 000 §3.2.1,
+    ``observer.gk.hsv_gate``). Raises ``UserInputError`` when a colour has no blob of
+    ``AUTO_MIN_AREA_PX`` or two of similar size (pass the boxes by hand then)."""
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    boxes = []
+    for name, hsv_range in (("red", RED), ("yellow", YELLOW)):
+        n, _, stats, _ = cv2.connectedComponentsWithStats(colour_mask(rgb, hsv_range))
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        order = np.argsort(areas)[::-1]
+        if n < 2 or areas[order[0]] < AUTO_MIN_AREA_PX:
+            raise UserInputError(f"auto boxes: no {name} marker found in the first frame; "
+                                 "give --boxes")
+        if n > 2 and areas[order[0]] < AUTO_DOMINANCE * areas[order[1]]:
+            raise UserInputError(f"auto boxes: several {name} blobs of similar size in the "
+                                 "first frame; give --boxes")
+        x, y, w, h = stats[1 + order[0], :4]
+        boxes.append([x, y, w, h])
+    return np.array(boxes, dtype=float)
 
 
 def check_boxes(boxes_image_px: ArrayLike, width: int, height: int) -> NDArray[np.float64]:
@@ -131,10 +166,12 @@ class TrackOutcome:
     dropped : live frames discarded because the tracker was busy.
     interrupted : the run was stopped by Ctrl-C.
     metrics : precision at 20 px and centre errors per marker (with ground truth), else empty.
+    start_boxes_image_px : (2, 4) the first-frame boxes the tracker started on, image px.
     """
 
     table: pd.DataFrame
     out_dir: Path
+    start_boxes_image_px: NDArray[np.float64]
     dropped: int = 0
     interrupted: bool = False
     metrics: dict[str, float] = field(default_factory=dict)
@@ -143,7 +180,9 @@ class TrackOutcome:
         """Human-readable lines for the terminal and the report."""
         t = self.table
         ok = t["attitude_valid"].to_numpy(bool) if len(t) else np.zeros(0, bool)
-        lines = [f"frames processed: {len(t)}, dropped (live): {self.dropped}"
+        boxes = "; ".join(",".join(f"{v:.1f}" for v in b) for b in self.start_boxes_image_px)
+        lines = [f"first-frame boxes (red; yellow, x,y,w,h image px): {boxes}",
+                 f"frames processed: {len(t)}, dropped (live): {self.dropped}"
                  + (" (stopped by Ctrl-C)" if self.interrupted else ""),
                  f"attitude solved on {int(ok.sum())} of {len(t)} frames; markers lost on "
                  f"{int(t['lost'].sum()) if len(t) else 0}"]
@@ -179,7 +218,7 @@ def run_track(
     source: Source,
     tracker: PairTracker,
     out_dir: Path | str,
-    boxes_image_px: ArrayLike | None = None,
+    boxes_image_px: ArrayLike | str | None = None,
     ground_truth: Path | str | None = None,
     setup: UserSetup | None = None,
     max_frames: int | None = None,
@@ -192,8 +231,9 @@ def run_track(
     ----------
     source : from ``open_source``.
     tracker : a pair tracker (``observer.trackers.make_pair_tracker``) built with ``params``.
-    boxes_image_px : (2, 4) first-frame boxes, red then yellow (x, y, w, h), image px; may be
-        omitted when ``ground_truth`` gives them.
+    boxes_image_px : (2, 4) first-frame boxes, red then yellow (x, y, w, h), image px, or
+        ``"auto"`` (``auto_boxes``: found by colour; check them in the report and the video);
+        may be omitted when ``ground_truth`` gives them.
     ground_truth : a CVAT for video 1.1 XML of the recording: its first-frame boxes start the
         tracker (unless ``boxes_image_px`` is given) and its centres score the run (precision at
         20 px and centre errors, ``experiments.tracking_bench``).
@@ -215,7 +255,9 @@ def run_track(
                               f"{w} x {h} px")
     truth = None if ground_truth is None else load_ground_truth(
         ground_truth, w, h, source.n_frames if source.kind != "live" else None)
-    if boxes_image_px is None:
+    if isinstance(boxes_image_px, str) and boxes_image_px == "auto":
+        boxes_image_px = auto_boxes(first)
+    elif boxes_image_px is None:
         if truth is None:
             raise UserInputError("give the first-frame boxes (--boxes) or a CVAT file")
         boxes_image_px = truth.first_boxes_image_px
@@ -264,7 +306,7 @@ def run_track(
         if writer is not None:
             writer.release()
     table = pd.DataFrame(rows)
-    outcome = TrackOutcome(table, out, live.dropped if live else 0, interrupted)
+    outcome = TrackOutcome(table, out, boxes, live.dropped if live else 0, interrupted)
     if truth is not None:
         outcome.metrics = score(table, truth, b)
     write_outputs(outcome, source, tracker)

@@ -279,3 +279,24 @@ def test_calibrated_camera_and_motor_file_give_the_rendered_attitudes(recording,
     bound_deg = np.rad2deg(d_px * p.camera.h_c_m / (cal.fx_px * p.rotor.radius_m))
     assert np.all(np.isfinite(err))
     assert err.max() < MAX_ATTITUDE_ERROR_DEG + bound_deg, (err.max(), bound_deg)
+
+
+def test_auto_boxes_find_the_markers_by_colour(recording, tmp_path):
+    from experiments.sources import UserInputError
+    from experiments.track import auto_boxes
+
+    frame = recording["frames"][0]
+    bgr = cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR)
+    found = auto_boxes(bgr)
+    truth = recording["boxes"]  # the rendered discs' bounds, image px
+    centres = [b[:, :2] + 0.5 * b[:, 2:] for b in (found, truth)]
+    assert np.all(np.abs(centres[0] - centres[1]) < 1.0)
+    assert np.all(np.abs(found[:, 2:] - truth[:, 2:]) < 2.0)
+    res = _cli([str(recording["dir"] / "png"), "--boxes", "auto", "--max-frames", "3",
+                "--out", str(tmp_path)])
+    assert res.exit_code == 0 and "first-frame boxes" in res.output, res.output
+    no_yellow = bgr.copy()
+    hsv = cv2.cvtColor(no_yellow, cv2.COLOR_BGR2HSV)
+    no_yellow[(hsv[..., 0] >= 15) & (hsv[..., 0] <= 40) & (hsv[..., 1] >= 50)] = 0
+    with pytest.raises(UserInputError, match="no yellow marker"):
+        auto_boxes(no_yellow)
