@@ -136,8 +136,9 @@ def open_source(spec: str, fps: float | None = None,
 class LiveSchedule:
     """Which frame of a live camera to process next: the newest one delivered by now.
 
-    The camera delivers frame k at ``t0 + k / fps`` on ``clock``. Frames delivered while the
-    tracker was busy, except the newest, are grabbed and discarded.
+    The camera delivers frame k at ``t0 + k / fps`` on ``clock`` (``t0``: when frame 0 was in
+    hand), at its nominal rate. Frames delivered while the tracker was busy (including while it
+    started), except the newest, are grabbed and discarded; the frame after that is waited for.
     """
 
     def __init__(self, fps: float, clock: Clock, t0: float) -> None:
@@ -149,6 +150,7 @@ class LiveSchedule:
 
     def skip_stale(self, capture: Capture) -> bool:
         """Discard the stale frames; False when the source ends."""
+        # the 1e-9 keeps a frame due exactly now (up to round-off of the clock) in
         newest = math.floor((self.clock() - self.t0) / self.period_s + 1e-9)
         stale = max(newest - self.last - 1, 0)
         for _ in range(stale):

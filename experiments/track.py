@@ -248,6 +248,7 @@ def run_track(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = read_first(source)
+    t0 = clock()  # the first frame is in hand: a live camera's frame clock starts here
     h, w = first.shape[:2]
     if (w, h) != cam.image_size:
         raise UserInputError(f"the camera file's image size is {cam.image_size[0]} x "
@@ -271,7 +272,6 @@ def run_track(
     solver = CorSolver(cor_model(setup))
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
-    t0 = clock()
     live = LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
     rows: list[dict] = []
     q_prev = None
