@@ -10,7 +10,8 @@ Outputs in the run folder:
   fps: a live camera's frame k is taken as delivered at k / fps after the first), the time the
   frame was in hand (s after the first frame, on the run's clock), both centres
   (sensor px), lost flags and reasons, the attitude (quaternion; spin, tilt, yaw in deg) and the
-  per-stage compute times (read, tracker, solver; s);
+  per-stage compute times (read, tracker step, of which inside the single-object trackers or
+  networks, solver; s);
 * ``annotated.mp4``: the frames with boxes, centres and the attitude;
 * ``latency_profile.json``: an ``latency.models.Empirical`` profile of tracker + solver time,
   the format ``pipeline.observer`` of a scenario (``pmspm simulate``) takes;
@@ -327,7 +328,8 @@ def _frame_row(index: int, fps: float, received_s: float, res: PairResult, sol: 
         "spin_deg": angles[0], "tilt_deg": angles[1], "yaw_deg": angles[2],
         "attitude_valid": sol.valid, "attitude_reason": sol.reason,
         "residual_rms_px": sol.residual_rms_px,
-        "read_time_s": read_s, "tracker_time_s": res.compute_time_s, "solver_time_s": solver_s,
+        "read_time_s": read_s, "tracker_time_s": res.compute_time_s,
+        "network_time_s": res.tracker_time_s, "solver_time_s": solver_s,
     }
 
 
