@@ -153,11 +153,11 @@ class _SlowTracker:
     tilt_hint_rad = None
     started = True
 
-    def __init__(self, clock: _SimClock, busy_s: float) -> None:
-        self.clock, self.busy_s = clock, busy_s
+    def __init__(self, clock: _SimClock, busy_s: float, start_s: float = 0.0) -> None:
+        self.clock, self.busy_s, self.start_s = clock, busy_s, start_s
 
     def start(self, image, boxes_sensor_px, binning=None) -> None:
-        pass
+        self.clock.now += self.start_s
 
     def step(self, image) -> PairResult:
         self.clock.now += self.busy_s
@@ -181,6 +181,21 @@ def test_live_camera_drops_frames_the_tracker_is_too_slow_for(recording, tmp_pat
     assert camera.decoded == expected  # only the processed frames were decoded: no queue
     assert outcome.dropped == 40 - len(expected)
     assert np.allclose(outcome.table["capture_time_s"], np.array(expected) / fps)
+
+
+def test_live_camera_drops_the_frames_that_arrived_while_the_tracker_started(recording,
+                                                                              tmp_path):
+    clock = _SimClock()
+    fps = 64.0
+    bgr = cv2.cvtColor(recording["frames"][0].image, cv2.COLOR_RGB2BGR)
+    camera = _FakeCamera(bgr, fps, 12, clock)
+    tracker = _SlowTracker(clock, 0.5 / fps, start_s=3.25 / fps)
+    outcome = run_track(Source(camera, "live", fps, None, "fake camera"), tracker, tmp_path,
+                        boxes_image_px=recording["boxes"], clock=clock, write_video=False)
+    # Frame 0 is processed from 3.25 to 3.75 periods; frames 1 and 2 are stale by then, frame 3
+    # is the newest; from then on the tracker keeps up and waits for each frame.
+    assert outcome.table["frame_index"].tolist() == [0, *range(3, 12)]
+    assert outcome.dropped == 2 and camera.decoded == [0, *range(3, 12)]
 
 
 def _cli(args):
