@@ -694,5 +694,81 @@ def tune_kalman_cmd(
     typer.echo(f"results: {out}")
 
 
+@app.command()
+def track(
+    source: Annotated[str, typer.Argument(help="Video file, image folder, camera index or URL.")],
+    out: OutOption = Path("track_run"),
+    tracker: Annotated[str, typer.Option(help="Pair tracker (observer.trackers.PAIR_TRACKERS).")]
+    = "gk_transt",
+    boxes: Annotated[
+        str | None,
+        typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px, or "
+                     "'auto' (found by colour: check them in the report)."),
+    ] = None,
+    cvat: Annotated[
+        Path | None, typer.Option(help="CVAT for video 1.1 XML: first boxes and ground truth.")
+    ] = None,
+    camera: Annotated[Path | None, typer.Option(help="Camera YAML (pmspm calibrate).")] = None,
+    motor: Annotated[Path | None, typer.Option(help="Motor YAML (markers, rotor radius).")] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (default: the source's).")]
+    = None,
+    max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
+) -> None:
+    """Track the two markers on a recording or a live camera; write the per-frame table, the
+    attitudes, an annotated MP4, a latency profile and a report.
+
+    Example: pmspm track lab.mp4 --boxes "300,240,12,12;330,240,12,12" --tracker kcf_gk --out run
+    """
+    from experiments.sources import UserInputError, open_source
+    from experiments.track import parse_boxes, run_track
+    from experiments.user_files import load_setup
+    from observer.trackers import PAIR_TRACKERS, make_pair_tracker
+
+    if tracker not in PAIR_TRACKERS:
+        _config_error(ValueError(f"--tracker must be one of {PAIR_TRACKERS}"), "options")
+    try:
+        setup = load_setup(motor, camera)
+        src = open_source(source, fps)
+        outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
+                            boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
+                            max_frames)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
+    typer.echo("\n".join(outcome.summary_lines()))
+    typer.echo(f"results: {out}")
+
+
+@app.command()
+def calibrate(
+    source: Annotated[str, typer.Argument(help="Folder of images or a video of a chessboard.")],
+    out: OutOption = Path("calibration"),
+    pattern: Annotated[str, typer.Option(help="Inner corners, columns x rows.")] = "12x9",
+    square_mm: Annotated[float, typer.Option(help="Side of one square, mm.")] = 5.0,
+    binning: Annotated[int, typer.Option(help="Sensor pixels per frame pixel.")] = 1,
+    pixel_size_um: Annotated[float, typer.Option(help="Sensor pixel pitch, µm.")] = 3.45,
+    step: Annotated[int, typer.Option(help="Use every step-th frame of a video.")] = 1,
+) -> None:
+    """Calibrate the camera from chessboard views: intrinsics, distortion, their uncertainties
+    and the reprojection error, written as a camera YAML with a report.
+
+    Example: pmspm calibrate board_views/ --pattern 12x9 --square-mm 5 --binning 4 --out cal
+    """
+    from experiments.calibrate import calibrate_frames, read_frames, write_report
+    from plant.params import CameraParams
+
+    try:
+        cols, rows = (int(v) for v in pattern.lower().split("x"))
+        if cols < 2 or rows < 2 or square_mm <= 0 or pixel_size_um <= 0:
+            raise ValueError("need a pattern of at least 2x2 inner corners, square_mm > 0 and "
+                             "pixel_size_um > 0")
+        cam = CameraParams(binning=binning, pixel_size_m=pixel_size_um * 1e-6)
+        cal = calibrate_frames(read_frames(source, step), (cols, rows), square_mm, cam)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, "input")
+    path = write_report(cal, out, source)
+    typer.echo("\n".join(cal.summary_lines()))
+    typer.echo(f"camera file: {path}")
+
+
 if __name__ == "__main__":
     app()

@@ -39,6 +39,7 @@ from controller.pid import PIDConfig, PIDController
 from controller.pid import reach_warnings as pid_reach_warnings
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
 from experiments.config_files import load_mapping
+from experiments.user_files import plant_from_files
 from latency.batched import run_batched
 from latency.frontends import (
     ImageFrontEnd,
@@ -250,6 +251,11 @@ class Scenario(_Model):
     per-frame time as the observer latency (``observer_latency: measured``; set ``model`` to
     use ``pipeline.observer`` instead, e.g. a profile from
     ``latency.profile.measure_orb_latency``, for reproducible runs).
+
+    A user's motor and camera: ``motor_file`` and ``camera_file`` (paths of the YAML files of
+    ``plant.motor_file`` and ``plant.camera_file``, e.g. ``examples/motor.yaml`` and the
+    ``camera.yaml`` of ``pmspm calibrate``) in place of ``plant``
+    (``experiments.user_files.plant_from_files``).
     """
 
     name: str = Field(
@@ -323,7 +329,9 @@ class Scenario(_Model):
         measured controller latency; the print and the measured latency of the ORB kinds."""
         if not isinstance(data, dict):
             return data
-        data = dict(data)
+        # ``motor_file`` / ``camera_file`` (a user's motor and camera YAML) give ``plant``
+        # first, so the camera timing below comes from the user's camera.
+        data = plant_from_files(dict(data))
         if "controller_latency" not in data:
             latency = _mpc_latency_default(data.get("controller"))
             if latency is not None:
@@ -332,6 +340,8 @@ class Scenario(_Model):
             data.setdefault("texture", TextureParams())
             data.setdefault("observer_latency", "measured")
         plant, pipeline = data.get("plant"), data.get("pipeline", {})
+        if isinstance(plant, PlantParams):
+            plant = plant.model_dump()
         camera = plant.get("camera") if isinstance(plant, dict) else None
         if isinstance(camera, dict) and isinstance(pipeline, dict):
             # One timing source: the camera's frame rate and exposure unless the pipeline
