@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from observer.gk.assist import GKAssist, GKConfig, GKResult
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.gk.trust import MarkerTrust, TrustConfig, TrustDecision
 from observer.trackers import MarkerPairTracker, PairResult, box_around
 from plant.camera import sensor_to_image
 from plant.params import PlantParams
@@ -59,6 +60,9 @@ class GKTransTPairTracker(MarkerPairTracker):
         keeps ``gk_config`` as given (default: both on).
     guide_search : bool
         Pass the Kalman prediction to the network as its search centre (seed 000 §3.2).
+    trust : TrustConfig or None, optional
+        The per-frame trust rule and whole-frame re-detection (``observer.gk.trust``; default
+        on with ``TrustConfig()``); None runs the seed's gate alone.
     name : str
     """
 
@@ -69,6 +73,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         gk_config: GKConfig | None = None,
         refine: bool | None = True,
         guide_search: bool = True,
+        trust: TrustConfig | None = TrustConfig(),  # noqa: B008 - frozen pydantic model
         name: str = "gk_transt",
     ) -> None:
         cfg = gk_config or GKConfig()
@@ -84,6 +89,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.name = name
         self.tilt_hint_rad: float | None = None
         self.last_gk: GKResult | None = None
+        self.trust = None if trust is None else MarkerTrust(self.gk, trust)
+        self.last_trust: TrustDecision | None = None
 
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
@@ -94,6 +101,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         if self.gk.aux.V_rel is None:
             centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
             self.gk.aux.V_rel = centres[1] - centres[0]
+        if self.trust is not None:
+            self.trust.start(image, self.binning, boxes_sensor_px[0])
 
     def search_centre_image_px(self) -> NDArray[np.float64] | None:
         """The Kalman prediction of the red centre for the next frame in image px, clipped to
@@ -133,10 +142,39 @@ class GKTransTPairTracker(MarkerPairTracker):
         box = box_image_to_sensor(box_img, self.binning) \
             if box_img.shape == (4,) and np.all(np.isfinite(box_img)) else None
         score_f = float(score) if score is not None else float("nan")
+        judged = None
+        if self.trust is not None:
+            decision = self._judge(image, box, score_f)
+            judged, self.last_trust = decision.observation, decision
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score_f,
-                           tilt_prev_rad=self.tilt_hint_rad)
+                           tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
+        if self.trust is not None:
+            self.trust.record(res.red_source == "measurement", res.yellow_source == "measurement")
         return self._result(res, box, score_f, net_time)
+
+    def _judge(self, image: NDArray[np.uint8], box: NDArray[np.float64] | None,
+               score: float) -> TrustDecision:
+        """The trust rule's decision for this frame; a whole-frame re-detection when the track
+        is lost (or untrusted for a while) and nothing is trusted, or when the geometry has been
+        violated. A re-detection restarts the Kalman filter."""
+        assert self.trust is not None and self.binning is not None
+        decision = self.trust.judge(image, self.binning, box, score)
+        if (decision.source == "prediction" and self.trust.wants_redetection()) \
+                or self.trust.geometry_violated():
+            found = self.trust.redetect(image, self.binning,
+                                        lambda c: self._network_at(image, c))
+            if found is not None:
+                self.gk.restart()
+                return found
+        return decision
+
+    def _network_at(self, image: NDArray[np.uint8], centre_img: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], float]:
+        """The network's box centre (image px) and score when it searches at ``centre_img``."""
+        box, score = self.tracker.track(image, search_centre_image_px=centre_img)
+        box = np.asarray(box, dtype=float).reshape(-1)
+        return box[:2] + 0.5 * box[2:], float(score)
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """An unusable frame: the network does not run; GK coasts on its prediction."""
