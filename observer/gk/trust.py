@@ -277,12 +277,18 @@ class MarkerTrust:
     def judge(self, image_rgb: NDArray[np.uint8], binning: int,
               box_sensor_px: NDArray[np.float64] | None, score: float) -> TrustDecision:
         """Decide this frame's red observation from the network's box and score (before
-        ``GKAssist.step``, whose prior is ``gk.search_centre_sensor_px()``)."""
+        ``GKAssist.step``, whose prior is ``gk.search_centre_sensor_px()``).
+
+        The regions measured are the network's box (if its score passes) and the
+        marker-coloured blobs in a window around the prediction. Circle-fit centres are
+        preferred over blob centroids (a centroid must also lie within one marker radius of
+        the prediction); the first region in that order that passes wins."""
         c, b = self.config, int(binning)
         prior = self.gk.search_centre_sensor_px()
         r_img = self.radius_img(b)
         gate_px = c.gate_marker_radii * r_img * b
-        reasons = []
+        reasons: list[str] = []
+        measured: list[tuple[TrustSource, Measurement]] = []
         if box_sensor_px is None:
             reasons.append("network: no box")
         elif not score >= c.min_score:
@@ -290,25 +296,35 @@ class MarkerTrust:
         else:
             centre = sensor_to_image(box_sensor_px[:2] + 0.5 * box_sensor_px[2:], b)
             half = np.minimum(0.5 * box_sensor_px[2:] / b * 1.3, 2.5 * r_img)
-            m = measure_marker(image_rgb, np.r_[centre - half, 2 * half], self.colour, r_img, c,
-                               self.subpixel)
-            z, why = self._accept(m, prior, b, gate_px)
-            if z is not None:
-                return TrustDecision("network", JudgedObservation(z, 1.0, m.fitted), "")
-            reasons.append(f"network: {why}")
+            measured.append(("network", measure_marker(
+                image_rgb, np.r_[centre - half, 2 * half], self.colour, r_img, c,
+                self.subpixel)))
         if np.all(np.isfinite(prior)):
             p_img = sensor_to_image(prior, b)
             half = gate_px / b + 2.0 * r_img
-            for _, region in colour_blobs(image_rgb, self.colour, r_img, c,
-                                          np.r_[p_img - half, 2 * half, 2 * half]):
-                m = measure_marker(image_rgb, _grow(region, r_img), self.colour, r_img, c,
-                                   self.subpixel)
-                z, why = self._accept(m, prior, b, gate_px)
+            window = np.r_[p_img - half, 2 * half, 2 * half]
+            measured += [("colour", measure_marker(image_rgb, _grow(region, r_img), self.colour,
+                                                   r_img, c, self.subpixel))
+                         for _, region in colour_blobs(image_rgb, self.colour, r_img, c, window)]
+        for fitted, gate in ((True, gate_px), (False, min(gate_px, r_img * b))):
+            for source, m in measured:
+                if m.fitted != fitted:
+                    continue
+                z, why = self._accept(m, prior, b, gate)
                 if z is not None:
                     why_net = "; ".join(reasons)
-                    return TrustDecision("colour", JudgedObservation(
-                        z, 1.0, m.fitted, f"colour fit (not the network: {why_net})"), why_net)
-            reasons.append("colour: no marker-shaped blob near the prediction")
+                    if source == "colour":
+                        note = "colour fit" if fitted else "colour blob centroid"
+                        why_net = "; ".join(r for r in (why_net, "network box not trusted")
+                                            if r)
+                        return TrustDecision("colour", JudgedObservation(
+                            z, 1.0, fitted, f"{note} (not the network: {why_net})"), why_net)
+                    return TrustDecision("network", JudgedObservation(z, 1.0, fitted), "")
+                if fitted and source == "network":
+                    reasons.append(f"network: {why}")
+        if not measured or all(m.centre_img is None for _, m in measured):
+            reasons += [f"{src}: {m.reason}" for src, m in measured[:2]]
+        reasons.append("no trusted marker near the prediction")
         why = "; ".join(reasons)
         return TrustDecision("prediction", JudgedObservation(None, 0.0, False, why), why)
 
