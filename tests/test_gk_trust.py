@@ -147,7 +147,8 @@ def test_redetection_after_a_jump_beyond_the_gate(network):
     assert jump > tr.trust.config.gate_marker_radii * 100.0  # marker radius ~ 95 sensor px
     tr.start(seq.images[0], seq.boxes_px[0], seq.binning)
     res = [tr.step(seq.images[k]) for k in keep[1:]]
-    e = np.array([np.hypot(*(r.red_px - seq.marker_px[k, 0])) for r, k in zip(res, keep[1:], strict=True)])
+    e = np.array([np.hypot(*(r.red_px - seq.marker_px[k, 0]))
+                  for r, k in zip(res, keep[1:], strict=True)])
     measured = np.array([r.red_measured for r in res])
     assert not np.any(measured & (e > PRECISION_PX))
     after = np.flatnonzero(keep[1:] >= 100)
