@@ -28,6 +28,17 @@ for variety between sequences). Ground truth: ``Frame.marker_px`` (2, 2) and ``F
   frame: the mean of those six centres (the centre of the smear) and the mean box. After frame 160
   the trajectory continues at normal speed (τ = k + 120).
 
+**Hard cases** (our choice) disturb frames ``HARD_FRAMES`` (100-140) of the same motion, ramped
+in and out over 12 frames (``disturb``): ``occluder_<colour>`` a finger (a capsule 2.6 marker
+radii wide, colour family of ``plant.appearance``) sliding over the red marker until it is
+hidden, staying and withdrawing (frames with at least half the red disc hidden are flagged
+``occluded``; the truth is kept); ``highlight`` a white glare on each marker; ``distractor_red``
+/ ``distractor_yellow`` a disc of marker size and colour beside the pair; ``fast`` the
+trajectory at ``K_FAST`` = 3 times the speed; ``dark`` the brightness down to 30 % and back.
+``heldout_pattern`` / ``heldout_lighting`` render the whole sequence in an appearance family
+the TransT network never saw in training (``observer.transt.data.heldout_options``), and
+``occluder_purple`` uses the held-out occluder colour.
+
 **Seeds**. Validation sequences use seeds ``VALIDATION_SEED_BASE + i`` (7,000,000 + i); they are
 for reported numbers only, never for training or tuning. Development and tuning use
 ``DEVELOPMENT_SEED_BASE + i`` (6,000,000 + i). The TransT network is trained on renderer data from
