@@ -296,9 +296,16 @@ class MarkerTrust:
         else:
             centre = sensor_to_image(box_sensor_px[:2] + 0.5 * box_sensor_px[2:], b)
             half = np.minimum(0.5 * box_sensor_px[2:] / b * 1.3, 2.5 * r_img)
-            measured.append(("network", measure_marker(
-                image_rgb, np.r_[centre - half, 2 * half], self.colour, r_img, c,
-                self.subpixel)))
+            m = measure_marker(image_rgb, np.r_[centre - half, 2 * half], self.colour, r_img, c,
+                               self.subpixel)
+            if m.fitted:  # the common case: trusted without looking further
+                z, why = self._accept(m, prior, b, gate_px)
+                if z is not None:
+                    return TrustDecision("network", JudgedObservation(z, 1.0, True), "")
+                reasons.append(f"network: {why}")
+            else:
+                reasons.append(f"network: {m.reason or 'no circle fit'}")
+            measured.append(("network", m))
         if np.all(np.isfinite(prior)):
             p_img = sensor_to_image(prior, b)
             half = gate_px / b + 2.0 * r_img
@@ -306,24 +313,20 @@ class MarkerTrust:
             measured += [("colour", measure_marker(image_rgb, _grow(region, r_img), self.colour,
                                                    r_img, c, self.subpixel))
                          for _, region in colour_blobs(image_rgb, self.colour, r_img, c, window)]
+        why_net = "; ".join(reasons)
         for fitted, gate in ((True, gate_px), (False, min(gate_px, r_img * b))):
             for source, m in measured:
-                if m.fitted != fitted:
+                if m.fitted != fitted or (fitted and source == "network"):
                     continue
-                z, why = self._accept(m, prior, b, gate)
-                if z is not None:
-                    why_net = "; ".join(reasons)
-                    if source == "colour":
-                        note = "colour fit" if fitted else "colour blob centroid"
-                        why_net = "; ".join(r for r in (why_net, "network box not trusted")
-                                            if r)
-                        return TrustDecision("colour", JudgedObservation(
-                            z, 1.0, fitted, f"{note} (not the network: {why_net})"), why_net)
-                    return TrustDecision("network", JudgedObservation(z, 1.0, fitted), "")
-                if fitted and source == "network":
-                    reasons.append(f"network: {why}")
-        if not measured or all(m.centre_img is None for _, m in measured):
-            reasons += [f"{src}: {m.reason}" for src, m in measured[:2]]
+                z, _ = self._accept(m, prior, b, gate)
+                if z is None:
+                    continue
+                if source == "network":
+                    return TrustDecision("network", JudgedObservation(z, 1.0, False),
+                                         "network box: blob centroid")
+                note = "colour fit" if fitted else "colour blob centroid"
+                return TrustDecision("colour", JudgedObservation(
+                    z, 1.0, fitted, f"{note} (not the network: {why_net})"), why_net)
         reasons.append("no trusted marker near the prediction")
         why = "; ".join(reasons)
         return TrustDecision("prediction", JudgedObservation(None, 0.0, False, why), why)
