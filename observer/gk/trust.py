@@ -12,9 +12,9 @@ system knows:
   ``saturation_fraction`` of the marker's); skin, highlights and most occluders fall outside it;
 * **shape** (the circle fit, seed 004 §4): the fit on that colour must be valid (its RMS
   residual and arc coverage within ``SubpixelConfig``'s limits) with a radius within
-  ``radius_tolerance`` of the marker's radius at start; without a valid fit, a blob at least
-  ``min_blob_fraction`` of the disc area (a smeared marker) gives its centroid, a smaller one
-  nothing (a marker mostly hidden cannot be measured);
+  ``radius_tolerance`` of the marker's radius at start (times the scale's change). Without a
+  valid fit nothing is measured: a blob centroid would be wrong for a marker merged with a
+  same-coloured occluder or mostly hidden;
 * **innovation** (the Kalman filter, seed 000 §3.2.1): the observation must lie within
   ``gate_marker_radii`` marker radii of the prediction;
 * **the network's score map**: a box whose target probability is below ``min_score`` is not
@@ -68,12 +68,12 @@ class TrustConfig(BaseModel):
     saturation_fraction: float = Field(0.7, gt=0.0, le=1.0, description="Smallest saturation, "
                                        "as a fraction of the marker's at start.")
     min_value: int = Field(50, ge=0, le=255, description="Smallest HSV value (the seed's).")
-    radius_tolerance: float = Field(0.35, gt=0.0, description="Largest |R_fit / R_start - 1|.")
-    min_blob_fraction: float = Field(0.6, gt=0.0, description="Smallest blob (fraction of the "
-                                     "marker disc's area) measured by its centroid when the "
-                                     "circle fit fails.")
-    max_blob_fraction: float = Field(3.0, gt=1.0, description="Largest blob (fraction of the "
-                                     "disc area) taken as a (smeared) marker.")
+    radius_tolerance: float = Field(0.2, gt=0.0, description="Largest |R_fit / R_start - 1|.")
+    min_blob_fraction: float = Field(0.25, gt=0.0, description="Smallest colour blob searched "
+                                     "(fraction of the marker disc's area; a partly hidden "
+                                     "marker still counts).")
+    max_blob_fraction: float = Field(3.0, gt=1.0, description="Largest colour blob searched "
+                                     "(fraction of the disc area; a smeared marker).")
     gate_marker_radii: float = Field(2.0, gt=0.0, description="Largest distance of an "
                                      "observation from the Kalman prediction, marker radii.")
     min_score: float = Field(0.1, ge=0.0, le=1.0, description="Smallest network target "
@@ -89,12 +89,10 @@ class TrustConfig(BaseModel):
 
 @dataclass(frozen=True)
 class Measurement:
-    """A marker centre measured in a region: ``centre_img`` (2,) image px or None, whether it is
-    a circle-fit centre, the blob's area / the disc's, and why it is None."""
+    """A marker centre measured in a region: the circle-fit centre ``centre_img`` (2,), image
+    px, or None and why."""
 
     centre_img: NDArray[np.float64] | None
-    fitted: bool
-    area_fraction: float
     reason: str = ""
 
 
@@ -144,40 +142,26 @@ def marker_range(image_rgb: NDArray[np.uint8], box_img: ArrayLike, seed_range: H
 def measure_marker(image_rgb: NDArray[np.uint8], roi_img: ArrayLike, colour: HSVRange,
                    radius_img: float, config: TrustConfig,
                    subpixel: SubpixelConfig) -> Measurement:
-    """Centre of the marker of ``colour`` in ``roi_img`` (x, y, w, h): the circle fit if valid
-    with a radius within tolerance of ``radius_img``, else the centroid of the largest blob if
-    its area is a whole (possibly smeared) marker's, else None (see the module docstring)."""
-    disc = math.pi * radius_img * radius_img
+    """Centre of the marker of ``colour`` in ``roi_img`` (x, y, w, h): the circle fit if it is
+    valid and its radius within tolerance of ``radius_img``, else None with the reason. A blob
+    centroid is never used: a marker merged with a same-coloured occluder, or mostly hidden,
+    would give a wrong centre."""
     fit = refine_marker_centre(image_rgb, colour, roi_img, subpixel)
-    if fit.valid and abs(fit.radius_image_px / radius_img - 1.0) <= config.radius_tolerance:
-        return Measurement(fit.centre_image_px, True, 1.0)
-    x, y, w, h = np.asarray(roi_img, dtype=float)
-    H, W = image_rgb.shape[:2]
-    c0, r0 = max(int(math.floor(x)), 0), max(int(math.floor(y)), 0)
-    c1, r1 = min(int(math.ceil(x + w)) + 1, W), min(int(math.ceil(y + h)) + 1, H)
-    if c1 - c0 < 2 or r1 - r0 < 2:
-        return Measurement(None, False, 0.0, "region outside the frame")
-    mask = colour_mask(np.ascontiguousarray(image_rgb[r0:r1, c0:c1]), colour)
-    n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n < 2:
-        return Measurement(None, False, 0.0, "no marker-coloured pixel")
-    i = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    frac = float(stats[i, cv2.CC_STAT_AREA]) / disc
-    why = f"circle fit {'radius off' if fit.valid else 'invalid: ' + fit.reason}"
-    if frac < config.min_blob_fraction:
-        return Measurement(None, False, frac, f"{why}; blob {frac:.2f} of a marker")
-    if frac > config.max_blob_fraction:
-        return Measurement(None, False, frac, f"{why}; blob {frac:.1f} markers large")
-    return Measurement(cents[i] + [c0, r0], False, frac)
+    if not fit.valid:
+        return Measurement(None, f"circle fit invalid: {fit.reason}")
+    ratio = fit.radius_image_px / radius_img
+    if abs(ratio - 1.0) > config.radius_tolerance:
+        return Measurement(None, f"circle radius {ratio:.2f} x the marker's")
+    return Measurement(fit.centre_image_px)
 
 
 def colour_blobs(image_rgb: NDArray[np.uint8], colour: HSVRange, radius_img: float,
                  config: TrustConfig, window_img: ArrayLike | None = None
                  ) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """Blobs of ``colour`` of a plausible marker area (``min_blob_fraction`` /
-    ``max_blob_fraction`` of the disc; a quarter of the disc counts, for a partly hidden
-    marker) in ``window_img`` (x, y, w, h; None: the whole frame): (centroid, region (x, y, w,
-    h)) in image px, sorted by how close their area is to the disc's."""
+    """Blobs of ``colour`` of a plausible marker area (``min_blob_fraction`` to
+    ``max_blob_fraction`` of the disc) in ``window_img`` (x, y, w, h; None: the whole frame):
+    (centroid, region (x, y, w, h)) in image px, sorted by how close their area is to the
+    disc's."""
     H, W = image_rgb.shape[:2]
     c0, r0, c1, r1 = 0, 0, W, H
     if window_img is not None:
@@ -194,7 +178,7 @@ def colour_blobs(image_rgb: NDArray[np.uint8], colour: HSVRange, radius_img: flo
     out = []
     for i in range(1, n):
         frac = stats[i, cv2.CC_STAT_AREA] / disc
-        if 0.25 <= frac <= config.max_blob_fraction:
+        if config.min_blob_fraction <= frac <= config.max_blob_fraction:
             bx, by, bw, bh = stats[i, :4].astype(float)
             out.append((abs(math.log(frac)), cents[i] + [c0, r0],
                         np.array([bx + c0, by + r0, bw, bh])))
@@ -279,16 +263,14 @@ class MarkerTrust:
         """Decide this frame's red observation from the network's box and score (before
         ``GKAssist.step``, whose prior is ``gk.search_centre_sensor_px()``).
 
-        The regions measured are the network's box (if its score passes) and the
-        marker-coloured blobs in a window around the prediction. Circle-fit centres are
-        preferred over blob centroids (a centroid must also lie within one marker radius of
-        the prediction); the first region in that order that passes wins."""
+        The network's box (if its score passes) is measured first, then the marker-coloured
+        blobs in a window around the prediction, nearest the disc's area first; the first that
+        passes wins."""
         c, b = self.config, int(binning)
         prior = self.gk.search_centre_sensor_px()
         r_img = self.radius_img(b)
         gate_px = c.gate_marker_radii * r_img * b
         reasons: list[str] = []
-        measured: list[tuple[TrustSource, Measurement]] = []
         if box_sensor_px is None:
             reasons.append("network: no box")
         elif not score >= c.min_score:
@@ -298,35 +280,22 @@ class MarkerTrust:
             half = np.minimum(0.5 * box_sensor_px[2:] / b * 1.3, 2.5 * r_img)
             m = measure_marker(image_rgb, np.r_[centre - half, 2 * half], self.colour, r_img, c,
                                self.subpixel)
-            if m.fitted:  # the common case: trusted without looking further
-                z, why = self._accept(m, prior, b, gate_px)
-                if z is not None:
-                    return TrustDecision("network", JudgedObservation(z, 1.0, True), "")
-                reasons.append(f"network: {why}")
-            else:
-                reasons.append(f"network: {m.reason or 'no circle fit'}")
-            measured.append(("network", m))
+            z, why = self._accept(m, prior, b, gate_px)
+            if z is not None:
+                return TrustDecision("network", JudgedObservation(z, 1.0, True), "")
+            reasons.append(f"network: {why}")
         if np.all(np.isfinite(prior)):
             p_img = sensor_to_image(prior, b)
             half = gate_px / b + 2.0 * r_img
             window = np.r_[p_img - half, 2 * half, 2 * half]
-            measured += [("colour", measure_marker(image_rgb, _grow(region, r_img), self.colour,
-                                                   r_img, c, self.subpixel))
-                         for _, region in colour_blobs(image_rgb, self.colour, r_img, c, window)]
-        why_net = "; ".join(reasons)
-        for fitted, gate in ((True, gate_px), (False, min(gate_px, r_img * b))):
-            for source, m in measured:
-                if m.fitted != fitted or (fitted and source == "network"):
-                    continue
-                z, _ = self._accept(m, prior, b, gate)
-                if z is None:
-                    continue
-                if source == "network":
-                    return TrustDecision("network", JudgedObservation(z, 1.0, False),
-                                         "network box: blob centroid")
-                note = "colour fit" if fitted else "colour blob centroid"
-                return TrustDecision("colour", JudgedObservation(
-                    z, 1.0, fitted, f"{note} (not the network: {why_net})"), why_net)
+            for _, region in colour_blobs(image_rgb, self.colour, r_img, c, window):
+                m = measure_marker(image_rgb, _grow(region, r_img), self.colour, r_img, c,
+                                   self.subpixel)
+                z, _ = self._accept(m, prior, b, gate_px)
+                if z is not None:
+                    why_net = "; ".join(reasons)
+                    return TrustDecision("colour", JudgedObservation(
+                        z, 1.0, True, f"colour fit (not the network: {why_net})"), why_net)
         reasons.append("no trusted marker near the prediction")
         why = "; ".join(reasons)
         return TrustDecision("prediction", JudgedObservation(None, 0.0, False, why), why)
@@ -353,14 +322,14 @@ class MarkerTrust:
             net_c, score = network_check(m.centre_img)
             agrees = bool(np.all(np.isfinite(net_c)) and score >= c.min_score
                           and np.hypot(*(np.asarray(net_c) - m.centre_img)) <= r_img)
-            found.append((not agrees, aux.E, z, m.fitted))
+            found.append((not agrees, aux.E, z))
         if not found:
             return None
         found.sort(key=lambda t: (t[0], t[1]))
-        disagree, E, z, fitted = found[0]
+        disagree, E, z = found[0]
         how = "network disagrees" if disagree else "network agrees"
         return TrustDecision("redetected", JudgedObservation(
-            z, 1.0, fitted, f"re-detected in the whole frame (E = {E:.2f}, {how})"), "")
+            z, 1.0, True, f"re-detected in the whole frame (E = {E:.2f}, {how})"), "")
 
 
 def _grow(region: NDArray[np.float64], r_img: float) -> NDArray[np.float64]:
