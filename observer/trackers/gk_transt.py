@@ -14,6 +14,13 @@ Per frame (seed 000 §3.2.3, Figure 9):
    prediction stands in. It then finds the yellow marker around the red one and checks it against
    D_exp = L·S·cos β, else P_yellow = P_red + V_rel (seed 000 §3.2.2), and updates the scale EMA.
 
+With ``trust`` (default ``TrustConfig()``), ``observer.gk.trust.MarkerTrust`` replaces the seed's
+gate in step 3: per frame it trusts the network's box, a colour fit near the prediction, or
+nothing (the prediction stands in, flagged), from the marker's own colour, the circle fit, the
+Kalman innovation, the network's score and the two-marker geometry; when the track is lost or
+the geometry is violated it searches the whole frame and restarts the filter
+(``docs/tracking.md``). ``trust=None`` runs the seed's gate alone.
+
 After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
 prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
 ``GKAssist`` flags the track lost after ``max_coast_frames`` frames without a confident box. Only
