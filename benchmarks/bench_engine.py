@@ -171,7 +171,7 @@ def main() -> None:
         "Batched closed-loop engine against the event loop (one core)",
         figures,
         notes="Default measurement-model scenario (PID, per-frame least squares, 5° tilt step, "
-        "GK-TransT seed latency), 2 s runs, one BLAS/OpenMP thread. Target (issue 13): "
+        "GK-TransT seed latency), 2 s runs, one BLAS/OpenMP thread. Target: "
         "batched B = 256 >= 1000x real time. The study sweep, tune-kalman (defaults) and the "
         "10,000-run sweep in one process; the event loop's 10,000-run wall time is "
         f"extrapolated from {EVENT_SAMPLE_RUNS} runs.",

@@ -547,7 +547,8 @@ def bench_trackers(
     torch_threads: Annotated[int, typer.Option(help="torch intra-op threads.")] = 1,
 ) -> None:
     """The tracking benchmark of seed 000 §4 (GK-TransT, dual TransT, KCF, CSRT, K²CF) on the
-    validation sequences, clean and with the seed's occlusion and blur cases.
+    validation sequences, clean and with the seed's occlusion and blur cases; --cases also takes
+    the hard cases and held-out appearance families of experiments.sequences (ALL_CASES).
 
     Writes tracking_metrics.csv (one row per run), precision and error plots per case and
     report.md (Table 1 beside the seed's, precision at 20 px, success AUC, the targets).

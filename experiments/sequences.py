@@ -28,6 +28,17 @@ for variety between sequences). Ground truth: ``Frame.marker_px`` (2, 2) and ``F
   frame: the mean of those six centres (the centre of the smear) and the mean box. After frame 160
   the trajectory continues at normal speed (τ = k + 120).
 
+**Hard cases** (our choice) disturb frames ``HARD_FRAMES`` (100-140) of the same motion, ramped
+in and out over 12 frames (``disturb``): ``occluder_<colour>`` a finger (a capsule 2.6 marker
+radii wide, colour family of ``plant.appearance``) sliding over the red marker until it is
+hidden, staying and withdrawing (frames with at least half the red disc hidden are flagged
+``occluded``; the truth is kept); ``highlight`` a white glare on each marker; ``distractor_red``
+/ ``distractor_yellow`` a disc of marker size and colour beside the pair; ``fast`` the
+trajectory at ``K_FAST`` = 3 times the speed; ``dark`` the brightness down to 30 % and back.
+``heldout_pattern`` / ``heldout_lighting`` render the whole sequence in an appearance family
+the TransT network never saw in training (``observer.transt.data.heldout_options``), and
+``occluder_purple`` uses the held-out occluder colour.
+
 **Seeds**. Validation sequences use seeds ``VALIDATION_SEED_BASE + i`` (7,000,000 + i); they are
 for reported numbers only, never for training or tuning. Development and tuning use
 ``DEVELOPMENT_SEED_BASE + i`` (6,000,000 + i). The TransT network is trained on renderer data from
@@ -40,16 +51,40 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from observer.transt.data import heldout_options
 from plant import attitude
+from plant.appearance import occluder_rgb
+from plant.camera import sensor_to_image
+from plant.mjcf import RED_RGB, YELLOW_RGB
 from plant.params import PlantParams
 from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
 
-Case = Literal["clean", "occlusion", "blur"]
+Case = Literal[
+    "clean", "occlusion", "blur",
+    "occluder_skin", "occluder_red_brown", "occluder_dark", "occluder_blue", "occluder_purple",
+    "highlight", "distractor_red", "distractor_yellow", "fast", "dark",
+    "heldout_pattern", "heldout_lighting",
+]
+#: The seed's cases (000 §4.3).
 CASES: tuple[Case, ...] = ("clean", "occlusion", "blur")
+#: Hard cases (our choice, see the module docstring): disturbances during ``HARD_FRAMES``.
+HARD_CASES: tuple[Case, ...] = (
+    "occluder_skin", "occluder_red_brown", "occluder_dark", "occluder_blue", "highlight",
+    "distractor_red", "distractor_yellow", "fast", "dark",
+)
+#: Appearance families held out from the network's training (``observer.transt.data``): the
+#: held-out rotor pattern, the held-out lighting, and occluders of the held-out colour.
+HELDOUT_CASES: tuple[Case, ...] = ("heldout_pattern", "heldout_lighting", "occluder_purple")
+ALL_CASES: tuple[Case, ...] = CASES + HARD_CASES + HELDOUT_CASES
+#: Cases drawn over the frames by ``disturb`` besides the occluders and distractors.
+DRAWN_CASES = ("highlight", "dark")
+#: Frames of the hard cases' disturbances (inclusive start, exclusive stop).
+HARD_FRAMES = range(100, 141)
 
 #: Seed 000 §4.3.1: occluded frames 100-110 (inclusive) and the occluder's margin, sensor px.
 OCCLUSION_FRAMES = range(100, 111)
@@ -58,6 +93,8 @@ OCCLUSION_MARGIN_SENSOR_PX = 20.0
 BLUR_FRAMES = range(130, 161)
 K_DOWNSAMPLE = 5
 M_AVERAGE = 6
+#: The ``fast`` case: trajectory frames advanced per output frame during ``HARD_FRAMES``.
+K_FAST = 3
 
 #: Seed ranges (see the module docstring). Training data must use seeds below both.
 VALIDATION_SEED_BASE = 7_000_000
@@ -223,12 +260,100 @@ def body_rates(qs: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
 
 
 def trajectory_index(k: int, case: Case) -> int:
-    """Trajectory frame τ shown by output frame k (the blur case's time warp)."""
-    if case != "blur" or k < BLUR_FRAMES.start:
+    """Trajectory frame τ shown by output frame k (the blur and fast cases' time warps)."""
+    frames, K = {"blur": (BLUR_FRAMES, K_DOWNSAMPLE), "fast": (HARD_FRAMES, K_FAST)}.get(
+        case, (None, 1))
+    if frames is None or k < frames.start:
         return k
-    if k in BLUR_FRAMES:
-        return BLUR_FRAMES.start + K_DOWNSAMPLE * (k - BLUR_FRAMES.start)
-    return k + (K_DOWNSAMPLE - 1) * (len(BLUR_FRAMES) - 1)
+    if k in frames:
+        return frames.start + K * (k - frames.start)
+    return k + (K - 1) * (len(frames) - 1)
+
+
+# --- hard cases --------------------------------------------------------------------------------
+def _ramp(k: int) -> float:
+    """0 before ``HARD_FRAMES``, rising linearly to 1 over its first 12 frames, 1 until its last
+    12, falling back to 0 at its end."""
+    a, b = HARD_FRAMES.start, HARD_FRAMES.stop - 1
+    return float(np.clip(min((k - a) / 12.0, (b - k) / 12.0), 0.0, 1.0)) if a <= k <= b else 0.0
+
+
+@dataclass(frozen=True)
+class _Disturbance:
+    """A hard case's draws (from the sequence seed): occluder direction and colour, highlight
+    offsets, distractor direction."""
+
+    angle: float
+    rgb: tuple[int, int, int]
+    offsets: NDArray[np.float64]
+
+
+def _draw_disturbance(case: str, rng: np.random.Generator) -> _Disturbance:
+    family = case.removeprefix("occluder_")
+    rgb = occluder_rgb(rng, family) if case.startswith("occluder_") else (0, 0, 0)
+    return _Disturbance(float(rng.uniform(-np.pi / 6, np.pi / 6) + np.pi / 2 * rng.choice([-1, 1])),
+                        rgb, rng.uniform(-0.5, 0.5, size=(2, 2)))
+
+
+def disturb(
+    case: str, k: int, image: NDArray[np.uint8], marker_img: NDArray[np.float64],
+    radius_img: float, d: _Disturbance,
+) -> float:
+    """Apply hard case ``case`` to frame ``k`` (image px, in place) and return the covered
+    fraction of the red disc (0-1).
+
+    ``marker_img`` (2, 2): true red and yellow centres, image px; ``radius_img``: marker radius,
+    image px. Occluders are a finger (a capsule 2.6 marker radii wide) coming from a direction
+    about perpendicular to the red→yellow line; its tip slides from 3 radii outside the red
+    marker to 1.3 radii past its centre over the first 12 frames, stays, and withdraws over
+    the last 12. ``highlight``: a white Gaussian glare (sigma 0.45 radii, peak 255 DN) on each
+    marker, off-centre by up to half a radius. ``distractor_*``: a disc of the marker's size
+    and colour 2.5 diameters from the red marker, beside the pair. ``dark``: the frame's
+    brightness drops to 30 % and recovers (``_ramp``).
+    """
+    s = _ramp(k)
+    if s == 0.0:
+        return 0.0
+    red, yellow = marker_img
+    axis = (yellow - red) / max(float(np.hypot(*(yellow - red))), 1e-9)
+    rot = np.array([[np.cos(d.angle), -np.sin(d.angle)], [np.sin(d.angle), np.cos(d.angle)]])
+    side = rot @ axis  # about perpendicular to the pair
+    r = radius_img
+    if case == "dark":
+        f = image.astype(np.float32) * np.float32(1.0 - 0.7 * s)
+        image[...] = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+        return 0.0
+    if case == "highlight":
+        h, w = image.shape[:2]
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        acc = np.zeros((h, w), np.float32)
+        for c, off in zip(marker_img, d.offsets, strict=True):
+            cc = c + off * r
+            acc += np.exp(-((xx - cc[0]) ** 2 + (yy - cc[1]) ** 2) / (2 * (0.45 * r) ** 2))
+        f = image.astype(np.float32) + 255.0 * s * acc[..., None]
+        image[...] = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+        return 0.0
+    if case.startswith("distractor_"):
+        rgb = RED_RGB if case == "distractor_red" else YELLOW_RGB
+        c = red + 5.0 * r * side
+        colour = tuple(float(255.0 * v * 0.95) for v in rgb)
+        cv2.circle(image, tuple(int(round(v * 16)) for v in c), int(round(r * 16)), colour, -1,
+                   cv2.LINE_AA, 4)
+        return 0.0
+    # occluder: a capsule from outside the frame to its tip
+    tip = red + side * r * (3.0 - 4.3 * s)
+    far = tip + side * 4.0 * max(image.shape[:2])
+    mask = np.zeros(image.shape[:2], np.uint8)
+    cv2.line(mask, tuple(int(round(v * 16)) for v in tip), tuple(int(round(v * 16)) for v in far),
+             255, int(round(2.6 * r)), cv2.LINE_AA, 4)
+    alpha = mask.astype(np.float32)[..., None] / 255.0
+    image[...] = np.clip(np.rint(image * (1 - alpha) + alpha * np.asarray(d.rgb, np.float32)),
+                         0, 255).astype(np.uint8)
+    disc = np.zeros_like(mask)
+    cv2.circle(disc, tuple(int(round(v * 16)) for v in red), int(round(r * 16)), 255, -1,
+               cv2.LINE_8, 4)
+    inside = disc > 0
+    return float(np.mean(mask[inside] > 127)) if inside.any() else 0.0
 
 
 # --- rendering ---------------------------------------------------------------------------------
@@ -264,6 +389,9 @@ def render_sequence(spec: SequenceSpec, params: PlantParams | None = None) -> Tr
         n_highlights=int(rng.integers(0, 3)),
         noise_sigma_dn=float(rng.uniform(1.5, 3.0)),
     )
+    if spec.case in ("heldout_pattern", "heldout_lighting"):
+        p, options = heldout_options(spec.seed, spec.case.removeprefix("heldout_"))
+    dist = _draw_disturbance(spec.case, np.random.default_rng([spec.seed, 0xD15]))
     renderer = AnalyticRenderer(p, binning=spec.binning, options=options,
                                 seed=np.random.default_rng([spec.seed, 0x51D]))
     b = renderer.binning
@@ -293,6 +421,10 @@ def render_sequence(spec: SequenceSpec, params: PlantParams | None = None) -> Tr
             rows, cols = occluder_pixels(boxes[k], b, renderer.width, renderer.height)
             images[k][rows, cols] = 0
             occluded[k] = True
+        elif spec.case.startswith(("occluder_", "distractor_")) or spec.case in DRAWN_CASES:
+            covered = disturb(spec.case, k, images[k], sensor_to_image(marker[k], b),
+                              float(np.mean(boxes[k, 0, 2:])) / (2 * b), dist)
+            occluded[k] = covered >= 0.5
     return TrackingSequence(spec.name, images, marker, boxes, b, spec.fps, spec.case, occluded,
                             blurred, p, spec.seed, tilt)
 

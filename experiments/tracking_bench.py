@@ -290,6 +290,9 @@ def evaluate(run: TrackRun, seq: TrackingSequence) -> dict[str, float | str]:
         row[f"{name}_err_median_px"] = float(np.nanmedian(np.where(np.isinf(em), 1e9, em)))
         row[f"{name}_lost_fraction"] = float(np.mean(run.lost[1:, m]))
         row[f"{name}_measured_fraction"] = float(np.mean(run.measured[1:, m]))
+        # reported as measured but more than 20 px off: what a trust rule must keep at zero
+        row[f"{name}_wrong_measured_fraction"] = float(
+            np.mean(run.measured[1:, m] & ~(em <= PRECISION_PX)))
         if occl.size:
             row[f"{name}_reacquire_frames"] = reacquisition_frames(
                 e[:, m], run.measured[:, m], int(occl.max()) + 1)
@@ -350,7 +353,9 @@ def summary_table(metrics: pd.DataFrame) -> pd.DataFrame:
     """Mean over sequences per (tracker, case) of precision, AUC and re-acquisition, with the
     seed's precision beside it."""
     cols = [c for c in metrics.columns if c.endswith(("precision_20px", "success_auc",
-                                                      "reacquire_frames", "lost_fraction"))]
+                                                      "reacquire_frames", "lost_fraction",
+                                                      "err_median_px",
+                                                      "wrong_measured_fraction"))]
     g = metrics.groupby(["tracker", "case"], sort=False)[cols].mean().reset_index()
     g["seed_main_precision"] = [SEED_PRECISION.get((t, c), (math.nan, math.nan))[0]
                                 for t, c in zip(g.tracker, g.case, strict=True)]
@@ -479,16 +484,39 @@ TARGET_PRECISION_CLEAN = 0.95
 TARGET_PRECISION_DISTURBED = 0.90
 TARGET_RATIO = 0.6
 TARGET_MEDIAN_MS = seed_latency_ms("gk_transt")
+#: Targets on the hard cases and held-out appearance families: GK-TransT precision at 20 px on
+#: both markers; the network alone (dual TransT: two networks, box centres, no GK) on the clean
+#: held-out families: median centre error (one image px at 4x binning) and precision.
+TARGET_PRECISION_HARD = 0.95
+TARGET_NETWORK_MEDIAN_PX = 4.0
+TARGET_NETWORK_PRECISION = 0.95
+#: The row that shows the network alone: dual TransT runs one network per marker and reports
+#: its box centres, with no GK assistance and no circle fit.
+NETWORK_ALONE = "dual_transt"
+
+
+def case_target(case: str) -> float:
+    """GK-TransT's precision target at 20 px for a case."""
+    from experiments.sequences import CASES
+
+    if case == "clean":
+        return TARGET_PRECISION_CLEAN
+    return TARGET_PRECISION_DISTURBED if case in CASES else TARGET_PRECISION_HARD
 
 
 def min_frames(case: str) -> int:
-    """Fewest frames per sequence for a case: 2 (one scored frame) for ``clean``; the seed's
-    disturbance must fit, so ``occlusion`` (frames 100-110) needs the occlusion plus
-    ``REACQUIRE_HOLD`` frames after it (116) and ``blur`` (frames 130-160) needs 161."""
-    from experiments.sequences import BLUR_FRAMES
+    """Fewest frames per sequence for a case: 2 (one scored frame) for ``clean`` and the
+    held-out appearance families; the disturbance must fit, so ``occlusion`` (frames 100-110)
+    needs the occlusion plus ``REACQUIRE_HOLD`` frames after it (116), ``blur`` (frames
+    130-160) needs 161 and the hard cases (``HARD_FRAMES``, 100-140) 146."""
+    from experiments.sequences import ALL_CASES, BLUR_FRAMES, HARD_FRAMES
 
-    return {"clean": 2, "occlusion": OCCLUSION_FRAMES.stop + REACQUIRE_HOLD,
-            "blur": BLUR_FRAMES.stop}[case]
+    if case not in ALL_CASES:
+        raise KeyError(case)
+    if case in ("clean", "heldout_pattern", "heldout_lighting"):
+        return 2
+    return {"occlusion": OCCLUSION_FRAMES.stop + REACQUIRE_HOLD,
+            "blur": BLUR_FRAMES.stop}.get(case, HARD_FRAMES.stop + REACQUIRE_HOLD)
 
 
 def transt_network() -> tuple[Callable[[], object] | None, str]:
@@ -583,6 +611,40 @@ class BenchmarkReport:
     wall_s: float
 
 
+def network_checks(summary: pd.DataFrame, network: str, cases: Sequence[str]) -> list[str]:
+    """The network-alone targets on the clean held-out families, one line each."""
+    st = summary.set_index(["tracker", "case"])
+    out = []
+    for case in cases:
+        if (network, case) not in st.index:
+            continue
+        row = st.loc[(network, case)]
+        for m in ("main", "aux"):
+            med, prec = float(row[f"{m}_err_median_px"]), float(row[f"{m}_precision_20px"])
+            ok = med <= TARGET_NETWORK_MEDIAN_PX and prec >= TARGET_NETWORK_PRECISION
+            out.append(f"{network} (network alone) {case} {m} median error {med:.1f} px "
+                       f"(target <= {TARGET_NETWORK_MEDIAN_PX:g}), precision@20px {prec:.3f} "
+                       f"(target >= {TARGET_NETWORK_PRECISION}): {'met' if ok else 'NOT met'}")
+    return out
+
+
+def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
+    """Markdown table of the network alone beside GK-TransT per case (empty if either is
+    missing): precision at 20 px, median error and the fraction of frames reported as measured
+    but wrong, per marker."""
+    rows = summary[summary.tracker.isin([gk, network])]
+    if not {gk, network} <= set(rows.tracker):
+        return ""
+    cols = ["case", "tracker", "main_precision_20px", "aux_precision_20px",
+            "main_err_median_px", "aux_err_median_px", "main_wrong_measured_fraction",
+            "aux_wrong_measured_fraction"]
+    t = rows[cols].sort_values(["case", "tracker"], kind="stable")
+    t = t.assign(tracker=[f"{n} (network alone)" if n == network else n for n in t.tracker])
+    return ("Network alone (dual TransT: box centres, no GK) beside GK-TransT (median errors in "
+            "sensor px; wrong_measured = reported as measured but more than 20 px off):\n\n"
+            + markdown_table(t))
+
+
 def _torch_note() -> str:
     """The torch thread settings, if torch was loaded (by a TransT tracker)."""
     import os
@@ -620,17 +682,17 @@ def run_tracking_benchmark(
     and, with ``require_transt``, TransT trackers without the shipped network (else their
     rows are left out and ``progress`` and the notes say so).
     """
-    from experiments.sequences import CASES, render_sequence, validation_suite
+    from experiments.sequences import ALL_CASES, CASES, render_sequence, validation_suite
 
     cases = list(CASES if cases is None else cases)
-    bad = [c for c in cases if c not in CASES]
+    bad = [c for c in cases if c not in ALL_CASES]
     if bad or not cases:
-        raise ValueError(f"cases must be among {', '.join(CASES)}, got {cases}")
+        raise ValueError(f"cases must be among {', '.join(ALL_CASES)}, got {cases}")
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
     need = max(min_frames(c) for c in cases)
     if frames < need:
-        each = ", ".join(f"{c} {min_frames(c)}" for c in CASES)
+        each = ", ".join(f"{c} {min_frames(c)}" for c in dict.fromkeys(cases))
         raise ValueError(f"frames must be >= {need} for cases {cases} ({each}), got {frames}")
     factories, note_transt = tracker_factories(trackers, stand_in, require_transt)
     if not factories:
@@ -705,11 +767,13 @@ def run_tracking_benchmark(
         for case in cases:
             if (gk, case) not in st.index:
                 continue
-            target = TARGET_PRECISION_CLEAN if case == "clean" else TARGET_PRECISION_DISTURBED
+            target = case_target(case)
             for m in ("main", "aux"):
                 v = float(st.loc[(gk, case), f"{m}_precision_20px"])
                 checks.append(f"{gk} {case} {m} precision@20px {v:.3f} (target >= {target}): "
                               f"{'met' if v >= target else 'NOT met'}")
+        checks += network_checks(summary, NETWORK_ALONE.replace("_transt", tag),
+                                 [c for c in cases if c.startswith("heldout_")])
         med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
         checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}): "
                       f"{'met' if med <= TARGET_MEDIAN_MS else 'NOT met'}")
@@ -722,6 +786,7 @@ def run_tracking_benchmark(
                           f"{RATIO_PAIRS[2][2]} (not like for like; target <= {TARGET_RATIO}): "
                           f"{'met' if ratio_med <= TARGET_RATIO else 'NOT met'}")
 
+    parts = network_and_gk_table(summary, gk, dual)
     t1_show = t1[["algorithm", "fps", "latency_median_ms", "latency_mean_ms", "latency_p95_ms",
                   "seed_fps", "seed_latency_ms"]]
     sum_cols = ["tracker", "case", "main_precision_20px", "aux_precision_20px",
@@ -750,6 +815,7 @@ def run_tracking_benchmark(
         "Precision at 20 px and success AUC, mean over seeds (seed's precision beside; "
         "re-acquisition = frames after frame 110 until measured within 20 px for 5 frames):"
         "\n\n" + markdown_table(summary[sum_cols]),
+        parts,
         "Targets:\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
         "Plots: " + ", ".join(f"`{link_prefix}{Path(p).name}`" for p in plots),
     ] if x)
@@ -774,7 +840,10 @@ __all__ = [
     "latency_ratio",
     "latency_stats",
     "markdown_table",
+    "case_target",
     "min_frames",
+    "network_and_gk_table",
+    "network_checks",
     "plot_error_curves",
     "plot_precision_curves",
     "pooled_precision",

@@ -19,6 +19,12 @@ Camera effects, all optional and seeded: motion blur (the average of sub-exposur
 ``plant.scene.sub_exposure_attitudes``), illumination scale, gain, Gaussian read noise, and
 distractors: stationary specular highlights and a red or yellow sticker elsewhere on the rotor.
 
+Appearance options for domain randomisation (all off by default, so the nominal scene is
+unchanged): other rotor, plate and marker colours, a pattern on the rotor (blotches, stripes,
+speckle, checker), uneven lighting (a linear gradient, vignetting, an off-axis light spot),
+white balance, defocus blur and JPEG compression. Marker size comes from
+``PlantParams.vfc.marker_diameter_mm`` (drawing and ground truth alike).
+
 Textured variant (``AnalyticRenderOptions.texture``; off by default): the bottom plate
 carries the printed pattern of ``plant.texture`` instead of the dark plate and the two markers.
 Each pixel's viewing ray is intersected with the print's plane at the sub-frame's attitude (the
@@ -97,6 +103,9 @@ def _noise_table() -> NDArray[np.float32]:
 _NOISE_TABLE = _noise_table()
 
 
+RotorPattern = Literal["none", "blotches", "stripes", "speckle", "checker"]
+
+
 class AnalyticRenderOptions(BaseModel):
     """Camera effects and distractors of the analytic renderer. All defaults are our choice."""
 
@@ -157,6 +166,59 @@ class AnalyticRenderOptions(BaseModel):
         description="A printed texture (``plant.texture``) on the bottom plate "
         "instead of the dark plate and the two markers; None (default) keeps the markers.",
     )
+    # --- appearance (domain randomisation); the defaults draw the nominal scene ---------------
+    rotor_rgb: tuple[float, float, float] | None = Field(
+        None, description="Rotor colour, RGB in [0, 1]; None: ``plant.mjcf.ROTOR_RGB``."
+    )
+    plate_rgb: tuple[float, float, float] | None = Field(
+        None, description="VFC plate colour, RGB in [0, 1]; None: ``plant.mjcf.PLATE_RGB``."
+    )
+    red_rgb: tuple[float, float, float] | None = Field(
+        None, description="Main marker colour, RGB in [0, 1]; None: ``plant.mjcf.RED_RGB``."
+    )
+    yellow_rgb: tuple[float, float, float] | None = Field(
+        None, description="Auxiliary marker colour, RGB in [0, 1]; None: ``YELLOW_RGB``."
+    )
+    distractor_rgb: tuple[float, float, float] | None = Field(
+        None, description="Colour distractor's colour; None: the marker colour it imitates."
+    )
+    rotor_pattern: RotorPattern = Field(
+        "none",
+        description="A pattern on the rotor's surface around the plate (fixed in the image, "
+        "drawn from the seed): smooth ``blotches``, ``stripes``, fine ``speckle`` or a "
+        "``checker``; it multiplies the rotor colour by 1 + contrast x pattern.",
+    )
+    rotor_pattern_contrast: float = Field(
+        0.3, ge=0.0, le=1.0, description="Amplitude of the rotor pattern (fraction of the colour)."
+    )
+    rotor_pattern_scale_px: float = Field(
+        12.0, gt=0.0, description="Size of the pattern's features (period or blob radius), "
+        "image px."
+    )
+    light_gradient: float = Field(
+        0.0, ge=0.0, le=1.5, description="Linear illumination gradient: the brightness changes "
+        "by this fraction from the frame's centre to its edge along ``light_gradient_angle_rad``."
+    )
+    light_gradient_angle_rad: float = Field(0.0, description="Direction of the gradient, rad.")
+    vignetting: float = Field(
+        0.0, ge=0.0, lt=1.0, description="Radial falloff: the brightness drops by this fraction "
+        "from the centre to the frame's corners (quadratic in the radius)."
+    )
+    light_spot: float = Field(
+        0.0, ge=0.0, le=3.0, description="An off-axis light: the brightness rises by this "
+        "fraction at a spot drawn from the seed (Gaussian, ``light_spot_sigma_frac`` of the "
+        "frame width)."
+    )
+    light_spot_sigma_frac: float = Field(0.25, gt=0.0, description="Radius of the light spot.")
+    white_balance: tuple[float, float, float] = Field(
+        (1.0, 1.0, 1.0), description="Per-channel gains (R, G, B) of the camera's white balance."
+    )
+    defocus_sigma_px: float = Field(
+        0.0, ge=0.0, description="Gaussian defocus blur of the frame, image px (0: sharp)."
+    )
+    jpeg_quality: int | None = Field(
+        None, ge=1, le=100, description="JPEG-compress each frame at this quality (None: off)."
+    )
 
 
 def _rgb255(rgb: tuple[float, float, float]) -> NDArray[np.float64]:
@@ -199,6 +261,17 @@ def polygon_coverage(
     if ss > 1:
         mask = cv2.resize(mask, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
     return (slice(y0, y1), slice(x0, x1)), mask.astype(np.float32) * np.float32(1.0 / 255.0)
+
+
+def jpeg_roundtrip(image: NDArray[np.uint8], quality: int | None) -> NDArray[np.uint8]:
+    """``image`` (RGB uint8) JPEG-encoded at ``quality`` (1-100) and decoded, or unchanged for
+    None: the blocking and ringing of a compressed video stream."""
+    if quality is None:
+        return image
+    ok, buf = cv2.imencode(".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 
 def _fixed(uv: NDArray[np.float64]) -> NDArray[np.int32]:
@@ -247,6 +320,7 @@ class AnalyticRenderer:
         self._rotor_mask, self._background = self._draw_background()
         self._distractor = self._place_distractor()
         self._highlights = self._draw_highlights()
+        self._light = self._lighting_map()
         self._noise_table = (self.options.noise_sigma_dn * _NOISE_TABLE).astype(np.float32)
 
     # --- static parts -----------------------------------------------------------------------
@@ -271,7 +345,9 @@ class AnalyticRenderer:
         normal = (rays * t_hit[..., None] - np.array([0.0, 0.0, dist])) / r
         cos = np.clip(-np.sum(normal * rays, axis=-1), 0.0, 1.0)
         shade = SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
-        sphere = shade[..., None] * _rgb255(ROTOR_RGB)
+        sphere = shade[..., None] * _rgb255(self.options.rotor_rgb or ROTOR_RGB)
+        if self.options.rotor_pattern != "none":
+            sphere = sphere * self._rotor_pattern()[..., None]
         # Silhouette: the circle where the viewing cone touches the sphere (stator frame).
         rho = r * np.sqrt(dist * dist - r * r) / dist
         t = np.linspace(0.0, 2.0 * np.pi, _SILHOUETTE_POINTS, endpoint=False)
@@ -300,7 +376,52 @@ class AnalyticRenderer:
         rad = o.distractor_diameter_mm / 2000.0
         outline = (r_s + 1e-4) * n + rad * (np.cos(t) * e1 + np.sin(t) * e2)
         rgb = RED_RGB if o.colour_distractor == "red" else YELLOW_RGB
-        return outline, _rgb255(rgb)
+        return outline, _rgb255(o.distractor_rgb or rgb)
+
+    def _rotor_pattern(self) -> NDArray[np.float64]:
+        """Multiplicative pattern (H, W) of the rotor surface, ``1 + contrast * p`` with p a
+        zero-mean pattern of unit amplitude (``options.rotor_pattern``), clipped at 0.05."""
+        o = self.options
+        h, w, s = self.height, self.width, o.rotor_pattern_scale_px
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        ang = self.rng.uniform(0.0, np.pi)
+        along = u * np.cos(ang) + v * np.sin(ang)
+        across = -u * np.sin(ang) + v * np.cos(ang)
+        if o.rotor_pattern == "stripes":
+            p = np.sin(2.0 * np.pi * along / s + self.rng.uniform(0.0, 2.0 * np.pi))
+        elif o.rotor_pattern == "checker":
+            p = np.sign(np.sin(np.pi * along / s) * np.sin(np.pi * across / s))
+            p = cv2.GaussianBlur(p, (0, 0), 0.7)  # anti-aliased squares
+        else:  # smooth blotches of radius s, or speckle one pixel wide
+            sigma = s if o.rotor_pattern == "blotches" else 0.8
+            p = cv2.GaussianBlur(self.rng.standard_normal((h, w)), (0, 0), sigma)
+            p /= max(float(np.abs(p).max()), 1e-12)
+        return np.maximum(1.0 + o.rotor_pattern_contrast * p, 0.05)
+
+    def _lighting_map(self) -> NDArray[np.float32] | None:
+        """Brightness factor (H, W, 3) of uneven lighting and white balance, or None if flat:
+        the product of the gradient, the vignetting, the light spot and the channel gains."""
+        o = self.options
+        if not (o.light_gradient or o.vignetting or o.light_spot) and o.white_balance == (
+            1.0, 1.0, 1.0
+        ):
+            return None
+        h, w = self.height, self.width
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        du, dv = u - (w - 1) / 2.0, v - (h - 1) / 2.0
+        light = np.ones((h, w))
+        if o.light_gradient:
+            a = o.light_gradient_angle_rad
+            light *= 1.0 + o.light_gradient * (du * np.cos(a) + dv * np.sin(a)) / (w / 2.0)
+        if o.vignetting:
+            light *= 1.0 - o.vignetting * (du * du + dv * dv) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
+        if o.light_spot:
+            c = self.rng.uniform([0.2 * w, 0.2 * h], [0.8 * w, 0.8 * h])
+            sig = o.light_spot_sigma_frac * w
+            r2 = (u - c[0]) ** 2 + (v - c[1]) ** 2
+            light *= 1.0 + o.light_spot * np.exp(-r2 / (2.0 * sig * sig))
+        light = np.maximum(light, 0.05)[..., None] * np.asarray(o.white_balance)
+        return light.astype(np.float32)
 
     def _draw_highlights(self) -> NDArray[np.float32] | None:
         """Stationary specular highlights (H, W, 3) in DN at illumination 1, or None."""
@@ -334,10 +455,11 @@ class AnalyticRenderer:
         R_mid = R[len(qs) // 2]
         down = R_mid @ np.array([0.0, 0.0, -1.0])  # the plate's normal
         shade = self._shade(self.params.rotor.radius_m * down, down)
+        o = self.options
         layers = [
-            (self._plate, _rgb255(PLATE_RGB) * shade, SUPERSAMPLE_PLATE),
-            (self._discs[0], _rgb255(RED_RGB) * shade, SUPERSAMPLE),
-            (self._discs[1], _rgb255(YELLOW_RGB) * shade, SUPERSAMPLE),
+            (self._plate, _rgb255(o.plate_rgb or PLATE_RGB) * shade, SUPERSAMPLE_PLATE),
+            (self._discs[0], _rgb255(o.red_rgb or RED_RGB) * shade, SUPERSAMPLE),
+            (self._discs[1], _rgb255(o.yellow_rgb or YELLOW_RGB) * shade, SUPERSAMPLE),
         ]
         if self.texture is not None:  # the print replaces plate colour and markers
             layers = [(self._plate, np.full(3, shade), SUPERSAMPLE_PLATE)]
@@ -515,23 +637,28 @@ class AnalyticRenderer:
         roi += colour_acc
 
     def _camera_effects(self, img: NDArray[np.uint8]) -> NDArray[np.uint8]:
-        """Illumination, highlights, read noise and gain; back to uint8 with saturation."""
+        """Highlights, illumination (and its unevenness), defocus, read noise, gain and JPEG
+        compression; back to uint8 with saturation."""
         o = self.options
         plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
-        if plain and o.noise_sigma_dn == 0.0:
-            return img
+        if plain and o.noise_sigma_dn == 0.0 and self._light is None and not o.defocus_sigma_px:
+            return jpeg_roundtrip(img, o.jpeg_quality)
         f = img.astype(np.float32)
         if self._highlights is not None:
             f += self._highlights
         if o.illumination != 1.0:
             f *= np.float32(o.illumination)
+        if self._light is not None:
+            f *= self._light
+        if o.defocus_sigma_px:
+            f = cv2.GaussianBlur(f, (0, 0), o.defocus_sigma_px)
         if o.noise_sigma_dn > 0.0:
             raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8).reshape(f.shape)
             f += cv2.LUT(raw, self._noise_table)
         if o.gain != 1.0:
             f *= np.float32(o.gain)
         np.maximum(f, 0.0, out=f)
-        return cv2.convertScaleAbs(f)  # rounds and saturates at 255
+        return jpeg_roundtrip(cv2.convertScaleAbs(f), o.jpeg_quality)  # rounds, saturates
 
     def render(
         self,

@@ -121,6 +121,26 @@ class GKConfig(BaseModel):
 
 
 @dataclass(frozen=True)
+class JudgedObservation:
+    """A red observation already judged by a trust rule (``observer.gk.trust``): ``step``
+    then skips its own HSV gate and circle fit.
+
+    Attributes
+    ----------
+    centre_sensor_px : (2,) the trusted red centre, sensor px, or None when nothing is trusted
+        (the prediction stands in and the frame is not measured).
+    ratio : the colour ratio reported as ``GKResult.confidence``, in [0, 1].
+    refined : the centre is a circle-fit centre.
+    reason : why nothing is trusted, or how the centre was obtained ("" for the network's).
+    """
+
+    centre_sensor_px: NDArray[np.float64] | None
+    ratio: float
+    refined: bool = False
+    reason: str = ""
+
+
+@dataclass(frozen=True)
 class GKResult:
     """Both marker centres of one frame and how they were obtained.
 
@@ -215,6 +235,18 @@ class GKAssist:
         self._coast = 0
         self._lost = True
 
+    @property
+    def lost(self) -> bool:
+        """The main marker's track is lost (see the module docstring)."""
+        return self._lost
+
+    def restart(self) -> None:
+        """Forget the main marker's track (the next observation initialises the filter) but
+        keep V_rel and the scale: after a re-detection."""
+        self.kalman.reset()
+        self._coast = 0
+        self._lost = True
+
     def search_centre_sensor_px(self) -> NDArray[np.float64]:
         """The Kalman prediction of the red centre for the *next* frame, sensor px (NaN before
         the first observation): where a tracker should search."""
@@ -249,6 +281,19 @@ class GKAssist:
             return np.r_[c - half, 2 * half, 2 * half], c, ""
         return None, None, "no tracker output"
 
+    def _refine_red(
+        self, image: NDArray[np.uint8], b: int, box: NDArray[np.float64],
+        centre: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], SubpixelResult | None, bool]:
+        """The red observation from the tracker's box: its centre, or the circle-fit centre
+        when ``refine_red`` and the fit is valid and lies in the box (observation, fit,
+        refined)."""
+        cfg = self.config
+        if not cfg.refine_red:
+            return centre, None, False
+        fc, fit = refine_in_box(image, cfg.gate.red, box, b, cfg.subpixel, cfg.refine_roi_margin)
+        return (fc, fit, True) if fc is not None else (centre, fit, False)
+
     def step(
         self,
         image: NDArray[np.uint8],
@@ -257,6 +302,7 @@ class GKAssist:
         score: float | None = None,
         centre_sensor_px: ArrayLike | None = None,
         tilt_prev_rad: float | None = None,
+        judged: JudgedObservation | None = None,
     ) -> GKResult:
         """Process one frame (seed 000 §3.2.3).
 
@@ -276,6 +322,9 @@ class GKAssist:
         tilt_prev_rad : float, optional
             Tilt β of the previous frame's attitude, rad: D_exp = L·S·cos β and the EMA's
             β < 2° condition. None: cos β = 1 and the scale stays locked.
+        judged : JudgedObservation, optional
+            An observation judged by a trust rule: it replaces the gate and the circle fit
+            (the tracker's box and score are then ignored).
 
         Returns
         -------
@@ -296,6 +345,8 @@ class GKAssist:
         score_f = math.nan if score is None else float(score)
         if bad_frame:
             gate = GateResult(0.0, False, 0, bad_frame)
+        elif judged is not None:
+            gate = GateResult(judged.ratio, judged.centre_sensor_px is not None, 0, judged.reason)
         elif box is None:
             gate = GateResult(0.0, False, 0, why)
         else:
@@ -310,13 +361,11 @@ class GKAssist:
         # 3. observe, or let the prediction stand in
         red_fit: SubpixelResult | None = None
         refined = False
+        if confident and judged is not None:
+            z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
+        elif confident:
+            z, red_fit, refined = self._refine_red(image, b, box, centre)
         if confident:
-            z = centre
-            if cfg.refine_red:
-                fc, red_fit = refine_in_box(image, cfg.gate.red, box, b, cfg.subpixel,
-                                            cfg.refine_roi_margin)
-                if fc is not None:
-                    z, refined = fc, True
             if self._lost or not self.kalman.initialised:
                 self.kalman.initialise(z)
             else:

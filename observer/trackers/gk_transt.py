@@ -14,6 +14,13 @@ Per frame (seed 000 §3.2.3, Figure 9):
    prediction stands in. It then finds the yellow marker around the red one and checks it against
    D_exp = L·S·cos β, else P_yellow = P_red + V_rel (seed 000 §3.2.2), and updates the scale EMA.
 
+With ``trust`` (default ``TrustConfig()``), ``observer.gk.trust.MarkerTrust`` replaces the seed's
+gate in step 3: per frame it trusts the network's box, a colour fit near the prediction, or
+nothing (the prediction stands in, flagged), from the marker's own colour, the circle fit, the
+Kalman innovation, the network's score and the two-marker geometry; when the track is lost or
+the geometry is violated it searches the whole frame and restarts the filter
+(``docs/tracking.md``). ``trust=None`` runs the seed's gate alone.
+
 After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
 prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
 ``GKAssist`` flags the track lost after ``max_coast_frames`` frames without a confident box. Only
@@ -43,6 +50,7 @@ from numpy.typing import NDArray
 
 from observer.gk.assist import GKAssist, GKConfig, GKResult
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.gk.trust import MarkerTrust, TrustConfig, TrustDecision
 from observer.trackers import MarkerPairTracker, box_around
 from observer.tracking import PairResult, SingleObjectTracker
 from plant.camera import sensor_to_image
@@ -67,6 +75,9 @@ class GKTransTPairTracker(MarkerPairTracker):
     restart_on_prediction : bool
         Restart the tracker on the prediction when it stood in (for trackers that cannot search
         at a given centre; see the module docstring).
+    trust : TrustConfig or None, optional
+        The per-frame trust rule and whole-frame re-detection (``observer.gk.trust``; default
+        on with ``TrustConfig()``); None runs the seed's gate alone.
     name : str
     """
 
@@ -78,6 +89,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         refine: bool | None = True,
         guide_search: bool = True,
         restart_on_prediction: bool = False,
+        trust: TrustConfig | None = TrustConfig(),  # noqa: B008 - frozen pydantic model
         name: str = "gk_transt",
     ) -> None:
         cfg = gk_config or GKConfig()
@@ -93,6 +105,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.restart_on_prediction = bool(restart_on_prediction)
         self.name = name
         self.last_gk: GKResult | None = None
+        self.trust = None if trust is None else MarkerTrust(self.gk, trust)
+        self.last_trust: TrustDecision | None = None
 
     def reset(self) -> None:
         """Forget the track and the GK assistance's state."""
@@ -109,6 +123,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         if self.gk.aux.V_rel is None:
             centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
             self.gk.aux.V_rel = centres[1] - centres[0]
+        if self.trust is not None:
+            self.trust.start(image, self.binning, boxes_sensor_px[0])
 
     def search_centre_image_px(self) -> NDArray[np.float64] | None:
         """The Kalman prediction of the red centre for the next frame in image px, clipped to
@@ -146,9 +162,15 @@ class GKTransTPairTracker(MarkerPairTracker):
         box = box_image_to_sensor(box_img, self.binning) \
             if box_img.shape == (4,) and np.all(np.isfinite(box_img)) else None
         score = float(tr.score) if tr.score is not None else float("nan")
+        judged = None
+        if self.trust is not None:
+            decision = self._judge(image, box, score)
+            judged, self.last_trust = decision.observation, decision
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
-                           tilt_prev_rad=self.tilt_hint_rad)
+                           tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
+        if self.trust is not None:
+            self.trust.record(res.red_source == "measurement", res.yellow_source == "measurement")
         out = self._result(res, box, score, float(tr.compute_time_s))
         if self.restart_on_prediction and res.red_source == "prediction":
             out = self._restart(image, res, out)
@@ -167,6 +189,29 @@ class GKTransTPairTracker(MarkerPairTracker):
             why = f"tracker not restarted: {exc}"
             return replace(out, reason=f"{out.reason}; {why}" if out.reason else why)
         return out
+
+    def _judge(self, image: NDArray[np.uint8], box: NDArray[np.float64] | None,
+               score: float) -> TrustDecision:
+        """The trust rule's decision for this frame; a whole-frame re-detection when the track
+        is lost (or untrusted for a while) and nothing is trusted, or when the geometry has been
+        violated. A re-detection restarts the Kalman filter."""
+        assert self.trust is not None and self.binning is not None
+        decision = self.trust.judge(image, self.binning, box, score)
+        if (decision.source == "prediction" and self.trust.wants_redetection()) \
+                or self.trust.geometry_violated():
+            found = self.trust.redetect(image, self.binning,
+                                        lambda c: self._network_at(image, c))
+            if found is not None:
+                self.gk.restart()
+                return found
+        return decision
+
+    def _network_at(self, image: NDArray[np.uint8], centre_img: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], float]:
+        """The network's box centre (image px) and score when it searches at ``centre_img``."""
+        tr = self.tracker.track(image, search_centre_image_px=centre_img)
+        box = np.asarray(tr.box_image_px, dtype=float).reshape(-1)
+        return box[:2] + 0.5 * box[2:], float(tr.score)
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """An unusable frame: the network does not run; GK coasts on its prediction."""

@@ -58,14 +58,32 @@ from pydantic import BaseModel, ConfigDict, Field
 from observer.transt.crop import box_to_crop, context_side, crop_square, normalise
 from observer.transt.network import SMALL, TransTConfig
 from plant import attitude
+from plant.appearance import (
+    LIGHTINGS,
+    OCCLUDER_FAMILIES,
+    PATTERNS,
+    occluder_rgb,
+    random_options,
+    random_params,
+)
 from plant.camera import sensor_to_image
 from plant.params import PlantParams
-from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
+from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions, jpeg_roundtrip
 
 #: Bumped whenever the generator changes what a seed produces.
 GENERATOR_VERSION = 1
 #: Renderers (distractor layouts) per cache (our choice).
 N_RENDERERS = 12
+#: Renderers of the randomised pool (``PairSpec.randomise``), each its own appearance.
+N_RANDOM_RENDERERS = 48
+#: Appearance families never used for training, kept for evaluation (chosen before training):
+#: a checkerboard rotor pattern, an off-axis light spot, purple occluders.
+HELD_OUT_PATTERN = "checker"
+HELD_OUT_LIGHTING = "spot"
+HELD_OUT_OCCLUDER = "purple"
+TRAIN_PATTERNS = tuple(p for p in PATTERNS if p != HELD_OUT_PATTERN)
+TRAIN_LIGHTINGS = tuple(x for x in LIGHTINGS if x != HELD_OUT_LIGHTING)
+TRAIN_OCCLUDERS = tuple(f for f in OCCLUDER_FAMILIES if f != HELD_OUT_OCCLUDER)
 #: Search frames rendered per template frame (our choice: reuses the template render).
 SEARCHES_PER_SCENE = 2
 #: Image pixels a marker moves per radian of rotation about a horizontal axis at the default
@@ -95,20 +113,42 @@ class PairSpec(BaseModel):
         "the red main marker only; > 0 teaches the network to follow the template, which the "
         "dual-TransT baseline needs for its yellow tracker).",
     )
+    randomise: bool = Field(
+        False,
+        description="Domain randomisation: scenes from the randomised renderer pool "
+        "(training appearance families of ``plant.appearance``), occluders of many colours, "
+        "highlights and colour blobs near the target, blur and JPEG compression of the crops.",
+    )
 
     @classmethod
-    def for_config(cls, config: TransTConfig, yellow_fraction: float = 0.0) -> PairSpec:
+    def for_config(
+        cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False
+    ) -> PairSpec:
         return cls(
             template_size=config.template_size,
             search_size=config.search_size,
             template_factor=config.template_factor,
             search_factor=config.search_factor,
             yellow_fraction=yellow_fraction,
+            randomise=randomise,
+            occlusion_prob=0.35 if randomise else 0.25,
         )
 
 
-def _make_renderers(params: PlantParams) -> list[AnalyticRenderer]:
-    """The fixed renderer pool (the same for every seed: distractor layouts are scenery)."""
+def _make_renderers(params: PlantParams, randomise: bool = False) -> list[AnalyticRenderer]:
+    """The fixed renderer pool (the same for every seed: distractor layouts are scenery); with
+    ``randomise``, ``N_RANDOM_RENDERERS`` appearances from the training families."""
+    if randomise:
+        rng = np.random.default_rng(20241)
+        return [
+            AnalyticRenderer(
+                random_params(rng, params),
+                options=random_options(rng, TRAIN_PATTERNS, TRAIN_LIGHTINGS,
+                                       noise_sigma_dn=0.0, max_sub_frames=32),
+                seed=int(rng.integers(1 << 31)),
+            )
+            for _ in range(N_RANDOM_RENDERERS)
+        ]
     rng = np.random.default_rng(20240)
     out = []
     for i in range(N_RENDERERS):
@@ -143,9 +183,59 @@ def _photometric(
     return np.clip(np.rint(f), 0, 255).astype(np.uint8)
 
 
-def _occlude(image: NDArray[np.uint8], box: NDArray[np.float64], rng: np.random.Generator) -> None:
-    """Cover 20-60 % of ``box`` (image px) from a random side with a dark or grey rectangle
-    that extends beyond the box (in place)."""
+def _photometric_randomised(
+    crop: NDArray[np.uint8], illum: float, rng: np.random.Generator
+) -> NDArray[np.uint8]:
+    """``_photometric`` with a wider white balance (±10 %) and noise (0-8 DN), then Gaussian
+    blur (sigma 0.5-2 px) in 25 % and JPEG compression (quality 25-90) in 25 % of crops."""
+    f = crop.astype(np.float32) * np.float32(illum)
+    f *= rng.uniform(0.9, 1.1, size=3).astype(np.float32)
+    f += rng.normal(0.0, rng.uniform(0.0, 8.0), size=f.shape).astype(np.float32)
+    if rng.uniform() < 0.25:
+        f = cv2.GaussianBlur(f, (0, 0), rng.uniform(0.5, 2.0))
+    out = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+    quality = int(rng.integers(25, 91)) if rng.uniform() < 0.25 else None
+    return jpeg_roundtrip(out, quality)
+
+
+def _near_target(
+    image: NDArray[np.uint8], box: NDArray[np.float64], rng: np.random.Generator
+) -> None:
+    """In place: a specular highlight (white Gaussian blob) on or next to the target ``box``
+    (image px), or a red / yellow / red-brown disc beside it (a distractor of the marker's
+    size), or nothing, with probabilities 0.15, 0.15 and 0.7."""
+    u = rng.uniform()
+    if u >= 0.3:
+        return
+    x, y, w, h = box
+    size = 0.5 * (w + h)
+    hh, ww = image.shape[:2]
+    yy, xx = np.mgrid[0:hh, 0:ww].astype(np.float32)
+    if u < 0.15:
+        c = np.array([x + w / 2, y + h / 2]) + rng.normal(0.0, 0.4, 2) * size
+        sig = size * rng.uniform(0.15, 0.5)
+        blob = np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / (2 * sig * sig))
+        f = image.astype(np.float32) + 255.0 * rng.uniform(0.4, 1.2) * blob[..., None]
+        image[...] = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+        return
+    ang = rng.uniform(0.0, 2 * np.pi)
+    c = np.array([x + w / 2, y + h / 2]) + rng.uniform(1.3, 3.0) * size * np.array(
+        [np.cos(ang), np.sin(ang)]
+    )
+    colour = ((200, 25, 20), (240, 200, 25), (140, 45, 30))[int(rng.integers(3))]
+    r = 0.5 * size * rng.uniform(0.7, 1.3)
+    cv2.circle(image, tuple(int(round(v * 16)) for v in c), int(round(r * 16)),
+               tuple(int(v * rng.uniform(0.8, 1.1)) for v in colour), -1, cv2.LINE_AA, 4)
+
+
+def _occlude(
+    image: NDArray[np.uint8],
+    box: NDArray[np.float64],
+    rng: np.random.Generator,
+    colour: tuple[int, int, int] | None = None,
+) -> None:
+    """Cover 20-60 % of ``box`` (image px) from a random side with a rectangle that extends
+    beyond the box (in place), of ``colour`` or (None) dark or grey."""
     x, y, w, h = box
     frac = rng.uniform(0.2, 0.6)
     ext = rng.uniform(0.2, 1.5) * max(w, h)
@@ -159,7 +249,8 @@ def _occlude(image: NDArray[np.uint8], box: NDArray[np.float64], rng: np.random.
         y1 = y + frac * h
     else:
         y0 = y + (1 - frac) * h
-    colour = (0, 0, 0) if rng.uniform() < 0.7 else tuple([int(rng.integers(40, 200))] * 3)
+    if colour is None:
+        colour = (0, 0, 0) if rng.uniform() < 0.7 else tuple([int(rng.integers(40, 200))] * 3)
     hh, ww = image.shape[:2]
     c0, r0 = max(int(round(x0)), 0), max(int(round(y0)), 0)
     c1, r1 = min(int(round(x1)), ww), min(int(round(y1)), hh)
@@ -210,7 +301,8 @@ def render_scene(
     tsize = box0[2:] * np.exp(rng.normal(0.0, 0.05, 2))
     tside = context_side(tsize, spec.template_factor)
     template = crop_square(f0.image, tc, tside, spec.template_size)
-    template = _photometric(template, illum0, rng)
+    photometric = _photometric_randomised if spec.randomise else _photometric
+    template = photometric(template, illum0, rng)
     out = []
     for _ in range(SEARCHES_PER_SCENE):
         for _try in range(20):
@@ -222,14 +314,19 @@ def render_scene(
         img = f1.image.copy()
         box1 = _marker_box_image(f1, b, m)
         if rng.uniform() < spec.occlusion_prob:
-            _occlude(img, box1, rng)
+            colour = None
+            if spec.randomise:
+                colour = occluder_rgb(rng, TRAIN_OCCLUDERS[int(rng.integers(len(TRAIN_OCCLUDERS)))])
+            _occlude(img, box1, rng, colour)
+        if spec.randomise:
+            _near_target(img, box1, rng)
         size = box1[2:] * np.exp(rng.normal(0.0, 1.0, 2) * spec.scale_jitter)
         off = (rng.uniform(size=2) - 0.5) * math.sqrt(size[0] * size[1]) * spec.centre_jitter
         sc = box1[:2] + box1[2:] / 2 + off
         sside = context_side(size, spec.search_factor)
         search = crop_square(img, sc, sside, spec.search_size, f0.image.reshape(-1, 3).mean(0))
         illum1 = illum0 * float(np.exp(rng.uniform(-0.2, 0.2)))
-        search = _photometric(search, illum1, rng)
+        search = photometric(search, illum1, rng)
         centre_img = sensor_to_image(f1.marker_px[m], b)
         lo = sc - sside / 2
         out.append(
@@ -252,7 +349,7 @@ _WORKER: dict = {}
 
 def _worker_init(spec_json: str) -> None:
     _WORKER["spec"] = PairSpec.model_validate_json(spec_json)
-    _WORKER["renderers"] = _make_renderers(PlantParams())
+    _WORKER["renderers"] = _make_renderers(PlantParams(), _WORKER["spec"].randomise)
 
 
 def _worker_scene(args: tuple[int, int]) -> tuple[int, list[dict[str, NDArray]]]:
@@ -287,7 +384,7 @@ def generate_cache(
         "seed": int(seed),
         "pairs": n,
         "spec": spec.model_dump(),
-        "renderers": N_RENDERERS,
+        "renderers": N_RANDOM_RENDERERS if spec.randomise else N_RENDERERS,
     }
     if (out / "meta.json").is_file() and json.loads((out / "meta.json").read_text()).get(
         "complete"
@@ -337,8 +434,25 @@ def generate_cache(
     return out
 
 
+def heldout_options(seed: int, family: str) -> tuple[PlantParams, AnalyticRenderOptions]:
+    """Plant parameters and renderer options of a scene from a held-out appearance family
+    (``"pattern"``: the held-out rotor pattern under training lighting; ``"lighting"``: the
+    held-out lighting on a training pattern), drawn from ``seed``."""
+    rng = np.random.default_rng([seed, 4243])
+    if family == "pattern":
+        pats, lights = (HELD_OUT_PATTERN,), TRAIN_LIGHTINGS
+    elif family == "lighting":
+        pats, lights = TRAIN_PATTERNS, (HELD_OUT_LIGHTING,)
+    else:
+        raise ValueError(f"family must be 'pattern' or 'lighting', got {family!r}")
+    return random_params(rng), random_options(rng, pats, lights, noise_sigma_dn=2.0)
+
+
 def validation_sequence(
-    seed: int, n_frames: int = 120, params: PlantParams | None = None
+    seed: int,
+    n_frames: int = 120,
+    params: PlantParams | None = None,
+    options: AnalyticRenderOptions | None = None,
 ) -> list:
     """A rendered tracking sequence (list of ``plant.scene.Frame``) for validation.
 
@@ -346,8 +460,9 @@ def validation_sequence(
     0-15°, yaw turning at a random rate (up to 2π per 90 frames), spin wandering by up to
     ±0.4 rad, τ in frames at the camera's 36 frames/s; the markers move up to about 10 sensor px
     a frame. Read noise 2 DN, the frame's motion blur from the body rate, random highlights and
-    colour distractor. Seeds used for reported numbers are never used to generate training data
-    (training scenes come from ``render_scene`` with its own seed streams).
+    colour distractor; ``options`` replaces these renderer options (e.g. ``heldout_options``).
+    Seeds used for reported numbers are never used to generate training data (training scenes
+    come from ``render_scene`` with its own seed streams).
     """
     p = params or PlantParams()
     rng = np.random.default_rng([seed, 7919])
@@ -356,6 +471,7 @@ def validation_sequence(
         n_highlights=int(rng.integers(0, 4)),
         colour_distractor=("none", "red", "yellow")[int(rng.integers(3))],
     )
+    opts = options or opts
     r = AnalyticRenderer(p, options=opts, seed=int(rng.integers(1 << 31)))
     fps = p.camera.frame_rate_hz
     b0 = rng.uniform(3.0, 11.0)

@@ -39,9 +39,17 @@ import numpy as np
 import torch
 
 from observer.transt.data import (
+    HELD_OUT_LIGHTING,
+    HELD_OUT_OCCLUDER,
+    HELD_OUT_PATTERN,
+    N_RANDOM_RENDERERS,
+    TRAIN_LIGHTINGS,
+    TRAIN_OCCLUDERS,
+    TRAIN_PATTERNS,
     CropPairs,
     PairSpec,
     generate_cache,
+    heldout_options,
     marker_box_image,
     validation_sequence,
 )
@@ -108,13 +116,17 @@ def evaluate_sequences(
     seeds: tuple[int, ...] = VALIDATION_SEQUENCE_SEEDS,
     n_frames: int = VALIDATION_SEQUENCE_FRAMES,
     marker: int = 0,
+    heldout: str | None = None,
 ) -> dict[str, float]:
     """Track rendered validation sequences from the true first box of marker 0 (red; keys
     ``seq_*``) or 1 (yellow; keys ``seq_yellow_*``); centre error (sensor px) of the box centre
-    against ``Frame.marker_px[marker]`` and the per-frame track time."""
+    against ``Frame.marker_px[marker]`` and the per-frame track time. ``heldout`` ("pattern" or
+    "lighting") renders them in that held-out appearance family (``data.heldout_options``;
+    keys ``heldout_<family>_*``)."""
     errs, times = [], []
     for seed in seeds:
-        frames = validation_sequence(seed, n_frames)
+        frames = validation_sequence(seed, n_frames, *(heldout_options(seed, heldout)
+                                                        if heldout else (None, None)))
         trk = TransTTracker(net.eval())
         trk.initialize(frames[0].image, marker_box_image(frames[0], marker))
         for f in frames[1:]:
@@ -126,6 +138,8 @@ def evaluate_sequences(
     e = np.asarray(errs)
     e = np.where(np.isfinite(e), e, np.inf)
     p = "seq" if marker == 0 else "seq_yellow"
+    if heldout:
+        p = f"heldout_{heldout}" + ("" if marker == 0 else "_yellow")
     out = {
         f"{p}_frames": float(len(e)),
         f"{p}_centre_err_median_px": float(np.median(e)),
@@ -133,7 +147,7 @@ def evaluate_sequences(
         f"{p}_centre_err_max_px": float(np.max(e)),
         f"{p}_precision_20px": float(np.mean(e < 20.0)),
     }
-    if marker == 0:
+    if marker == 0 and not heldout:
         out["seq_track_time_median_s"] = float(np.median(times))
     return out
 
@@ -153,6 +167,30 @@ def _save_ckpt(path: Path, net, opt, step: int, wall: float, rng: np.random.Gene
         tmp,
     )
     tmp.replace(path)
+
+
+def _randomisation_lines() -> list[str]:
+    """Model-card lines on the domain randomisation and the held-out appearance families."""
+    return [
+        "Domain randomisation (`PairSpec.randomise`, the last stage): each scene comes from one "
+        f"of {N_RANDOM_RENDERERS} renderers of random appearance (`plant.appearance`): rotor "
+        "colour and pattern, plate colour, marker shades (hue ±8°, saturation and value "
+        "±15 %) and diameters (6.5-9.5 mm), uneven lighting, white balance, highlights, red "
+        "or yellow distractor stickers of other shades and sizes; occluders of the colour "
+        "families " + ", ".join(TRAIN_OCCLUDERS) + " over 20-60 % of the target in 35 % of "
+        "the searches; highlights on the target and red, yellow or red-brown discs beside it; "
+        "per crop white balance ±10 %, read noise 0-8 DN, Gaussian blur (25 %) and JPEG "
+        "compression at quality 25-90 (25 %).",
+        "",
+        "**Held-out appearance families** (chosen before training, never in the training "
+        f"data; for evaluation only): the rotor pattern `{HELD_OUT_PATTERN}`, the lighting "
+        f"`{HELD_OUT_LIGHTING}` (an off-axis light up to 2.5x brighter), and `{HELD_OUT_OCCLUDER}` "
+        "occluders. Training used the patterns " + ", ".join(TRAIN_PATTERNS) + " and the "
+        "lightings " + ", ".join(TRAIN_LIGHTINGS) + ". The `heldout_pattern_*` and "
+        "`heldout_lighting_*` metrics below track sequences rendered in those families "
+        "(`data.heldout_options`); the tracking benchmark has the held-out cases too.",
+        "",
+    ]
 
 
 def _stage_lines(meta: dict) -> list[str]:
@@ -178,9 +216,9 @@ def write_model_card(path: Path, meta: dict) -> None:
     m = meta["metrics"]
     cfg = meta["config"]
     stages = [meta]
+    while stages[0].get("init_meta"):
+        stages.insert(0, stages[0]["init_meta"])
     init = meta.get("init_meta") or {}
-    if init:
-        stages = [init, meta]
     lines = [
         "# Model card: TransT `small` (observer/transt/weights/transt_small.pt)",
         "",
@@ -211,6 +249,7 @@ def write_model_card(path: Path, meta: dict) -> None:
         "colour stickers as distractors, illumination 0.5-1.6x, read noise 0-5 DN, TransT's "
         "centre jitter (factor 3) and scale jitter (0.25), joint dihedral flips at load time.",
         "",
+        *(_randomisation_lines() if meta.get("randomise") else []),
         f"Validation (never trained on): {meta['val_pairs']} red-target pairs from seed "
         f"{meta['val_seed']}, and {len(VALIDATION_SEQUENCE_SEEDS)} tracking sequences of "
         f"{VALIDATION_SEQUENCE_FRAMES} frames (seeds {VALIDATION_SEQUENCE_SEEDS}, "
@@ -221,7 +260,7 @@ def write_model_card(path: Path, meta: dict) -> None:
     ]
     for i, st in enumerate(stages, start=1):
         if len(stages) > 1:
-            lines += [f"Stage {i}{' (continued from stage 1)' if i > 1 else ''}:", ""]
+            lines += [f"Stage {i}{f' (continued from stage {i - 1})' if i > 1 else ''}:", ""]
         lines += _stage_lines(st) + [""]
     total_min = sum(st["wall_s"] + st["cache_s"] for st in stages) / 60
     lines += [f"Total: {sum(st['steps'] for st in stages)} steps, {total_min:.1f} min "
@@ -235,7 +274,7 @@ def write_model_card(path: Path, meta: dict) -> None:
         "Hanning window); `seq_*`: the red marker tracked through the sequences, "
         "`seq_yellow_*`: the yellow one.",
         "",
-        "| metric | value |" + (" stage 1 |" if init else ""),
+        "| metric | value |" + (" before this stage |" if init else ""),
         "|---|---|" + ("---|" if init else ""),
     ]
     for k, v in m.items():
@@ -292,6 +331,15 @@ def main(argv: list[str] | None = None) -> None:
         help="start from these weights (a file written by --export, SHA-256 checked)",
     )
     ap.add_argument("--warmup", type=int, default=30, help="learning-rate warm-up steps")
+    ap.add_argument(
+        "--randomise", action="store_true",
+        help="domain-randomised training and validation caches (PairSpec.randomise)",
+    )
+    ap.add_argument(
+        "--export-from", default=None,
+        help="skip training: evaluate this checkpoint (last.pt or best.pt of --out) and "
+        "export it to --export",
+    )
     a = ap.parse_args(argv)
 
     from tqdm import tqdm
@@ -300,16 +348,18 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     config = CONFIGS[a.config]
-    spec = PairSpec.for_config(config, a.yellow_fraction)
+    spec = PairSpec.for_config(config, a.yellow_fraction, a.randomise)
     t_cache = time.perf_counter()
     tag = f"_y{a.yellow_fraction:g}" if a.yellow_fraction > 0 else ""
+    dr = "_dr" if a.randomise else ""
+    tag += dr
     train_dir = generate_cache(
         Path(a.cache) / f"train_s{a.train_seed}{tag}", a.train_pairs, a.train_seed, spec,
         workers=a.render_workers,
     )
     val_dir = generate_cache(
-        Path(a.cache) / f"val_s{a.val_seed}", a.val_pairs, a.val_seed,
-        PairSpec.for_config(config), workers=a.render_workers,
+        Path(a.cache) / f"val_s{a.val_seed}{dr}", a.val_pairs, a.val_seed,
+        PairSpec.for_config(config, randomise=a.randomise), workers=a.render_workers,
     )
     train, val = CropPairs(train_dir), CropPairs(val_dir)
     cache_s = float(train.meta.get("seconds", 0.0)) + float(val.meta.get("seconds", 0.0))
@@ -330,7 +380,13 @@ def main(argv: list[str] | None = None) -> None:
     rng = np.random.default_rng(a.seed)
     step, wall = 0, 0.0
     ckpt = out / "last.pt"
-    if ckpt.is_file() and not a.fresh:
+    best = _read_history_best(out / "history.jsonl")
+    if a.export_from:
+        st = torch.load(a.export_from, map_location="cpu", weights_only=False)
+        net.load_state_dict(st["net"])
+        step, wall = int(st["step"]), float(st["wall_s"])
+        print(f"exporting {a.export_from} (step {step}, {wall / 60:.1f} min)", flush=True)
+    elif ckpt.is_file() and not a.fresh:
         st = torch.load(ckpt, map_location="cpu", weights_only=False)
         net.load_state_dict(st["net"])
         opt.load_state_dict(st["opt"])
@@ -347,9 +403,9 @@ def main(argv: list[str] | None = None) -> None:
         (out / "history.jsonl").unlink(missing_ok=True)
 
     hist = (out / "history.jsonl").open("a")
-    recent: list[float] = []
+    recent = _recent_losses(out / "history.jsonl", step)
     bar = tqdm(total=a.steps, initial=step, desc="training", unit="step")
-    while step < a.steps:
+    while step < a.steps and not a.export_from:
         t0 = time.perf_counter()
         net.train()
         for g in opt.param_groups:
@@ -375,6 +431,9 @@ def main(argv: list[str] | None = None) -> None:
             )
         hist.write(json.dumps(rec) + "\n")
         hist.flush()
+        if rec.get("val_centre_err_median_px", np.inf) < best:
+            best = rec["val_centre_err_median_px"]
+            _save_ckpt(out / "best.pt", net, opt, step, wall, rng)
         bar.set_postfix(loss=f"{np.mean(recent):.3f}", iou=f"{parts['iou']:.2f}")
         bar.update(1)
         if step % a.ckpt_every == 0 or step == a.steps:
@@ -386,6 +445,9 @@ def main(argv: list[str] | None = None) -> None:
     metrics = evaluate_pairs(net, val, config.window_influence)
     metrics.update(evaluate_sequences(net))
     metrics.update(evaluate_sequences(net, marker=1))
+    for family in ("pattern", "lighting"):
+        for marker in (0, 1):
+            metrics.update(evaluate_sequences(net, marker=marker, heldout=family))
     final_loss = float(np.mean(recent)) if recent else float("nan")
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     print(json.dumps(metrics, indent=2))
@@ -412,12 +474,45 @@ def main(argv: list[str] | None = None) -> None:
             "generator_version": int(train.meta["generator_version"]),
             "machine": _machine(),
             "metrics": metrics,
-            "command": "python -m observer.transt.train " + " ".join(sys.argv[1:]),
+            "randomise": a.randomise,
+            "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
         }
         export = Path(a.export)
         digest = save_weights(net, export, meta)
         write_model_card(export.parent / "MODEL_CARD.md", meta)
         print(f"exported {export} (SHA-256 {digest})")
+
+
+def _training_args(args: list[str]) -> list[str]:
+    """Command-line arguments without ``--export-from X`` (the command that trained the run)."""
+    out, skip = [], False
+    for x in args:
+        if skip:
+            skip = False
+        elif x == "--export-from":
+            skip = True
+        elif not x.startswith("--export-from="):
+            out.append(x)
+    return out
+
+
+def _read_history_best(path: Path) -> float:
+    """Smallest validation median centre error (sensor px) logged in ``history.jsonl`` (the
+    score of ``best.pt``), or infinity."""
+    if not path.is_file():
+        return float("inf")
+    vals = [json.loads(ln).get("val_centre_err_median_px") for ln in path.read_text().splitlines()
+            if ln.strip()]
+    return min((v for v in vals if v is not None), default=float("inf"))
+
+
+def _recent_losses(path: Path, step: int, n: int = 50) -> list[float]:
+    """Training losses of the last ``n`` logged steps up to ``step`` (a resumed or exported
+    run reports the same final loss as an uninterrupted one)."""
+    if not path.is_file():
+        return []
+    recs = [json.loads(ln) for ln in path.read_text().splitlines() if ln.strip()]
+    return [r["loss"] for r in recs if r["step"] <= step][-n:]
 
 
 def _machine() -> str:
