@@ -141,7 +141,10 @@ class FilterObserver:
                                  "valid after its next accepted measurement")
         if accepted:
             self._last_accepted = t_exposure
-        self._pending = (z, t_exposure, lost, result_reason, compute_time_s)
+        # A measurement the filter rejects (outside its innovation gate) is not fused: the
+        # estimate is the filter's prediction, so it is flagged lost like a frame without
+        # markers, and it turns invalid after ``max_coast_s`` without an accepted measurement.
+        self._pending = (z, t_exposure, not accepted, result_reason, compute_time_s)
 
     def release(self, t_release: float) -> Estimate:
         """The estimate handed over at ``t_release`` (s) for the last processed frame."""

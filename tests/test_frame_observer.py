@@ -309,3 +309,30 @@ def test_filter_restart_needs_a_confirming_measurement():
     assert not first_true.valid and "restarted" in first_true.reason
     assert second_true.valid and third_true.valid and obs.restarts == 2
     assert np.degrees(A.geodesic_angle(third_true.q, q_true)) < 0.05
+
+
+def test_a_rejected_measurement_is_flagged_lost_and_the_estimate_turns_invalid():
+    """Pixels of an attitude 10° away fall outside the filter's innovation gate: it does not
+    fuse them, so each such estimate is its prediction, flagged lost with the gate's reason;
+    after ``max_coast_s`` without an accepted measurement it is also invalid."""
+    from plant.camera import marker_pixels
+
+    obs = FilterObserver(P, compensate_delay=False, max_coast_s=0.1)
+    q_true = cone(0.0)
+    obs.reset(q_true, 0.0)
+    for k in range(5):
+        obs.process(marker_pixels(P, q_true), k / 36)
+        good = obs.release(k / 36)
+        assert good.valid and not good.lost
+    q_far = A.multiply(q_true, A.from_rotvec([np.deg2rad(10.0), 0.0, 0.0]))
+    ests = []
+    for k in range(5, 9):
+        obs.process(marker_pixels(P, q_far), k / 36)
+        ests.append(obs.release(k / 36))
+    assert all(e.lost and "gate" in e.reason for e in ests[:3])
+    assert ests[0].valid and ests[1].valid  # within 0.1 s of the last accepted measurement
+    # Flagged lost, the estimates are the prediction, not the rejected pixels' attitude.
+    assert all(np.degrees(A.geodesic_angle(e.q, q_true)) < 0.5 for e in ests[:3])
+    # 4/36 s > 0.1 s: never valid and lost at once past the coast limit (here the grown gate
+    # accepts the consistent new pixels, or the estimate is invalid).
+    assert not (ests[3].valid and ests[3].lost)
