@@ -13,6 +13,8 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   key).
 
 Run: python benchmarks/bench_engine.py          (the full benchmark; a quiet machine, hours)
+     python benchmarks/bench_engine.py --parts throughput,study
+                                                  (only those parts; the record names them)
      python benchmarks/bench_engine.py --quick --out /tmp/bench_engine.json
                                                   (a smoke test in seconds; writes only --out)
 """
@@ -38,6 +40,9 @@ from latency.batched import run_batched  # noqa: E402
 CASE = {"observer": {"kind": "solver"}}
 #: Event-loop runs timed for the 10,000-run sweep's extrapolated figure.
 EVENT_SAMPLE_RUNS = 100
+#: The benchmark's parts: the throughput curve over B, the study's sweep, tune-kalman, and the
+#: 10,000-run sweep.
+PARTS = ("throughput", "study", "tune", "sweep")
 
 
 def _configs(n: int, duration_s: float) -> list[dict]:
@@ -127,37 +132,46 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, a smoke test")
     ap.add_argument("--out", type=Path, help="with --quick: write the figures to this JSON")
+    ap.add_argument("--parts", default=",".join(PARTS),
+                    help=f"comma-separated parts to run, of {', '.join(PARTS)}")
     args = ap.parse_args()
+    parts = [p for p in args.parts.split(",") if p]
+    if unknown := set(parts) - set(PARTS):
+        ap.error(f"unknown parts {sorted(unknown)}; choose from {', '.join(PARTS)}")
     quick = args.quick
     duration = 0.2 if quick else 2.0
     sizes = [1, 4] if quick else [2**k for k in range(11)]
     figures: dict[str, float] = {}
-    throughput(2, 0.05)  # warm-up: first-call costs (imports, caches) out of the figures
-    event_loop_speed(0.05)
-    for b in sizes:
-        figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
-    figures["event_loop_realtime_factor"] = event_loop_speed(duration)
-    for b in (1, 256):
-        for name, wall in torque_kernel_times(b).items():
-            figures[f"torque_kernel_{name}_B{b}_s"] = wall
-    ref = 4 if quick else 256
-    figures[f"batched_B{ref}_over_event_loop"] = (
-        figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]
-    )
-    cfg = study.StudyConfig(workers=1)
-    if quick:
-        cfg = cfg.model_copy(update={"delays_ms": (study.GK_MS,), "max_rates_rad_s": (),
-                                     "duration_s": 0.6})
-    ev, bt = study_sweep_walls(cfg)
-    figures["study_sweep_event_wall_s"], figures["study_sweep_batched_wall_s"] = ev, bt
-    tk = (dict(delays_s=(0.01633,), grid_points=2, n_trials=0, seeds=(0,),
-               validation_seeds=(100,), duration_s=0.15) if quick else {})
-    ev, bt = tune_kalman_walls(**tk)
-    figures["tune_kalman_event_wall_s"], figures["tune_kalman_batched_wall_s"] = ev, bt
-    n_runs, n_event = (8, 2) if quick else (10_000, EVENT_SAMPLE_RUNS)
-    ev, bt = sweep_walls(n_runs, n_event, duration, 4 if quick else 256)
-    figures[f"sweep{n_runs}_event_wall_s_extrapolated_from_{n_event}"] = ev
-    figures[f"sweep{n_runs}_batched_wall_s"] = bt
+    throughput(2, 0.2)  # warm-up: first-call costs (imports, caches) out of the figures
+    event_loop_speed(0.2)
+    if "throughput" in parts:
+        for b in sizes:
+            figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
+        figures["event_loop_realtime_factor"] = event_loop_speed(duration)
+        for b in (1, 256):
+            for name, wall in torque_kernel_times(b).items():
+                figures[f"torque_kernel_{name}_B{b}_s"] = wall
+        ref = 4 if quick else 256
+        figures[f"batched_B{ref}_over_event_loop"] = (
+            figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]
+        )
+    if "study" in parts:
+        cfg = study.StudyConfig(workers=1)
+        if quick:
+            cfg = cfg.model_copy(update={"delays_ms": (study.GK_MS,), "max_rates_rad_s": (),
+                                         "duration_s": 0.6})
+        ev, bt = study_sweep_walls(cfg)
+        figures["study_sweep_event_wall_s"], figures["study_sweep_batched_wall_s"] = ev, bt
+    if "tune" in parts:
+        tk = (dict(delays_s=(0.01633,), grid_points=2, n_trials=0, seeds=(0,),
+                   validation_seeds=(100,), duration_s=0.15) if quick else {})
+        ev, bt = tune_kalman_walls(**tk)
+        figures["tune_kalman_event_wall_s"], figures["tune_kalman_batched_wall_s"] = ev, bt
+    if "sweep" in parts:
+        n_runs, n_event = (8, 2) if quick else (10_000, EVENT_SAMPLE_RUNS)
+        ev, bt = sweep_walls(n_runs, n_event, duration, 4 if quick else 256)
+        figures[f"sweep{n_runs}_event_wall_s_extrapolated_from_{n_event}"] = ev
+        figures[f"sweep{n_runs}_batched_wall_s"] = bt
     if quick:
         for key, value in figures.items():
             print(f"{key:>50s}  {value:.6g}")
@@ -174,7 +188,9 @@ def main() -> None:
         "GK-TransT seed latency), 2 s runs, one BLAS/OpenMP thread. Target: "
         "batched B = 256 >= 1000x real time. The study sweep, tune-kalman (defaults) and the "
         "10,000-run sweep in one process; the event loop's 10,000-run wall time is "
-        f"extrapolated from {EVENT_SAMPLE_RUNS} runs.",
+        f"extrapolated from {EVENT_SAMPLE_RUNS} runs. Parts run: {', '.join(parts)}"
+        + ("" if parts == list(PARTS) else
+           f" (not run: {', '.join(p for p in PARTS if p not in parts)})") + ".",
     )
 
 
