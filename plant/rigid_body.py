@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from plant import attitude
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
 
@@ -42,28 +43,6 @@ PHYSICS_SUBSTEPS = 2
 #: Time constant of the tilt stop's critically damped contact, s: our choice, two default physics
 #: steps (stiff enough to hold 0.5 N·m within 0.01°, well inside RK4's stability limit).
 STOP_TIMECONST_S = 0.002
-
-
-def inertia_about_centre(params: PlantParams) -> NDArray[np.float64]:
-    """J_O (3 x 3), kg·m²: the centre-of-mass inertia moved to O (parallel-axis theorem)."""
-    r = params.rotor
-    d = np.asarray(r.com_offset_m, dtype=float)
-    return np.diag(r.inertia_com_kgm2) + r.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
-
-
-def quat_multiply(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton products a ⊗ b of quaternions (w, x, y, z), shapes (..., 4)."""
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
 
 
 def quat_exp(phi: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -119,7 +98,7 @@ def stop_gains(params: PlantParams) -> tuple[float, float, float]:
     """The tilt stop's stiffness k (N·m/rad), damping c (N·m·s/rad) and limit (rad): critically
     damped with time constant ``STOP_TIMECONST_S`` for the largest inertia about a horizontal
     axis (the tilt axis)."""
-    J = inertia_about_centre(params)
+    J = params.rotor.inertia_about_centre_kgm2
     j_tilt = float(np.max(np.linalg.eigvalsh(J[:2, :2])))
     rate = 1.0 / STOP_TIMECONST_S
     return j_tilt * rate * rate, 2.0 * j_tilt * rate, float(np.deg2rad(params.rotor.tilt_stop_deg))
@@ -141,7 +120,7 @@ class RigidBody:
     def __init__(self, params: PlantParams) -> None:
         self.params = p = params
         r, motor = p.rotor, p.motor
-        self.J = inertia_about_centre(p)
+        self.J = p.rotor.inertia_about_centre_kgm2
         self.J_inv = np.linalg.inv(self.J)
         self.com = np.asarray(r.com_offset_m, dtype=float)
         self.m_g = r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2])  # stator frame, N
@@ -243,11 +222,11 @@ class RigidBody:
             else:
                 phi = a * hb * k_phi[-1]
                 ws = omega + a * hb * k_w[-1]
-                qs = quat_multiply(q, quat_exp(phi))
+                qs = attitude.multiply(q, quat_exp(phi))
             k_w.append(self.acceleration(qs, ws, currents, disturbance))
             k_phi.append(ws if a == 0.0 else dexpinv(phi, ws))
         phi = hb / 6.0 * (k_phi[0] + 2.0 * k_phi[1] + 2.0 * k_phi[2] + k_phi[3])
         omega_next = omega + hb / 6.0 * (k_w[0] + 2.0 * k_w[1] + 2.0 * k_w[2] + k_w[3])
-        q_next = quat_multiply(q, quat_exp(phi))
+        q_next = attitude.multiply(q, quat_exp(phi))
         q_next /= np.linalg.norm(q_next, axis=-1, keepdims=True)
         return q_next, omega_next
