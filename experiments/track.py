@@ -43,7 +43,7 @@ from experiments.sources import Clock, LiveSchedule, Source, UserInputError, rea
 from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
 from experiments.user_files import UserSetup
 from latency.models import Empirical
-from observer.cor_model import CorModel, Intrinsics
+from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.gk.hsv_gate import (
     RED,
@@ -144,16 +144,10 @@ def load_ground_truth(xml_path: Path | str, width: int, height: int,
 
 
 def cor_model(setup: UserSetup) -> CorModel:
-    """The attitude solver's model: the calibrated intrinsics when the camera file has them,
-    else the nominal camera (``CorModel.nominal``); the setup's markers; the CoR depth
-    R + h_c from its plant."""
-    nominal = CorModel.nominal(setup.params, markers_m=setup.markers_m)
-    cal = setup.camera.calibration
-    if cal is None:
-        return nominal
-    k1, k2, _, _, k3 = cal.dist_coeffs
-    return nominal.replace(intrinsics=Intrinsics(cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px,
-                                                 k1, k2, k3))
+    """The attitude solver's model (``CorModel.nominal``): the setup's camera (its calibrated
+    intrinsics when the camera file has them, ``CameraFile.params``), its markers and the CoR
+    depth R + h_c from its plant."""
+    return CorModel.nominal(setup.params, markers_m=setup.markers_m)
 
 
 @dataclass

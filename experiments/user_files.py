@@ -22,7 +22,8 @@ class UserSetup:
 
     Attributes
     ----------
-    params : the plant (motor, rotor, VFC and the camera file's ``camera``).
+    params : the plant (motor, rotor, VFC and the camera file's camera with its calibrated
+        intrinsics, ``CameraFile.params``).
     camera : the camera file (calibrated intrinsics when it has them).
     markers_m : (2, 3) red and yellow marker centres, rotor frame, m from the centre of rotation.
     motor : the motor file.
@@ -41,7 +42,12 @@ def load_setup(motor_yaml: Path | str | None = None,
     field and its allowed range."""
     motor = MotorFile() if motor_yaml is None else _read(MotorFile, motor_yaml)
     camera = CameraFile() if camera_yaml is None else _read(CameraFile, camera_yaml)
-    return UserSetup(motor.plant(camera.camera), camera, motor.markers_m(), motor)
+    try:
+        camera_params = camera.params
+    except ValidationError as exc:
+        raise ValueError(f"{camera_yaml}: calibration: "
+                         f"{exc.errors()[0]['msg'].removeprefix('Value error, ')}") from exc
+    return UserSetup(motor.plant(camera_params), camera, motor.markers_m(), motor)
 
 
 def _read(model: type[MotorFile] | type[CameraFile], path: Path | str) -> MotorFile | CameraFile:

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from plant.camera import Camera
 from plant.geometry import marker_points
 from plant.params import PlantParams
 
@@ -308,8 +309,9 @@ class CorModel:
     ) -> CorModel:
         """The model of the plant's camera and VFC with nominal (true) parameters.
 
-        fx = fy = f/pixel size, (cx, cy) = ((W − 1)/2, (H − 1)/2) in sensor px (as
-        ``plant.camera.Camera.matrix(1)``), (k1, k2, k3) from ``dist_coeffs``, and
+        (fx, fy, cx, cy) of ``plant.camera.Camera.matrix(1)`` in sensor px (the calibrated
+        ``camera.intrinsics_px`` when set, else f/pixel size and the sensor centre),
+        (k1, k2, k3) from ``dist_coeffs``, and
         ``t_cor = (0, 0, R + h_c)``. ``markers_m`` defaults to ``vfc_markers(p, n_markers)``.
         Raises ValueError if the plant's lens has tangential distortion, which this model lacks.
         """
@@ -319,10 +321,8 @@ class CorModel:
             raise ValueError(
                 "camera.dist_coeffs p1, p2 must be 0: the CoR model is radial only (seed 002 eq. 8)"
             )
-        f_px = c.focal_length_m / c.pixel_size_m
-        intr = Intrinsics(
-            f_px, f_px, (c.sensor_width_px - 1) / 2.0, (c.sensor_height_px - 1) / 2.0, k1, k2, k3
-        )
+        K = Camera.from_plant(p).matrix(1)
+        intr = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], k1, k2, k3)
         P = vfc_markers(p, n_markers) if markers_m is None else np.asarray(markers_m, float)
         return cls(intr, np.array([0.0, 0.0, p.rotor.radius_m + c.h_c_m]), P)
 

@@ -67,11 +67,18 @@ class Camera:
         return self.params.sensor_width_px // b, self.params.sensor_height_px // b
 
     def matrix(self, binning: int = 1) -> NDArray[np.float64]:
-        """Intrinsic matrix K (px) for frames binned by ``binning`` (1 = full sensor)."""
+        """Intrinsic matrix K (px) for frames binned by ``binning`` (1 = full sensor): the
+        calibrated ``params.intrinsics_px`` when set, else the nominal pinhole (f / pixel
+        size, principal point at the sensor centre). Binning divides the focal lengths and
+        maps the principal point as any pixel (``sensor_to_image``)."""
         c = self.params
-        f_px = c.focal_length_m / (c.pixel_size_m * binning)
-        w, h = self.size(binning)
-        return np.array([[f_px, 0.0, (w - 1) / 2.0], [0.0, f_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        if c.intrinsics_px is None:
+            fx = fy = c.focal_length_m / c.pixel_size_m
+            cx, cy = (c.sensor_width_px - 1) / 2.0, (c.sensor_height_px - 1) / 2.0
+        else:
+            fx, fy, cx, cy = c.intrinsics_px
+        u0, v0 = sensor_to_image((cx, cy), binning)
+        return np.array([[fx / binning, 0.0, u0], [0.0, fy / binning, v0], [0.0, 0.0, 1.0]])
 
     def to_camera_frame(self, points_stator: ArrayLike) -> NDArray[np.float64]:
         """Stator-frame points (N, 3) in m -> camera-frame points (N, 3) in m."""

@@ -18,10 +18,12 @@
       rms_px: 0.05                # RMS reprojection error, px of the calibration frames
       n_views: 40
 
-The ``camera`` block is what the renderers and the plant use (a nominal pinhole with the lens
-distortion); the ``calibration`` block keeps the measured principal point and both focal lengths,
-which ``CameraParams`` cannot express, for the attitude solver (seed 002 eq. 5-11). Errors name
-the field and its allowed range (pydantic).
+The ``camera`` block gives the sensor, the timing and a nominal pinhole; the ``calibration``
+block keeps what a calibration measured with its uncertainties. ``CameraFile.params`` is the
+camera the plant, the renderers, the scenarios and the attitude solver (seed 002 eq. 5-11) use:
+the ``camera`` block with the calibrated focal lengths, principal point
+(``CameraParams.intrinsics_px``) and distortion when ``calibration`` is given. Errors name the
+field and its allowed range (pydantic).
 """
 
 from __future__ import annotations
@@ -61,6 +63,18 @@ class CameraFile(BaseModel):
 
     camera: CameraParams = CameraParams()
     calibration: CalibratedIntrinsics | None = None
+
+    @property
+    def params(self) -> CameraParams:
+        """The camera as used everywhere: ``camera`` with ``calibration``'s (fx, fy, cx, cy)
+        as ``intrinsics_px`` and its distortion, when a calibration is given (validated: the
+        principal point must lie on the sensor)."""
+        cal = self.calibration
+        if cal is None:
+            return self.camera
+        return CameraParams.model_validate(self.camera.model_dump() | {
+            "intrinsics_px": (cal.fx_px, cal.fy_px, cal.cx_px, cal.cy_px),
+            "dist_coeffs": cal.dist_coeffs})
 
     @property
     def image_size(self) -> tuple[int, int]:

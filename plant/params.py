@@ -130,6 +130,12 @@ class CameraParams(_Strict):
         36.0, gt=0.0, description="Seed 000 §5: 90 frames span 2.5 s, i.e. 36 frames/s."
     )
     exposure_s: float = Field(2.0e-3, gt=0.0, description="Our choice: 2 ms with a ring LED.")
+    intrinsics_px: tuple[float, float, float, float] | None = Field(
+        None,
+        description="Calibrated (fx, fy, cx, cy), full-sensor px, OpenCV pixel-centre "
+        "convention (a camera file's calibration block); None: the nominal pinhole, "
+        "fx = fy = focal_length_m / pixel_size_m, principal point at the sensor centre.",
+    )
 
     @model_validator(mode="after")
     def _exposure_fits_frame(self) -> CameraParams:
@@ -137,6 +143,21 @@ class CameraParams(_Strict):
             raise ValueError(
                 f"exposure_s = {self.exposure_s} exceeds the frame period 1/frame_rate_hz = "
                 f"{1.0 / self.frame_rate_hz:.4g} s"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _intrinsics_fit_the_sensor(self) -> CameraParams:
+        if self.intrinsics_px is None:
+            return self
+        fx, fy, cx, cy = self.intrinsics_px
+        w, h = self.sensor_width_px, self.sensor_height_px
+        if fx <= 0.0 or fy <= 0.0:
+            raise ValueError(f"intrinsics_px: fx = {fx:g} and fy = {fy:g} must be > 0 px")
+        if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
+            raise ValueError(
+                f"intrinsics_px: principal point ({cx:g}, {cy:g}) must lie on the sensor, "
+                f"u in [-0.5, {w - 0.5:g}], v in [-0.5, {h - 0.5:g}] px"
             )
         return self
 

@@ -2,8 +2,9 @@
 
 The scene is the MJCF of ``plant.mjcf.build_mjcf``: its camera "bottom" has the pose and field
 of view of ``plant.camera.Camera``, so frames agree with ``plant.render_analytic`` and with the
-ground truth of ``plant.scene``. MuJoCo renders an ideal pinhole; a non-zero lens distortion
-(``CameraParams.dist_coeffs``) is applied afterwards by resampling the ideal image.
+ground truth of ``plant.scene``. MuJoCo renders an ideal centred pinhole; a non-zero lens
+distortion (``CameraParams.dist_coeffs``) and calibrated intrinsics
+(``CameraParams.intrinsics_px``) are applied afterwards by resampling the ideal image.
 
 Textured variant (``texture=`` a ``plant.texture.TextureParams``, default None): the
 plate carries the printed pattern of ``plant.texture`` instead of the two markers (see
@@ -128,16 +129,21 @@ class MujocoRenderer:
         self._maps = self._distortion_maps()
 
     def _distortion_maps(self) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
-        """Maps (for ``cv2.remap``) from each distorted pixel to the ideal pinhole image, or
-        None for an ideal lens. Pixels whose ray falls outside the rendered field (corners under
-        strong barrel distortion) repeat the border."""
+        """Maps (for ``cv2.remap``) from each pixel of the camera (``Camera.matrix``, with the
+        lens distortion) to MuJoCo's image, or None when the two are the same. MuJoCo renders
+        a centred pinhole with square pixels of the camera's fy (``plant.mjcf``'s fovy), so a
+        calibrated principal point off the centre or fx != fy is resampled too. Pixels whose
+        ray falls outside the rendered field (corners under strong barrel distortion) repeat
+        the border."""
         dist = np.asarray(self.camera.params.dist_coeffs, dtype=float)
-        if not np.any(dist):
-            return None
         K = self.camera.matrix(self.binning)
+        K_mujoco = np.array([[K[1, 1], 0.0, (self.width - 1) / 2.0],
+                             [0.0, K[1, 1], (self.height - 1) / 2.0], [0.0, 0.0, 1.0]])
+        if not np.any(dist) and np.allclose(K, K_mujoco, rtol=0.0, atol=1e-9):
+            return None
         u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
         uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
-        ideal = cv2.undistortPoints(uv, K, dist, P=K).reshape(self.height, self.width, 2)
+        ideal = cv2.undistortPoints(uv, K, dist, P=K_mujoco).reshape(self.height, self.width, 2)
         return ideal[..., 0].astype(np.float32), ideal[..., 1].astype(np.float32)
 
     def _render_one(self, q: NDArray[np.float64]) -> NDArray[np.uint8]:

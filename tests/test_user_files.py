@@ -85,3 +85,59 @@ def test_a_camera_file_sets_the_frame_timeline_too(tmp_path):
     s = Scenario.model_validate({"camera_file": str(path)})
     assert (s.plant.camera.frame_rate_hz, s.pipeline.frame_rate_hz) == (50.0, 50.0)
     assert (s.plant.camera.exposure_s, s.pipeline.exposure_s) == (1.5e-3, 1.5e-3)
+
+
+def _pinhole_pixels(q_wxyz, markers_rotor_m, fx, fy, cx, cy, distance_m):
+    """Independent pinhole projection, full-sensor px: scipy's rotation of the rotor-frame
+    marker centres about the centre of rotation, then u = fx x/z + cx, v = fy y/z + cy in a
+    camera ``distance_m`` below the CoR looking up (+Z), x along u."""
+    from scipy.spatial.transform import Rotation
+
+    w, x, y, z = q_wxyz
+    p = Rotation.from_quat([x, y, z, w]).apply(markers_rotor_m) + [0.0, 0.0, distance_m]
+    return np.column_stack([fx * p[:, 0] / p[:, 2] + cx, fy * p[:, 1] / p[:, 2] + cy])
+
+
+@pytest.fixture(scope="module")
+def off_centre_camera(tmp_path_factory):
+    """The example camera with a calibration block: principal point 80 px right of and 60 px
+    above the sensor centre, fx != fy."""
+    cam = yaml.safe_load((EXAMPLES / "camera.yaml").read_text())
+    cam["calibration"] = {"fx_px": 7330.0, "fy_px": 7180.0, "cx_px": 1303.5, "cy_px": 963.5}
+    path = tmp_path_factory.mktemp("cam") / "camera.yaml"
+    path.write_text(yaml.safe_dump(cam))
+    return path, cam["calibration"]
+
+
+def test_a_calibrated_principal_point_moves_the_markers_as_a_pinhole_says(off_centre_camera):
+    from experiments.scenario import build_loop
+    from observer.cor_model import CorModel
+    from observer.cor_solver import CorSolver
+    from plant import attitude
+    from plant.camera import marker_pixels, sensor_to_image
+    from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions
+    from plant.render_mujoco import MujocoRenderer
+    from tests.test_renderers import centroids
+
+    path, cal = off_centre_camera
+    s = Scenario.model_validate({"camera_file": str(path), "motor_file":
+                                 str(EXAMPLES / "motor.yaml")})
+    markers = load_setup(EXAMPLES / "motor.yaml").markers_m
+    distance = s.plant.rotor.radius_m + s.plant.camera.h_c_m
+    q = attitude.from_zyz(0.4, np.deg2rad(9.0), -0.7)
+    truth = _pinhole_pixels(q, markers, cal["fx_px"], cal["fy_px"], cal["cx_px"], cal["cy_px"],
+                            distance)
+    nominal = _pinhole_pixels(q, markers, 7246.376811594203, 7246.376811594203, 1223.5, 1023.5,
+                              distance)
+    assert np.abs(truth - nominal).max() > 50.0  # the calibration moves the markers far
+    # the measurement model's truth, the solver's model and the renderer's image
+    assert np.allclose(marker_pixels(s.plant, q), truth, rtol=0.0, atol=1e-6)
+    assert build_loop(s).front_end.params.camera.intrinsics_px == (
+        cal["fx_px"], cal["fy_px"], cal["cx_px"], cal["cy_px"])
+    solved = CorSolver(CorModel.nominal(s.plant)).solve(truth, q_prev=q)
+    assert solved.valid and attitude.geodesic_angle(solved.q, q) < 1e-6
+    opts = AnalyticRenderOptions(noise_sigma_dn=0.0)
+    b = s.plant.camera.binning
+    for renderer in (AnalyticRenderer(s.plant, options=opts), MujocoRenderer(s.plant)):
+        image = renderer.render(q).image
+        assert np.abs(centroids(image) - sensor_to_image(truth, b)).max() < 0.3  # image px
