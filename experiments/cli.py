@@ -188,14 +188,21 @@ def study(
         typer.Option(help="Seeds per closed-loop point (default 2; 95 % intervals want >= 32)."),
     ] = None,
     engine: EngineOption = None,
+    motor_file: Annotated[
+        Path | None, typer.Option(help="Motor YAML (examples/motor.yaml); default the seed's.")
+    ] = None,
+    camera_file: Annotated[
+        Path | None, typer.Option(help="Camera YAML (pmspm calibrate, examples/camera.yaml).")
+    ] = None,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
     Writes runs/<timestamp>-study/ with report.md, report.html, PNG plots and Parquet tables.
+    With --motor-file / --camera-file the analysis and the sweeps use that motor and camera.
 
-    Example: pmspm study --out runs --workers 2
+    Example: pmspm study --out runs --workers 2 --motor-file examples/motor.yaml
     """
-    from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study
+    from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study, study_plant
 
     _check_workers_and_scheduler(workers, scheduler)
     _writable_folder(out)
@@ -203,8 +210,10 @@ def study(
         extra = {} if n_seeds is None else {"n_seeds": n_seeds}
         if engine is not None:
             extra["engine"] = engine.value
-        cfg = StudyConfig(workers=workers, scheduler=scheduler, **extra)
-    except ValidationError as exc:
+        cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
+                          camera_file=camera_file, **extra)
+        study_plant(cfg)
+    except (ValidationError, ValueError) as exc:
         _config_error(exc, "options")
     if quick:
         cfg = cfg.model_copy(

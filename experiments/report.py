@@ -109,6 +109,11 @@ def write_report(
         f"{facts['machine']} ({facts['processor']}, {facts['cpus']:.0f} CPUs seen by Python, "
         f"Python {facts['python']}) by `pmspm study`.",
         "",
+        "Motor: " + (f"`{facts['motor_file']}`" if facts.get("motor_file") else
+                     "the seed's (default `PlantParams`)")
+        + "; camera: " + (f"`{facts['camera_file']}`" if facts.get("camera_file") else
+                          "the default camera") + ".",
+        "",
         "## Summary",
         "",
         *findings,

@@ -1,6 +1,7 @@
 """The headline study: what does vision delay do to the PMSpM attitude loop?
 
-``run_study`` answers the design card's questions on the embedded default and writes a report
+``run_study`` answers the design card's questions on the embedded default, or on the user's
+motor and camera (``StudyConfig.motor_file``, ``camera_file``), and writes a report
 folder (``runs/<timestamp>-study/``) with ``report.md``, ``report.html``, PNG plots and Parquet
 tables:
 
@@ -62,6 +63,7 @@ from experiments.study_plots import (
     plot_time_series,
 )
 from experiments.sweep import run_sweep
+from experiments.user_files import plant_from_files
 from latency.loop import SETTLE_BAND_DEG
 from latency.margins import (
     Margins,
@@ -122,6 +124,22 @@ class StudyConfig(BaseModel):
         "batched", description="Closed-loop engine of the sweep and the time series (both "
         "measurement-model): batched, or the event loop."
     )
+    motor_file: Path | None = Field(
+        None, description="The user's motor YAML (plant.motor_file); None: the seed's motor."
+    )
+    camera_file: Path | None = Field(
+        None, description="The user's camera YAML (plant.camera_file, e.g. from pmspm "
+        "calibrate); None: the default camera."
+    )
+
+
+def study_plant(cfg: StudyConfig) -> PlantParams:
+    """The plant the study analyses and simulates: the motor and camera files of ``cfg``
+    (``experiments.user_files.plant_from_files``; ``ValueError`` naming the file and the
+    field), else ``PlantParams()``."""
+    files = {k: str(v) for k, v in (("motor_file", cfg.motor_file),
+                                     ("camera_file", cfg.camera_file)) if v is not None}
+    return plant_from_files(files).get("plant", PlantParams())
 
 
 # --- 1. margins -----------------------------------------------------------------------------
@@ -295,8 +313,10 @@ STEP_CONTROLLERS = ("pid", "pid_noff", "pid_friction", "mpc", "mpc_nopreview")
 RANDOM_CONTROLLERS = ("pid", "mpc")
 
 
-def sweep_configs(cfg: StudyConfig) -> list[dict]:
-    """The sweep's scenarios as dicts (delay x controller x reference x seed)."""
+def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[dict]:
+    """The sweep's scenarios as dicts (delay x controller x reference x seed) on the plant
+    ``params`` (default ``study_plant(cfg)``)."""
+    params = params or study_plant(cfg)
     out = []
     refs = [("tilt_step_5deg", {"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1}, 0.0,
              STEP_CONTROLLERS)]
@@ -314,6 +334,7 @@ def sweep_configs(cfg: StudyConfig) -> list[dict]:
                         name=f"{ctrl}-{ref_name}-{d:g}ms-s{seed}",
                         duration_s=cfg.duration_s,
                         seed=seed,
+                        plant=params,
                         observer={"kind": "solver"},
                         controller=_controller_spec(ctrl, cfg),
                         reference=ref,
@@ -392,12 +413,17 @@ def predicted_boundary_ms(margins: pd.DataFrame) -> float:
 
 
 # --- 3. time series -------------------------------------------------------------------------
-def time_series(cfg: StudyConfig, out: Path) -> tuple[dict[str, pd.DataFrame], dict]:
+def time_series(
+    cfg: StudyConfig, params: PlantParams, out: Path
+) -> tuple[dict[str, pd.DataFrame], dict]:
+    """A 5° tilt step at the seed's two latencies, PID and MPC, on the plant ``params``: the
+    step logs (also written as Parquet) and the summaries."""
     series, summaries = {}, {}
     for d in (GK_MS, DUAL_MS):
         for ctrl in ("pid", "mpc"):
             s = Scenario(
                 duration_s=2.0,
+                plant=params,
                 observer={"kind": "solver"},
                 controller=_controller_spec(ctrl, cfg),
                 reference={"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1},
@@ -443,9 +469,13 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def machine_facts(params: PlantParams) -> dict[str, str | float]:
-    """What the report may say about the run: read from the machine and the parameters."""
+def machine_facts(params: PlantParams, cfg: StudyConfig | None = None) -> dict[str, str | float]:
+    """What the report may say about the run: read from the machine, the parameters and the
+    motor and camera files of ``cfg``."""
+    cfg = cfg or StudyConfig()
     return {
+        "motor_file": str(cfg.motor_file) if cfg.motor_file else "",
+        "camera_file": str(cfg.camera_file) if cfg.camera_file else "",
         "machine": platform.machine(),
         "processor": _cpu_model(),
         "cpus": float(os.cpu_count() or 0),
@@ -581,13 +611,13 @@ def summary_text(
 def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) -> Path:
     """Run the whole study and write the report folder; returns its path."""
     cfg = config or StudyConfig()
-    params = PlantParams()
+    params = study_plant(cfg)
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(out_root) / f"{stamp}-study"
     out.mkdir(parents=True, exist_ok=False)
 
     measured = measure_here(params, cfg, out)
-    facts = machine_facts(params)
+    facts = machine_facts(params, cfg)
     marks = {"GK-TransT (seed)": GK_MS, "dual TransT (seed)": DUAL_MS}
     labels = {"gk_transt": "GK-TransT here", "dual_transt": "dual TransT here"}
     marks |= {labels[k]: v for k, v in measured.items()}
@@ -602,7 +632,7 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     batched = cfg.engine == "batched"
     raw = run_sweep(
         f"experiments.study:{'study_runs' if batched else 'study_run'}",
-        sweep_configs(cfg),
+        sweep_configs(cfg, params),
         out / "sweep",
         scheduler=cfg.scheduler,
         workers=cfg.workers,
@@ -620,10 +650,10 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     boundaries = {"pid": predicted_boundary_ms(margins), "mpc": predicted_boundary_ms(mpc_aware)}
     plot_boundary_overlay(loss, boundaries, marks, out / "boundary_vs_loss_of_control.png")
 
-    series, ts = time_series(cfg, out)
+    series, ts = time_series(cfg, params, out)
     plot_time_series(series, (GK_MS, DUAL_MS), out / "timeseries_16_vs_31ms.png")
 
     findings = summary_text(margins, intervals, loss, ts, measured, facts, cfg, mpc_margins)
-    (out / "study_config.json").write_text(json.dumps(cfg.model_dump(), indent=1))
+    (out / "study_config.json").write_text(json.dumps(cfg.model_dump(mode="json"), indent=1))
     write_report(out, cfg, findings, margins, intervals, loss, ts, measured, facts, mpc_margins)
     return out

@@ -141,3 +141,43 @@ def test_a_calibrated_principal_point_moves_the_markers_as_a_pinhole_says(off_ce
     for renderer in (AnalyticRenderer(s.plant, options=opts), MujocoRenderer(s.plant)):
         image = renderer.render(q).image
         assert np.abs(centroids(image) - sensor_to_image(truth, b)).max() < 0.3  # image px
+
+
+def test_the_study_analyses_and_sweeps_the_users_motor_and_camera(tmp_path):
+    from experiments.study import (
+        StudyConfig,
+        machine_facts,
+        pid_axis_margins,
+        study_plant,
+        sweep_configs,
+    )
+
+    motor = yaml.safe_load((EXAMPLES / "motor.yaml").read_text())
+    motor["rotor"]["inertia_com_kgm2"] = [4.4e-3, 4.4e-3, 5.0e-3]
+    camera = yaml.safe_load((EXAMPLES / "camera.yaml").read_text())
+    camera["camera"]["frame_rate_hz"] = 50.0
+    (tmp_path / "motor.yaml").write_text(yaml.safe_dump(motor))
+    (tmp_path / "camera.yaml").write_text(yaml.safe_dump(camera))
+    cfg = StudyConfig(delays_ms=(10.0,), max_rates_rad_s=(1.0,), n_seeds=1,
+                      motor_file=tmp_path / "motor.yaml", camera_file=tmp_path / "camera.yaml")
+    assert study_plant(StudyConfig()) == PlantParams()
+    p = study_plant(cfg)
+    assert p.rotor.inertia_com_kgm2 == (4.4e-3, 4.4e-3, 5.0e-3)
+    # the analysis: a pipelined observer updates on every frame of the 50 Hz camera
+    timing, _ = pid_axis_margins(p, cfg.crossover_rad_s, 0.010, "pipelined")
+    assert timing.update_period_s == pytest.approx(1.0 / 50.0)
+    # the sweep: every run on that plant, its frame timeline from that camera
+    for c in sweep_configs(cfg):
+        s = Scenario.model_validate({k: v for k, v in c.items() if k != "study"})
+        assert s.plant == p and s.pipeline.frame_rate_hz == 50.0
+    facts = machine_facts(p, cfg)
+    assert (facts["motor_file"], facts["camera_file"], facts["frame_rate_hz"]) == (
+        str(tmp_path / "motor.yaml"), str(tmp_path / "camera.yaml"), 50.0)
+
+
+def test_study_with_a_bad_motor_file_exits_2_before_running(tmp_path):
+    (tmp_path / "motor.yaml").write_text(yaml.safe_dump({"rotor": {"mass_kg": -1.0}}))
+    res = CliRunner().invoke(app, ["study", "--motor-file", str(tmp_path / "motor.yaml"),
+                                   "--out", str(tmp_path / "runs")])
+    assert res.exit_code == 2 and "rotor.mass_kg" in res.output, res.output
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
