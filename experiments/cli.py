@@ -723,6 +723,9 @@ def track(
     fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (default: the source's).")]
     = None,
     max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
+    observer: Annotated[
+        str, typer.Option(help="Attitude back end: solver (CoR least squares) or aekf.")
+    ] = "solver",
 ) -> None:
     """Track the two markers on a recording or a live camera; write the per-frame table, the
     attitudes, an annotated MP4, a latency profile and a report.
@@ -730,18 +733,20 @@ def track(
     Example: pmspm track lab.mp4 --boxes "300,240,12,12;330,240,12,12" --tracker kcf_gk --out run
     """
     from experiments.sources import UserInputError, open_source
-    from experiments.track import parse_boxes, run_track
+    from experiments.track import TRACK_OBSERVERS, parse_boxes, run_track
     from experiments.user_files import load_setup
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
     if tracker not in PAIR_TRACKERS:
         _config_error(ValueError(f"--tracker must be one of {PAIR_TRACKERS}"), "options")
+    if observer not in TRACK_OBSERVERS:
+        _config_error(ValueError(f"--observer must be one of {TRACK_OBSERVERS}"), "options")
     try:
         setup = load_setup(motor, camera)
         src = open_source(source, fps)
         outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
                             boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
-                            max_frames)
+                            max_frames, observer=observer)
     except (ValidationError, ValueError) as exc:
         _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
     typer.echo("\n".join(outcome.summary_lines()))

@@ -2,8 +2,12 @@
 centres into attitudes and a latency profile (``pmspm track``).
 
 Per frame: read (and decode) the frame, ``PairTracker.step`` (``observer.trackers``), the
-centre-of-rotation least-squares attitude (``observer.cor_solver.CorSolver``, seed 002 §2.4)
-from the two centres, warm-started from the previous frame, and an annotated copy for the MP4.
+attitude from the two centres, and an annotated copy for the MP4. The attitude back end
+(``observer``): ``solver``, the centre-of-rotation least squares
+(``observer.cor_solver.CorSolver``, seed 002 §2.4) warm-started from the previous frame; or
+``aekf``, the quaternion AEKF (``observer.pixel_observer.FilterObserver``, seed 001) fusing the
+centres at each frame's capture time with no torque input (the recording's motor currents are
+unknown: its rate random walk carries the motion), released at the capture time.
 Outputs in the run folder:
 
 * ``frames.parquet``: one row per processed frame: frame index, capture time (s; frame index /
@@ -13,7 +17,8 @@ Outputs in the run folder:
   per-stage compute times (read, tracker step, of which inside the single-object trackers or
   networks, solver; s);
 * ``annotated.mp4``: the frames with boxes, centres and the attitude;
-* ``latency_profile.json``: an ``latency.models.Empirical`` profile of tracker + solver time,
+* ``latency_profile.json``: an ``latency.models.Empirical`` profile of tracker + back-end time
+  (``solver_time_s`` is the back end's time, solver or AEKF),
   the format ``pipeline.observer`` of a scenario (``pmspm simulate``) takes;
 * ``report.md`` with ``attitude.png`` and ``latency.png``.
 
@@ -43,6 +48,7 @@ from experiments.sources import Clock, LiveSchedule, Source, UserInputError, rea
 from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
 from experiments.user_files import UserSetup
 from latency.models import Empirical
+from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.gk.hsv_gate import (
@@ -52,6 +58,7 @@ from observer.gk.hsv_gate import (
     box_sensor_to_image,
     colour_mask,
 )
+from observer.pixel_observer import FilterObserver
 from observer.tracking import PairResult, PairTracker
 from observer.types import SolverResult
 from plant import attitude
@@ -150,6 +157,47 @@ def cor_model(setup: UserSetup) -> CorModel:
     return CorModel.nominal(setup.params, markers_m=setup.markers_m)
 
 
+#: The attitude back ends of ``run_track``.
+TRACK_OBSERVERS = ("solver", "aekf")
+#: The AEKF's rate random walk on a recording, rad²/s³ (our choice): the motor's torque is
+#: unknown here, so the rate must be free to change by about 0.5 rad/s (one sigma) within a
+#: frame at 36 frames/s. The closed loop's default (0.1, ``AEKFConfig``) assumes the torque
+#: is known; on the rendered 8° cone it coasts and rejects every measurement from the third
+#: frame, while 1 to 100 rad²/s³ all track it to 0.04°.
+TRACK_Q_OMEGA_RAD2_PER_S3 = 10.0
+
+
+def attitude_filter(setup: UserSetup) -> FilterObserver:
+    """The AEKF back end (``AEKFConfig`` with the rate random walk
+    ``TRACK_Q_OMEGA_RAD2_PER_S3``; no delay compensation: the estimate is at the frame's
+    capture time), restarted from the setup's least-squares solve after a loss. Its
+    measurement model draws the markers from the motor's VFC, so a motor file whose explicit
+    marker layout differs from that is refused (``UserInputError``)."""
+    if not setup.motor.markers_follow_vfc():
+        raise UserInputError("--observer aekf models the markers of the motor file's vfc "
+                             "(leg_mm, marker_diameter_mm) and rotor.radius_m; its explicit "
+                             "markers layout differs: use --observer solver")
+    config = AEKFConfig(q_omega_rad2_per_s3=TRACK_Q_OMEGA_RAD2_PER_S3)
+    return FilterObserver(setup.params, config, compensate_delay=False,
+                          solver=CorSolver(cor_model(setup)))
+
+
+def filter_step(filt: FilterObserver, model: CorModel, res: PairResult,
+                t_capture_s: float) -> SolverResult:
+    """Fuse one frame's centres into the AEKF at its capture time (s) and release the
+    estimate there, as a ``SolverResult`` (residual: the centres against the estimate's
+    projection through ``model``, sensor px)."""
+    filt.process(res.marker_px, t_capture_s, lost=res.lost, reason=res.reason)
+    est = filt.release(t_capture_s)
+    if not est.valid:
+        return SolverResult.invalid(est.reason or "filter estimate invalid")
+    d = np.asarray(res.marker_px, float) - model.project(est.q)
+    seen = np.all(np.isfinite(d), axis=1)
+    rms = float(np.sqrt(np.mean(d[seen] ** 2))) if seen.any() else np.nan
+    return SolverResult(q=est.q, covariance=est.covariance, reason=est.reason,
+                        residual_rms_px=rms)
+
+
 @dataclass
 class TrackOutcome:
     """What a run produced.
@@ -162,6 +210,7 @@ class TrackOutcome:
     interrupted : the run was stopped by Ctrl-C.
     metrics : precision at 20 px and centre errors per marker (with ground truth), else empty.
     start_boxes_image_px : (2, 4) the first-frame boxes the tracker started on, image px.
+    observer : the attitude back end (``TRACK_OBSERVERS``).
     """
 
     table: pd.DataFrame
@@ -170,6 +219,7 @@ class TrackOutcome:
     dropped: int = 0
     interrupted: bool = False
     metrics: dict[str, float] = field(default_factory=dict)
+    observer: str = "solver"
 
     def summary_lines(self) -> list[str]:
         """Human-readable lines for the terminal and the report."""
@@ -179,11 +229,12 @@ class TrackOutcome:
         lines = [f"first-frame boxes (red; yellow, x,y,w,h image px): {boxes}",
                  f"frames processed: {len(t)}, dropped (live): {self.dropped}"
                  + (" (stopped by Ctrl-C)" if self.interrupted else ""),
-                 f"attitude solved on {int(ok.sum())} of {len(t)} frames; markers lost on "
+                 f"attitude ({self.observer}) valid on {int(ok.sum())} of {len(t)} frames; "
+                 "markers lost on "
                  f"{int(t['lost'].sum()) if len(t) else 0}"]
         if len(t):
             total = (t["tracker_time_s"] + t["solver_time_s"]).to_numpy() * 1e3
-            lines.append(f"tracker + solver time: median {np.median(total):.2f} ms, "
+            lines.append(f"tracker + {self.observer} time: median {np.median(total):.2f} ms, "
                          f"p95 {np.percentile(total, 95):.2f} ms")
         for k, v in self.metrics.items():
             lines.append(f"{k}: {v:.3f}")
@@ -219,6 +270,7 @@ def run_track(
     max_frames: int | None = None,
     clock: Clock = time.perf_counter,
     write_video: bool = True,
+    observer: str = "solver",
 ) -> TrackOutcome:
     """Track ``source`` and write the outputs of the module docstring into ``out_dir``.
 
@@ -237,8 +289,11 @@ def run_track(
     max_frames : stop after this many processed frames.
     clock : seconds, monotonic; times the stages and paces a live source.
     write_video : write ``annotated.mp4``.
+    observer : the attitude back end, ``TRACK_OBSERVERS`` (module docstring).
     """
     setup = setup or UserSetup()
+    if observer not in TRACK_OBSERVERS:
+        raise UserInputError(f"observer must be one of {TRACK_OBSERVERS}, got {observer!r}")
     cam = setup.camera
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -264,7 +319,9 @@ def run_track(
                       np.array([box_image_to_sensor(x, b) for x in boxes]), b)
     except ValueError as exc:
         raise UserInputError(f"cannot start the tracker: {exc}") from exc
-    solver = CorSolver(cor_model(setup))
+    model = cor_model(setup)
+    solver = CorSolver(model)
+    filt = attitude_filter(setup) if observer == "aekf" else None
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
     live = LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
@@ -278,7 +335,12 @@ def run_track(
             rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
             res = tracker.step(rgb)
             ts = clock()
-            sol = solver.solve(res.marker_px, q_prev)
+            if filt is None:
+                sol = solver.solve(res.marker_px, q_prev)
+            else:
+                if not rows:
+                    filt.reset(_first_attitude(solver, res), index / source.fps)
+                sol = filter_step(filt, model, res, index / source.fps)
             solver_s = clock() - ts
             q_prev = sol.q if sol.valid else q_prev
             row = _frame_row(index, source.fps, t_received, res, sol, read_s, solver_s)
@@ -301,11 +363,18 @@ def run_track(
         if writer is not None:
             writer.release()
     table = pd.DataFrame(rows)
-    outcome = TrackOutcome(table, out, boxes, live.dropped if live else 0, interrupted)
+    outcome = TrackOutcome(table, out, boxes, live.dropped if live else 0, interrupted,
+                           observer=observer)
     if truth is not None:
         outcome.metrics = score(table, truth, b)
     write_outputs(outcome, source, tracker)
     return outcome
+
+
+def _first_attitude(solver: CorSolver, res: PairResult) -> NDArray[np.float64]:
+    """The AEKF's starting attitude: the least-squares solve of the first frame, else rest."""
+    sol = solver.solve(res.marker_px)
+    return sol.q if sol.valid else np.array([1.0, 0.0, 0.0, 0.0])
 
 
 def _frame_row(index: int, fps: float, received_s: float, res: PairResult, sol: SolverResult,
@@ -358,7 +427,7 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     if len(t):
         total = (t["tracker_time_s"] + t["solver_time_s"]).to_numpy()
         Empirical.from_measurements(
-            total, source=f"{name} + CoR solver, {len(t)} frames of {source.name}"
+            total, source=f"{name} + {outcome.observer}, {len(t)} frames of {source.name}"
         ).save(out / "latency_profile.json")
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for col in ("tilt_deg", "yaw_deg", "spin_deg"):
@@ -383,7 +452,8 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     fig.savefig(out / "latency.png", dpi=100)
     plt.close(fig)
     lines = [f"# Tracking run: {source.name}", "",
-             f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}.", "",
+             f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}; attitude: "
+             f"{outcome.observer}.", "",
              *[f"- {s}" for s in outcome.summary_lines()], "",
              "![attitude](attitude.png)", "", "![latency](latency.png)", "",
              "Files: `frames.parquet` (per frame), `annotated.mp4`, `latency_profile.json` "
