@@ -194,6 +194,10 @@ def study(
     camera_file: Annotated[
         Path | None, typer.Option(help="Camera YAML (pmspm calibrate, examples/camera.yaml).")
     ] = None,
+    full: Annotated[
+        bool, typer.Option(help="Also close the loop in image mode with GK-TransT and the dual "
+                           "TransT at their latencies measured here (slow: minutes per run).")
+    ] = False,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -211,7 +215,7 @@ def study(
         if engine is not None:
             extra["engine"] = engine.value
         cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
-                          camera_file=camera_file, **extra)
+                          camera_file=camera_file, image_loop=full, **extra)
         study_plant(cfg)
     except (ValidationError, ValueError) as exc:
         _config_error(exc, "options")

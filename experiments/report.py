@@ -94,12 +94,45 @@ def _mpc_section(mpc_margins) -> list[str]:
     ]
 
 
+IMAGE_LOOP_HOWTO = (
+    "`pmspm study --full` adds it (`StudyConfig(image_loop=True)`): the loop closed in image "
+    "mode with GK-TransT and with the dual TransT, each at its latency measured here."
+)
+
+
+def _image_loop_section(image_loop: pd.DataFrame | None, n_seeds: int) -> list[str]:
+    """Tracking loss with the real trackers (image mode), or how to get it."""
+    head = ["### Tracking loss with the real trackers (image mode)", ""]
+    if image_loop is None:
+        return head + ["Not run in this study: every frame is rendered and tracked by the "
+                       "networks, minutes per run on two cores. " + IMAGE_LOOP_HOWTO, ""]
+    if not len(image_loop):
+        return head + ["Not run: no TransT latency was measured here (the network could not "
+                       "be loaded).", ""]
+    cols = ["tracker", "controller", "reference", "vision_delay_ms", "n_runs"]
+    for c in ("lost_frame_fraction", "rms_error_deg"):
+        cols += [c, f"{c}_lo", f"{c}_hi"]
+    cols += ["p_loss_of_control", "p_loss_of_control_lo", "p_loss_of_control_hi"]
+    return head + [
+        "Frames rendered (analytic renderer) and tracked by GK-TransT or the dual TransT, the "
+        "per-frame solver, the observer latency drawn from that tracker's profile measured "
+        f"here (`vision_delay_ms`: its median); {n_seeds} seed(s) per row, 95 % intervals "
+        "(bootstrap for lost frames and RMS error, Wilson for loss of control).",
+        "",
+        md_table(image_loop[cols]),
+        "",
+        "Full tables: `image_loop.parquet` (one row per run), `image_loop_intervals.parquet`.",
+        "",
+    ]
+
+
 def write_report(
     out: Path, cfg, findings, margins, intervals, loss, ts: dict, measured: dict[str, float],
-    facts: dict, mpc_margins=None,
+    facts: dict, mpc_margins=None, image_loop: pd.DataFrame | None = None,
 ) -> None:
     """Write ``report.md`` and ``report.html`` into ``out``. Facts about the machine and the
-    camera come from ``facts`` (read in this run), latencies from ``measured``."""
+    camera come from ``facts`` (read in this run), latencies from ``measured``; the image-mode
+    section from ``image_loop`` (None: not run, the report says how to run it)."""
     n_seeds = int(getattr(cfg, "n_seeds", 1))
     lat = "; ".join(f"{k} {v:.2f} ms median (`latency_{k}.json`)" for k, v in measured.items())
     md = [
@@ -169,6 +202,7 @@ def write_report(
         "Full tables: `sweep.parquet` (one row per run; every run's own file is in "
         "`sweep/runs/`), `sweep_intervals.parquet`, `loss_of_control.parquet`.",
         "",
+        *_image_loop_section(image_loop, n_seeds),
         "## 3. Time series: 16.33 ms against 31.23 ms",
         "",
         "![time series](timeseries_16_vs_31ms.png)",

@@ -19,6 +19,10 @@ tables:
    MPC; tilt-step metrics against the commanded step for every controller variant (PID with and
    without reference feedforward and with friction compensation, MPC with and without reference
    preview); the predicted stability boundary over the simulated loss of control.
+   With ``image_loop`` (``pmspm study --full``): the loop closed in image mode with GK-TransT
+   and with the dual TransT, each at its latency measured here, lost frames, error and loss of
+   control with intervals (not in the default study: it takes minutes per run; the default
+   report says how to get it).
 3. **Time series** of a 5° tilt step at 16.33 ms and at 31.23 ms, PID and MPC side by side.
 4. A plain-language **summary** generated from the numbers and the facts measured in the run.
 
@@ -43,7 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
 from experiments.intervals import seed_intervals
-from experiments.report import write_report
+from experiments.report import IMAGE_LOOP_HOWTO, write_report
 from experiments.scenario import (
     MPC_CALL_MEDIAN_S,
     Engine,
@@ -73,7 +77,7 @@ from latency.margins import (
     sampled_margins,
     sampled_stable,
 )
-from latency.models import SEED_LATENCY_S
+from latency.models import SEED_LATENCY_S, Empirical
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode
 from latency.profile import measure_pair_tracker_latency
@@ -130,6 +134,11 @@ class StudyConfig(BaseModel):
     camera_file: Path | None = Field(
         None, description="The user's camera YAML (plant.camera_file, e.g. from pmspm "
         "calibrate); None: the default camera."
+    )
+    image_loop: bool = Field(
+        False, description="Also close the loop in image mode with GK-TransT and the dual "
+        "TransT at their latencies measured here (``pmspm study --full``; every frame rendered "
+        "and tracked by the networks, minutes per run on two cores)."
     )
 
 
@@ -313,19 +322,24 @@ STEP_CONTROLLERS = ("pid", "pid_noff", "pid_friction", "mpc", "mpc_nopreview")
 RANDOM_CONTROLLERS = ("pid", "mpc")
 
 
+STEP_REFERENCE = ("tilt_step_5deg", {"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1}, 0.0)
+
+
+def _random_reference(rate_rad_s: float) -> tuple[str, dict, float]:
+    """A smooth random reference of peak rate ``rate_rad_s``: (name, spec, rate)."""
+    return (f"random_{rate_rad_s:g}rad_s",
+            {"kind": "random", "args": {"max_rate_rad_s": rate_rad_s, "seed": 7}}, rate_rad_s)
+
+
 def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[dict]:
     """The sweep's scenarios as dicts (delay x controller x reference x seed) on the plant
     ``params`` (default ``study_plant(cfg)``)."""
     params = params or study_plant(cfg)
     out = []
-    refs = [("tilt_step_5deg", {"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1}, 0.0,
-             STEP_CONTROLLERS)]
+    refs = [(*STEP_REFERENCE, STEP_CONTROLLERS)]
     fastest = max(cfg.max_rates_rad_s, default=None)
-    refs += [
-        (f"random_{w:g}rad_s", {"kind": "random", "args": {"max_rate_rad_s": w, "seed": 7}}, w,
-         STEP_CONTROLLERS if w == fastest else RANDOM_CONTROLLERS)
-        for w in cfg.max_rates_rad_s
-    ]
+    refs += [(*_random_reference(w), STEP_CONTROLLERS if w == fastest else RANDOM_CONTROLLERS)
+             for w in cfg.max_rates_rad_s]
     for d in cfg.delays_ms:
         for ref_name, ref, rate, controllers in refs:
             for ctrl in controllers:
@@ -367,7 +381,10 @@ def _scenario_part(config: dict) -> dict:
 
 
 def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per run: the study's bookkeeping (controller, reference, delay, rate, seed, and
+    the tracker of the image-mode runs) and the run's summary metrics."""
     keep = {
+        "config.study.tracker": "tracker",
         "config.study.controller": "controller",
         "config.study.reference": "reference",
         "config.study.delay_ms": "vision_delay_ms",
@@ -375,6 +392,7 @@ def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
         "config.seed": "seed",
         "error": "error",
     }
+    keep = {k: v for k, v in keep.items() if k in df.columns}
     out = df[list(keep)].rename(columns=keep)
     for c in df.columns:
         if c.startswith("result."):
@@ -410,6 +428,62 @@ def predicted_boundary_ms(margins: pd.DataFrame) -> float:
     headroom of the zero-delay row (the delay scanned through the pipeline)."""
     row = margins[(margins.observer == "sequential") & np.isclose(margins.vision_delay_ms, 0.0)]
     return float(1e3 * row.headroom_s.iloc[0]) if len(row) else float("nan")
+
+
+# --- 2b. tracking loss with the real trackers (image mode) ----------------------------------
+#: Trackers of the image-mode section: the profile name of ``measure_here`` -> the scenario's
+#: ``tracker``.
+IMAGE_TRACKERS = {"gk_transt": "transt", "dual_transt": "dual_transt"}
+
+
+def image_loop_configs(
+    cfg: StudyConfig, params: PlantParams, profiles: dict[str, Empirical]
+) -> list[dict]:
+    """Image-mode scenarios as dicts (tracker x controller x reference x seed): frames rendered
+    by the analytic renderer and tracked by GK-TransT or the dual TransT, the per-frame solver,
+    the observer latency drawn from that tracker's profile measured here (``profiles``, by
+    ``IMAGE_TRACKERS`` name), the 5° step and the fastest random reference, PID and MPC."""
+    refs = [STEP_REFERENCE] + ([_random_reference(max(cfg.max_rates_rad_s))]
+                               if cfg.max_rates_rad_s else [])
+    out = []
+    for name, profile in profiles.items():
+        median_ms = 1e3 * float(np.median(profile.samples_s))
+        for ref_name, ref, rate in refs:
+            for ctrl in RANDOM_CONTROLLERS:
+                for seed in range(cfg.n_seeds):
+                    s = Scenario(
+                        name=f"image-{name}-{ctrl}-{ref_name}-s{seed}",
+                        duration_s=cfg.duration_s, seed=seed, mode="image",
+                        tracker=IMAGE_TRACKERS[name], plant=params,
+                        observer={"kind": "solver"}, controller=_controller_spec(ctrl, cfg),
+                        reference=ref, pipeline={"observer": profile},
+                    )
+                    c = s.model_dump(mode="json")
+                    c["study"] = {"tracker": name, "controller": ctrl, "reference": ref_name,
+                                  "delay_ms": median_ms, "max_rate_rad_s": rate}
+                    out.append(c)
+    return out
+
+
+def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame:
+    """Run the image-mode section on the latency profiles ``measure_here`` saved in ``out``
+    (``latency_<tracker>.json``; a tracker without one is left out). Returns one row per
+    tracker, controller and reference with 95 % intervals over seeds (bootstrap for RMS error
+    and lost frames, Wilson for loss of control); also written as Parquet."""
+    profiles = {name: Empirical.load(out / f"latency_{name}.json") for name in IMAGE_TRACKERS
+                if (out / f"latency_{name}.json").is_file()}
+    configs = image_loop_configs(cfg, params, profiles)
+    if not configs:
+        return pd.DataFrame()
+    raw = run_sweep("experiments.study:study_run", configs, out / "image_loop",
+                    scheduler=cfg.scheduler, workers=cfg.workers)
+    runs = tidy_sweep(raw)
+    runs.to_parquet(out / "image_loop.parquet")
+    ok = runs[runs.error == ""]
+    table = seed_intervals(ok, ["tracker", "controller", "reference", "vision_delay_ms"],
+                           ("rms_error_deg", "lost_frame_fraction"), ("loss_of_control",))
+    table.to_parquet(out / "image_loop_intervals.parquet")
+    return table
 
 
 # --- 3. time series -------------------------------------------------------------------------
@@ -519,10 +593,31 @@ def _preview_lines(step: pd.DataFrame) -> list[str]:
     ]
 
 
+def _image_loop_lines(image: pd.DataFrame | None) -> list[str]:
+    """The image-mode section in a line per tracker (the step and the fastest reference,
+    PID and MPC pooled in the table's rows), or how to get it."""
+    title = "- **Tracking loss with the real trackers (image mode).** "
+    if image is None:
+        return [title + "Not run in this study. " + IMAGE_LOOP_HOWTO]
+    if not len(image):
+        return [title + "Not run: no TransT latency was measured here."]
+    names = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT"}
+    parts = []
+    for tracker, g in image.groupby("tracker", sort=False):
+        rows = "; ".join(
+            f"{r.controller.upper()} on {r.reference}: lost frames "
+            f"{_ci(r, 'lost_frame_fraction', 100.0, '.1f')} %, RMS error "
+            f"{_ci(r, 'rms_error_deg', fmt='.2f')}°, loss of control "
+            f"{_ci(r, 'p_loss_of_control')}" for _, r in g.iterrows())
+        parts.append(f"{names.get(tracker, tracker)} at its {g.vision_delay_ms.iloc[0]:.2f} ms "
+                     f"measured here ({int(g.n_runs.iloc[0])} runs per row): {rows}")
+    return [title + ". ".join(parts) + "."]
+
+
 def summary_text(
     margins: pd.DataFrame, intervals: pd.DataFrame, loss: pd.DataFrame, ts: dict,
     measured: dict[str, float], facts: dict, cfg: StudyConfig,
-    mpc_margins: pd.DataFrame | None = None,
+    mpc_margins: pd.DataFrame | None = None, image: pd.DataFrame | None = None,
 ) -> list[str]:
     """Plain-language findings, every number taken from the tables or measured in this run."""
     fps, period = facts["frame_rate_hz"], facts["frame_period_ms"]
@@ -616,6 +711,7 @@ def summary_text(
             lines.append(f"- **5° tilt step at {d:.2f} ms** (band ±{SETTLE_BAND_DEG:g}°, "
                          f"{cfg.duration_s:g} s runs). " + "; ".join(parts) + ".")
     lines += _preview_lines(step)
+    lines += _image_loop_lines(image)
     pid_gk = step[(step.controller == "pid") & np.isclose(step.vision_delay_ms, GK_MS)]
     coulomb_mNm = 1e3 * facts["coulomb_Nm"]
     if len(pid_gk) and float(pid_gk.p_settled.iloc[0]) < 1.0:
@@ -671,10 +767,13 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     boundaries = {"pid": predicted_boundary_ms(margins), "mpc": predicted_boundary_ms(mpc_aware)}
     plot_boundary_overlay(loss, boundaries, marks, out / "boundary_vs_loss_of_control.png")
 
+    image = image_loop(cfg, params, out) if cfg.image_loop else None
     series, ts = time_series(cfg, params, out)
     plot_time_series(series, (GK_MS, DUAL_MS), out / "timeseries_16_vs_31ms.png")
 
-    findings = summary_text(margins, intervals, loss, ts, measured, facts, cfg, mpc_margins)
+    findings = summary_text(margins, intervals, loss, ts, measured, facts, cfg, mpc_margins,
+                            image)
     (out / "study_config.json").write_text(json.dumps(cfg.model_dump(mode="json"), indent=1))
-    write_report(out, cfg, findings, margins, intervals, loss, ts, measured, facts, mpc_margins)
+    write_report(out, cfg, findings, margins, intervals, loss, ts, measured, facts, mpc_margins,
+                 image)
     return out

@@ -32,6 +32,8 @@ def test_study_writes_report_plots_and_tables(quick_study):
     html = (quick_study / "report.html").read_text()
     for img in re.findall(r'<img alt="[^"]*" src="([^"]+)"', html):
         assert (quick_study / img).exists()
+    # the image-mode section is not in the default study: the report says how to get it
+    assert "pmspm study --full" in (quick_study / "report.md").read_text()
 
 
 def test_report_numbers_match_the_parquet_tables(quick_study):
