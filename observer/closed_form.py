@@ -149,8 +149,9 @@ class SeedClosedForm:
 
     Parameters
     ----------
-    p : plant parameters: focal length, pixel pitch, image centre ((W − 1)/2, (H − 1)/2) in
-        sensor px, h_c and R.
+    p : plant parameters: focal length, pixel pitch and image centre from
+        ``plant.camera.Camera.matrix(1)`` (((W − 1)/2, (H − 1)/2) in sensor px unless the camera
+        has calibrated intrinsics), h_c and R.
     spin_mode : ``"zyz"`` (default): ``α = α_seed − γ``; ``"as_written"``: ``α = α_seed``.
     literal_yaw_mirror : apply the seed's yaw mirror correction as printed regardless of the
         geometry (wrong for our camera; for comparison only).
@@ -162,10 +163,10 @@ class SeedClosedForm:
         if spin_mode not in ("zyz", "as_written"):
             raise ValueError(f"spin_mode must be 'zyz' or 'as_written', got {spin_mode!r}")
         c = p.camera
+        K = Camera.from_plant(p).matrix(1)  # calibrated intrinsics when the camera has them
         self.f_m = c.focal_length_m
-        self.pixel_m = (c.pixel_size_m, c.pixel_size_m)
-        self.u0 = (c.sensor_width_px - 1) / 2.0
-        self.v0 = (c.sensor_height_px - 1) / 2.0
+        self.pixel_m = (c.focal_length_m / K[0, 0], c.focal_length_m / K[1, 1])
+        self.u0, self.v0 = float(K[0, 2]), float(K[1, 2])
         self.h_c_m = c.h_c_m
         self.R_m = p.rotor.radius_m
         self.spin_mode = spin_mode
