@@ -309,6 +309,8 @@ class ClosedLoop:
         n_steps = self.n_steps
 
         log = _StepLog(n_steps + 1)
+        # The reference on the whole physics grid, once (one array call, not one per step).
+        q_ref_grid = self.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q
         run.push(0.5 * c.pipeline.exposure_s, "frame")
         if c.controller_rate_hz is not None:
             run.push(0.0, "tick", 0)
@@ -322,7 +324,7 @@ class ClosedLoop:
             flag of the row before)."""
             n = len(seg.q)
             times = (k0 + np.arange(n)) * p.physics_dt_s
-            q_ref = np.array([self.reference.sample(float(tk)).q for tk in times])
+            q_ref = q_ref_grid[k0 : k0 + n]
             stop = tilt_stop_contact(seg.q, p)
             before = np.r_[run.stop, stop[:-1]]
             est = run.estimate
