@@ -181,13 +181,21 @@ def to_zyz(q: ArrayLike) -> tuple[float, float, float]:
     alpha + gamma is observable; then gamma = 0 and alpha holds the rotation about Z. For an
     (N, 4) array use ``to_zyz_array``.
     """
-    alpha, beta, gamma = to_zyz_array(np.asarray(q, dtype=float)[None, :])[0]
+    q = np.asarray(q, dtype=float)
+    if q.shape != (4,):
+        raise ValueError(f"q must have shape (4,) as (w, x, y, z), got {q.shape}")
+    # one attitude: to_matrix's scalar path, the same arithmetic as the array path
+    alpha, beta, gamma = _zyz_of_matrix(to_matrix(q))
     return float(alpha), float(beta), float(gamma)
 
 
 def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
     """(N, 3) array of (spin, tilt, yaw), rad, for (N, 4) quaternions (see ``to_zyz``)."""
-    R = to_matrix(q)
+    return np.stack(_zyz_of_matrix(to_matrix(q)), axis=-1)
+
+
+def _zyz_of_matrix(R: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+    """(spin, tilt, yaw), rad, of rotation matrices (..., 3, 3) (see ``to_zyz``)."""
     s_beta = np.hypot(R[..., 0, 2], R[..., 1, 2])
     beta = np.arctan2(s_beta, R[..., 2, 2])
     regular = s_beta > _SINGULAR_SIN_BETA
@@ -202,7 +210,7 @@ def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
     )
     gamma = np.where(regular, np.arctan2(R[..., 1, 2], R[..., 0, 2]), 0.0)
     two_pi = 2.0 * np.pi
-    return np.stack([np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)], axis=-1)
+    return np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)
 
 
 def tilt(q: ArrayLike) -> float:
