@@ -206,12 +206,10 @@ class MujocoPlant:
         tau_L = self.params.motor.coil_time_constant_s
         h0 = self.model.opt.timestep
         q, w = self.data.qpos[None].copy(), self.data.qvel[None].copy()
-        no_torque = np.zeros((1, 3))
         for h in steps:
             decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
             self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
-            dist = (no_torque if self.disturbance is None
-                    else np.reshape(self.disturbance(h), (1, 3)))
+            dist = None if self.disturbance is None else np.reshape(self.disturbance(h), (1, 3))
             q, w = self.body.step(q, w, self.currents[None], h, dist)
             if self._native_sensor:  # MuJoCo's step records the sensors at the step start
                 self.model.opt.timestep = h

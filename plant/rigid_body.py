@@ -290,8 +290,8 @@ class RigidBody:
     ) -> NDArray[np.float64]:
         """omega_dot (B, 3), rad/s², of the equations in the module docstring."""
         q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
-        d = np.zeros_like(omega) if disturbance is None else np.ascontiguousarray(
-            np.broadcast_to(disturbance, omega.shape), dtype=float)
+        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+            np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
         return _acceleration_rows(q, omega, currents, d, *self.consts)
 
     def step(
@@ -307,6 +307,6 @@ class RigidBody:
         steps. Returns the new ``(q, omega)``; ``q`` is renormalised."""
         q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
         hb = np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],)))
-        d = np.zeros_like(omega) if disturbance is None else np.ascontiguousarray(
-            np.broadcast_to(disturbance, omega.shape), dtype=float)
+        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+            np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
         return _step_rows(q, omega, currents, hb, d, PHYSICS_SUBSTEPS, *self.consts)
