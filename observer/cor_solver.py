@@ -75,10 +75,12 @@ def _tilt(q: NDArray[np.float64]) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
+@njit(cache=True)
 def _qmul(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton product of two single quaternions (w, x, y, z)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
+    """Hamilton product of two single quaternions (w, x, y, z) (compiled: the iteration uses
+    it too)."""
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
     return np.array([
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -192,13 +194,7 @@ def _lm(q, P, uv, t_cor, intr, max_iterations, step_tol):
         if step < step_tol:
             return q, _CONVERGED, it, cost, J  # the next step would rotate by less
         sq = dp @ dp  # q ⊗ q(dp), q(p) = ((1 − |p|²), 2p)/(1 + |p|²) (cor_model.mrp_to_quat)
-        m = np.array([1.0 - sq, 2.0 * dp[0], 2.0 * dp[1], 2.0 * dp[2]]) / (1.0 + sq)
-        q_new = np.array([
-            q[0] * m[0] - q[1] * m[1] - q[2] * m[2] - q[3] * m[3],
-            q[0] * m[1] + q[1] * m[0] + q[2] * m[3] - q[3] * m[2],
-            q[0] * m[2] - q[1] * m[3] + q[2] * m[0] + q[3] * m[1],
-            q[0] * m[3] + q[1] * m[2] - q[2] * m[1] + q[3] * m[0],
-        ])
+        q_new = _qmul(q, np.array([1.0 - sq, 2.0 * dp[0], 2.0 * dp[1], 2.0 * dp[2]]) / (1.0 + sq))
         r_new, J_new = _residual_jac(q_new, P, uv, t_cor, intr)
         cost_new = r_new @ r_new if np.all(np.isfinite(r_new)) else np.inf
         if cost_new <= cost:
