@@ -326,7 +326,7 @@ class ClosedLoop:
             times = (k0 + np.arange(n)) * p.physics_dt_s
             q_ref = q_ref_grid[k0 : k0 + n]
             stop = tilt_stop_contact(seg.q, p)
-            before = np.r_[run.stop, stop[:-1]]
+            before = np.concatenate(([run.stop], stop[:-1]))
             est = run.estimate
             log.write_rows(k0, times, seg, q_ref, run.torque_cmd, run.delivered,
                            est.q if est is not None else None, run.saturated, before)
