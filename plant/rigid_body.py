@@ -30,7 +30,7 @@ Code: one numba-compiled loop over the batch rows (``_step_rows``), each row wit
 length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
 (``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). numba
 caches the machine code on disk (``cache=True``): the first call in a fresh process loads it
-(about 0.4 s measured under load) or, without a cache, compiles it (about 4 s).
+(about 0.4 s measured under load) or, without a cache, compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
