@@ -7,6 +7,9 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   B = 1, 2, 4, ..., 1024 runs (different seeds) advanced together, and of the event loop
   (``ClosedLoop.run``) in the same process: ``batched_B<B>_realtime_factor``,
   ``event_loop_realtime_factor`` and their ratio at B = 256;
+* the compiled physics step alone (``plant.rigid_body.RigidBody.step``), wall time per rotor
+  and physics step over B = 1, 256 and 1024 rotors, and the CasADi twin's step for one rotor:
+  ``physics_step_{compiled,casadi}_B<B>_s_per_rotor``;
 * wall time of the study's closed-loop sweep (``experiments.study.sweep_configs``), of a small
   ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
   loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
@@ -95,36 +98,29 @@ def sweep_walls(n_runs: int, n_event: int, duration_s: float, batch: int) -> tup
     return event, batched
 
 
-def torque_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
-    """Wall time (s) of one evaluation of K(q) I over ``batch`` rotors, the batched step's
-    dominant kernel (``RigidBody.em_torque``), in numpy and in torch on the CPU (one thread),
-    the same operations: the technique choice of docs/closed_loop.md."""
+def physics_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
+    """Wall time (s) per rotor and physics step of the compiled step (``RigidBody.step``, the
+    RKMK4 physics of both engines) over ``batch`` rotors, best of ``repeats``; for one rotor
+    also the CasADi twin's step of the same method (``CasadiTwin.step``, its virtual
+    machine): the technique choice of docs/closed_loop.md."""
     import numpy as np
-    import torch
 
+    from plant import attitude
     from plant.params import PlantParams
-    from plant.rigid_body import RigidBody, quat_matrix
+    from plant.rigid_body import RigidBody
+    from plant.twin import CasadiTwin
 
-    torch.set_num_threads(1)
-    body = RigidBody(PlantParams())
+    p = PlantParams()
+    body = RigidBody(p)
     rng = np.random.default_rng(0)
-    q = rng.normal(size=(batch, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    R, current = quat_matrix(q), rng.uniform(-1, 1, (batch, 16))
-    Rt, It = torch.from_numpy(R), torch.from_numpy(current)
-    mags, coils = torch.from_numpy(body.magnets), torch.from_numpy(body.coils)
-    gain = torch.from_numpy(body.gain_scaled)
-
-    def torch_torque():
-        r = torch.matmul(mags, Rt.transpose(1, 2))
-        x = torch.clamp(torch.matmul(r, coils.T) - body.cos_cutoff, min=0.0)
-        a = torch.matmul(x * x * gain * It[:, None, :], coils)
-        return torch.linalg.cross(a, r, dim=-1).sum(dim=1)
-
-    assert np.allclose(torch_torque().numpy(), body.em_torque(R, current), atol=1e-12)
-    out = {}
-    for name, fn in (("numpy", lambda: body.em_torque(R, current)), ("torch", torch_torque)):
-        out[name] = min(_wall(fn) for _ in range(repeats))
+    q = np.stack([attitude.from_zyz(*rng.uniform(0.0, 0.2, 3)) for _ in range(batch)])
+    w, cur = rng.normal(size=(batch, 3)), rng.uniform(-0.3, 0.3, (batch, 16))
+    h = p.physics_dt_s
+    out = {"compiled": min(_wall(lambda: body.step(q, w, cur, h)) for _ in range(repeats))
+           / batch}
+    if batch == 1:
+        step, x = CasadiTwin(p).step, np.r_[q[0], w[0]]
+        out["casadi"] = min(_wall(lambda: step(x, cur[0])) for _ in range(repeats))
     return out
 
 
@@ -148,9 +144,9 @@ def main() -> None:
         for b in sizes:
             figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
         figures["event_loop_realtime_factor"] = event_loop_speed(duration)
-        for b in (1, 256):
-            for name, wall in torque_kernel_times(b).items():
-                figures[f"torque_kernel_{name}_B{b}_s"] = wall
+        for b in (1, 256, 1024):
+            for name, wall in physics_kernel_times(b).items():
+                figures[f"physics_step_{name}_B{b}_s_per_rotor"] = wall
         ref = 4 if quick else 256
         figures[f"batched_B{ref}_over_event_loop"] = (
             figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]

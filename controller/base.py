@@ -25,7 +25,8 @@ from plant.estimate import Estimate
 @dataclass(frozen=True)
 class RefSample:
     """The reference at one time: attitude (w, x, y, z), body rate (rad/s) and body angular
-    acceleration (rad/s²) of the desired motion."""
+    acceleration (rad/s²) of the desired motion; from ``Reference.sample_many``, the same at
+    n times, with a leading axis of n."""
 
     q: NDArray[np.float64]
     omega: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
@@ -33,9 +34,23 @@ class RefSample:
 
 
 class Reference(Protocol):
-    """A reference trajectory: ``sample(t)`` for any time t (s)."""
+    """A reference trajectory: ``sample(t)`` for any time t (s), ``sample_many(t)`` for an
+    array of times at once (the loop samples the whole physics grid of a run in one call).
+
+    Subclass it to inherit a ``sample_many`` that calls ``sample`` once per time; the
+    generators of ``controller.reference`` compute it as arrays."""
 
     def sample(self, t: float) -> RefSample: ...
+
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The reference at each time of ``t`` (n,), s: a ``RefSample`` whose ``q`` is (n, 4),
+        ``omega`` (n, 3), rad/s, and ``alpha`` (n, 3), rad/s²."""
+        samples = [self.sample(float(x)) for x in np.asarray(t, dtype=float).reshape(-1)]
+        return RefSample(
+            q=np.array([s.q for s in samples], dtype=float).reshape(-1, 4),
+            omega=np.array([s.omega for s in samples], dtype=float).reshape(-1, 3),
+            alpha=np.array([s.alpha for s in samples], dtype=float).reshape(-1, 3),
+        )
 
 
 #: What a controller commands while its estimate is invalid: zero torque, or its last command.

@@ -392,7 +392,10 @@ class PIDController(Controller):
             width = np.radians(self.config.friction_compensation_width_deg)
             tau = tau + self.config.friction_compensation_Nm * np.tanh(e / width)
         if self.config.feedforward:
-            tau = tau + self.J * a_r + np.cross(w_r, self.J * w_r)
+            Jw = self.J * w_r  # omega_r x J omega_r written out (np.cross is slow on 3-vectors)
+            gyro = np.array([w_r[1] * Jw[2] - w_r[2] * Jw[1], w_r[2] * Jw[0] - w_r[0] * Jw[2],
+                             w_r[0] * Jw[1] - w_r[1] * Jw[0]])
+            tau = tau + self.J * a_r + gyro
         R = attitude.to_matrix(q)
         T, saturated = limit_vector(R @ tau, self.torque_limit)
         tau_sat = R.T @ T

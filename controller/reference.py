@@ -102,6 +102,54 @@ def chain_sample(
     return RefSample(q=np.array(q), omega=np.array(omega), alpha=np.array(alpha))
 
 
+def _rotate_back_many(
+    axis: NDArray[np.float64], angle: NDArray[np.float64], v: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``exp(angle_k [axis])^T v_k`` for a unit axis (3,), angles (n,) and vectors (n, 3)
+    (Rodrigues' formula with -angle)."""
+    c, s = np.cos(angle)[:, None], -np.sin(angle)[:, None]
+    kv = (v @ axis)[:, None]
+    return v * c + np.cross(axis, v) * s + axis * kv * (1.0 - c)
+
+
+def chain_sample_many(
+    axes: Sequence[NDArray[np.float64]],
+    theta: NDArray[np.float64],
+    dtheta: NDArray[np.float64],
+    ddtheta: NDArray[np.float64],
+) -> RefSample:
+    """``chain_sample`` at n times at once: the angles (rad) and their derivatives (rad/s,
+    rad/s²) are (len(axes), n); returns q (n, 4), omega (n, 3), alpha (n, 3). The same
+    formulas (module docstring), as arrays over the times."""
+    ax = [np.asarray(a, dtype=float) for a in axes]
+    th, d1, d2 = (np.asarray(x, dtype=float) for x in (theta, dtheta, ddtheta))
+    n = th.shape[1]
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
+    for a, t in zip(ax, th, strict=True):
+        factor = np.concatenate([np.cos(0.5 * t)[:, None], np.sin(0.5 * t)[:, None] * a], axis=1)
+        q = attitude.multiply(q, factor)
+    omega, alpha, w_M = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    for i in range(len(ax) - 1, -1, -1):
+        v = np.broadcast_to(ax[i], (n, 3))
+        for j in range(i + 1, len(ax)):
+            v = _rotate_back_many(ax[j], th[j], v)
+        wxv = np.cross(w_M, v)
+        omega += v * d1[i][:, None]
+        alpha += v * d2[i][:, None] - wxv * d1[i][:, None]
+        w_M = w_M + v * d1[i][:, None]
+    return RefSample(q=q, omega=omega, alpha=alpha)
+
+
+def zyz_sample_many(
+    angles: NDArray[np.float64], rates: NDArray[np.float64], accels: NDArray[np.float64]
+) -> RefSample:
+    """``zyz_sample`` at n times: (spin, tilt, yaw) and their derivatives as (3, n) arrays."""
+    order = [2, 1, 0]  # the product Rz(yaw) Ry(tilt) Rz(spin)
+    a, r, c = (np.asarray(x, dtype=float)[order] for x in (angles, rates, accels))
+    return chain_sample_many((_EZ, _EY, _EZ), a, r, c)
+
+
 def zyz_sample(
     angles: Sequence[float], rates: Sequence[float], accels: Sequence[float]
 ) -> RefSample:
@@ -153,6 +201,13 @@ class Steps(_Model):
         """The attitude active at ``t`` (s); zero rate and acceleration."""
         k = max(int(np.searchsorted(self._times, t, side="right")) - 1, 0)
         return RefSample(q=self._unit[k].copy())
+
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The attitudes active at the times ``t`` (n,), s; zero rates and accelerations."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        k = np.maximum(np.searchsorted(self._times, t, side="right") - 1, 0)
+        return RefSample(q=self._unit[k], omega=np.zeros((len(t), 3)),
+                         alpha=np.zeros((len(t), 3)))
 
     @property
     def duration_s(self) -> float:
@@ -238,6 +293,10 @@ class SeedSteps(_Model):
         """The step attitude at ``t`` (s)."""
         return self._steps.sample(t)
 
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The step attitudes at the times ``t`` (n,), s."""
+        return self._steps.sample_many(t)
+
     @property
     def duration_s(self) -> float:
         """End of the last dwell, s."""
@@ -280,6 +339,15 @@ class Ramp(_Model):
         angles = np.deg2rad(self.start_deg) + self.rate_rad_s * s
         return zyz_sample(angles, rates, (0.0, 0.0, 0.0))
 
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The ramp at the times ``t`` (n,), s."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        s = np.clip(t - self.t_start_s, 0.0, self.duration_s)
+        moving = (self.t_start_s < t) & (t < self.t_start_s + self.duration_s)
+        rate = self.rate_rad_s[:, None]
+        angles = np.deg2rad(self.start_deg)[:, None] + rate * s
+        return zyz_sample_many(angles, rate * moving, np.zeros_like(angles))
+
 
 class Cone(_Model):
     """Yaw sweeping at ``yaw_rate_rad_s`` at a fixed tilt from ``t_start_s`` (holding the start
@@ -305,6 +373,17 @@ class Cone(_Model):
         a0 = np.deg2rad(self.spin0_deg)
         a, da = (a0, 0.0) if self.turn_shaft else (a0 - g, -dg)
         return zyz_sample((a, np.deg2rad(self.tilt_deg), g), (da, 0.0, dg), (0.0, 0.0, 0.0))
+
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The cone at the times ``t`` (n,), s."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        dg = np.where(t > self.t_start_s, self.yaw_rate_rad_s, 0.0)
+        g = np.deg2rad(self.yaw0_deg) + self.yaw_rate_rad_s * np.maximum(t - self.t_start_s, 0.0)
+        a0 = np.full_like(t, np.deg2rad(self.spin0_deg))
+        a, da = (a0, np.zeros_like(t)) if self.turn_shaft else (a0 - g, -dg)
+        zero = np.zeros_like(t)
+        return zyz_sample_many(np.stack([a, np.full_like(t, np.deg2rad(self.tilt_deg)), g]),
+                               np.stack([da, zero, dg]), np.zeros((3, len(t))))
 
 
 class RandomSmooth(_Model):
@@ -393,3 +472,8 @@ class RandomSmooth(_Model):
         """The trajectory at ``t`` (s)."""
         th, dth, ddth = self.angles(t)
         return chain_sample((_EX, _EY, _EZ), th, dth, ddth)
+
+    def sample_many(self, t: NDArray[np.float64]) -> RefSample:
+        """The trajectory at the times ``t`` (n,), s."""
+        th, dth, ddth = self._angles_on(np.asarray(t, dtype=float).reshape(-1))
+        return chain_sample_many((_EX, _EY, _EZ), th, dth, ddth)

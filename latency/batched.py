@@ -13,8 +13,9 @@ code as the event loop's (``plant.dynamics.MujocoPlant`` advances one rotor with
 and so are the event handlers and the random streams: run by run, the two engines compute the
 same trajectory to rounding (tests/test_batched.py).
 
-Where the time goes (docs/closed_loop.md): the batched physics costs about as much per rotor as
-CasADi-generated C called per rotor, and a run's events and per-step bookkeeping stay Python per
+Where the time goes (docs/closed_loop.md): the physics is the compiled kernel of
+``plant.rigid_body`` (a loop over the rows in numba), the same code the event loop calls for
+its one rotor; a run's events (front end, observer, controller) and its tables stay Python per
 run. Not covered: MuJoCo's natively delayed sensor (``mujoco_sensor_delay_s``), which needs the
 MuJoCo data of each run; those runs raise ``ValueError``. The engine is agnostic of the front
 end, but image-in-the-loop runs gain nothing from batching the physics (the renderer and tracker
@@ -43,6 +44,9 @@ class _Batch:
     def __init__(self, params: PlantParams, loops: Sequence[ClosedLoop]) -> None:
         self.params = params
         self.body = RigidBody(params)
+        self.h = float(params.physics_dt_s)  # s, cached out of the model for the rounds
+        self.tau_L = float(params.motor.coil_time_constant_s)  # s
+        self.i_max = float(params.motor.i_max_A)  # A
         self.torque_map = TorqueMap(params.motor)
         self.q = np.array([attitude.normalize(lp.config.q0, "q0") for lp in loops])
         self.omega = np.array([np.asarray(lp.config.omega0_rad_s, float) for lp in loops])
@@ -59,8 +63,7 @@ class _Batch:
         (rows, 16) held: as ``MujocoPlant.advance``, whole physics steps, then one shorter step
         for the remainder, and the coils' first-order lag, exact at each step's start.
         ``disturbances[i]`` (None: none) gives run i's body torque (N·m) for a step of h s."""
-        h = self.params.physics_dt_s
-        tau_L = self.params.motor.coil_time_constant_s
+        h, tau_L = self.h, self.tau_L
         n = np.floor(dt / h + 1e-9).astype(int)
         rest = dt - n * h
         for k in range(int(n.max(initial=0)) + 1):
@@ -109,7 +112,7 @@ class _RunPlant:
         """Currents for a stator-frame torque (N·m) with the motor's limit, K at ``q`` (default
         the run's attitude), as ``MujocoPlant.allocate``."""
         K = self.batch.torque_map(self.q if q is None else q)
-        return allocate(torque, K, float(self.batch.params.motor.i_max_A))
+        return allocate(torque, K, self.batch.i_max)
 
     def delayed_q(self) -> NDArray[np.float64]:
         raise ValueError("the batched engine has no MuJoCo sensors; use the event loop")
@@ -132,8 +135,8 @@ def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[Loo
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
     for members in groups.values():
         group = [loops[i] for i in members]
-        # A batch of one gains nothing from the batch code: the event loop's single-rotor step
-        # (the CasADi plant step) is about five times faster, with the same results.
+        # A batch of one gains nothing from the lockstep rounds: the event loop calls the same
+        # compiled step for its rotor without the rounds' bookkeeping, with the same results.
         done = [group[0].run()] if len(group) == 1 else _run_group(group)
         for i, res in zip(members, done, strict=True):
             results[i] = res
@@ -149,7 +152,7 @@ def _run_group(loops: Sequence[ClosedLoop]) -> list[LoopResult]:
     reached with their ``Segment``."""
     B = len(loops)
     batch = _Batch(loops[0].params, loops)
-    h = batch.params.physics_dt_s
+    h = batch.h
     plants = [_RunPlant(batch, i) for i in range(B)]
     timelines = [lp.timeline(pl) for lp, pl in zip(loops, plants, strict=True)]
     results: list[LoopResult | None] = [None] * B

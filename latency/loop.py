@@ -309,6 +309,8 @@ class ClosedLoop:
         n_steps = self.n_steps
 
         log = _StepLog(n_steps + 1)
+        # The reference on the whole physics grid, once (one array call, not one per step).
+        q_ref_grid = self.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q
         run.push(0.5 * c.pipeline.exposure_s, "frame")
         if c.controller_rate_hz is not None:
             run.push(0.0, "tick", 0)
@@ -322,9 +324,9 @@ class ClosedLoop:
             flag of the row before)."""
             n = len(seg.q)
             times = (k0 + np.arange(n)) * p.physics_dt_s
-            q_ref = np.array([self.reference.sample(float(tk)).q for tk in times])
+            q_ref = q_ref_grid[k0 : k0 + n]
             stop = tilt_stop_contact(seg.q, p)
-            before = np.r_[run.stop, stop[:-1]]
+            before = np.concatenate(([run.stop], stop[:-1]))
             est = run.estimate
             log.write_rows(k0, times, seg, q_ref, run.torque_cmd, run.delivered,
                            est.q if est is not None else None, run.saturated, before)
@@ -603,18 +605,19 @@ class _StepLog:
             + (["mj_delayed_qw", "mj_delayed_qx", "mj_delayed_qy", "mj_delayed_qz"]
                if native else [])
         )
-        df = pd.DataFrame(a[:, : len(cols)], columns=cols)
-        df["saturated"] = df["saturated"].astype(bool)
-        df["tilt_stop"] = df["tilt_stop"].astype(bool)
-        q = df[["qw", "qx", "qy", "qz"]].to_numpy()
-        qr = df[["ref_qw", "ref_qx", "ref_qy", "ref_qz"]].to_numpy()
-        df["error_deg"] = np.degrees(attitude.geodesic_angle(q, qr))
+        # Every column as an array first, one DataFrame at the end (inserting columns one by
+        # one into a wide frame cost more than the rest of a short run's bookkeeping).
+        data = {name: a[:, k] for k, name in enumerate(cols)}
+        data["saturated"] = data["saturated"].astype(bool)
+        data["tilt_stop"] = data["tilt_stop"].astype(bool)
+        q, qr = a[:, 1:5], a[:, 8:12]
+        data["error_deg"] = np.degrees(attitude.geodesic_angle(q, qr))
         zyz = np.degrees(attitude.to_zyz_array(q))
         zyz_ref = np.degrees(attitude.to_zyz_array(qr))
         for i, name in enumerate(("spin", "tilt", "yaw")):
-            df[f"{name}_deg"] = zyz[:, i]
-            df[f"ref_{name}_deg"] = zyz_ref[:, i]
-        return df
+            data[f"{name}_deg"] = zyz[:, i]
+            data[f"ref_{name}_deg"] = zyz_ref[:, i]
+        return pd.DataFrame(data)
 
 
 #: Loss of control (our choices, docs/closed_loop.md): any of these over a run.

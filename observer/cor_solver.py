@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from observer.cor_model import CorModel
@@ -74,10 +75,12 @@ def _tilt(q: NDArray[np.float64]) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
+@njit(cache=True)
 def _qmul(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton product of two single quaternions (w, x, y, z)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
+    """Hamilton product of two single quaternions (w, x, y, z) (compiled: the iteration uses
+    it too)."""
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
     return np.array([
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -86,17 +89,122 @@ def _qmul(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]
     ])
 
 
-def _mrp_quat(p: NDArray[np.float64]) -> NDArray[np.float64]:
-    """q(p) = ((1 − |p|²), 2p)/(1 + |p|²) for one p (see observer.cor_model.mrp_to_quat)."""
-    s = float(p @ p)
-    return np.array([1.0 - s, 2.0 * p[0], 2.0 * p[1], 2.0 * p[2]]) / (1.0 + s)
-
-
 def _axis_quat(axis: int, angle: float) -> NDArray[np.float64]:
     q = np.zeros(4)
     q[0] = np.cos(0.5 * angle)
     q[1 + axis] = np.sin(0.5 * angle)
     return q
+
+
+# --- the compiled iteration ----------------------------------------------------------------
+# numba-compiled (cached on disk): one frame's Levenberg–Marquardt iteration is a few hundred
+# flops on 3-vectors, where numpy's per-call overhead dominated. ``intr`` is
+# (fx, fy, cx, cy, k1, k2, k3); the status codes of ``_lm`` are below.
+_CONVERGED, _SINGULAR, _NOT_CONVERGED = 0, 1, 2
+
+
+@njit(cache=True)
+def _residual_jac(q, P, uv, t_cor, intr):
+    """Residual r = uv_meas − uv(q) (2n,) and J = ∂uv/∂p at p = 0 about q (2n, 3) for the
+    markers P (n, 3), m, and their pixels uv (n, 2).
+
+    The same model as ``CorModel.jacobian_mrp`` written out: with g = ∂u/∂X (a row) and
+    ``∂X/∂p = −4 R(q) [P]× = −4 [R P]× R``, ``∂u/∂p = −4 (g × R P)ᵀ R``. A marker behind the
+    camera makes every residual NaN."""
+    fx, fy, cx, cy, k1, k2, k3 = intr[0], intr[1], intr[2], intr[3], intr[4], intr[5], intr[6]
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    n = P.shape[0]
+    res = np.empty(2 * n)
+    J = np.empty((2 * n, 3))
+    behind = False
+    for j in range(n):
+        RP = R @ P[j]
+        X0, X1, X2 = RP[0] + t_cor[0], RP[1] + t_cor[1], RP[2] + t_cor[2]
+        behind = behind or not X2 > 0.0
+        iz = 1.0 / X2
+        xn, yn = X0 * iz, X1 * iz
+        r2 = xn * xn + yn * yn
+        s = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        ds = k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)
+        res[2 * j] = uv[j, 0] - (fx * s * xn + cx)
+        res[2 * j + 1] = uv[j, 1] - (fy * s * yn + cy)
+        c = 2.0 * xn * yn * ds
+        a11, a12 = fx * (s + 2.0 * xn * xn * ds) * iz, fx * c * iz
+        a21, a22 = fy * c * iz, fy * (s + 2.0 * yn * yn * ds) * iz
+        for row, g0, g1 in ((2 * j, a11, a12), (2 * j + 1, a21, a22)):
+            g2 = -(g0 * xn + g1 * yn)
+            e0 = g1 * RP[2] - g2 * RP[1]  # g × RP
+            e1 = g2 * RP[0] - g0 * RP[2]
+            e2 = g0 * RP[1] - g1 * RP[0]
+            for k in range(3):
+                J[row, k] = -4.0 * (e0 * R[0, k] + e1 * R[1, k] + e2 * R[2, k])
+    if behind:
+        res[:] = np.nan
+    return res, J
+
+
+@njit(cache=True)
+def _solve3(A, b):
+    """x with A x = b for a 3×3 A (Gaussian elimination with partial pivoting); ``ok`` is False
+    when a pivot is exactly zero (singular, as LAPACK's getrf reports it)."""
+    M = A.copy()
+    x = b.copy()
+    for k in range(3):
+        p = k + np.argmax(np.abs(M[k:, k]))
+        if M[p, k] == 0.0:
+            return x, False
+        if p != k:
+            for c in range(3):
+                M[k, c], M[p, c] = M[p, c], M[k, c]
+            x[k], x[p] = x[p], x[k]
+        for r in range(k + 1, 3):
+            f = M[r, k] / M[k, k]
+            for c in range(k, 3):
+                M[r, c] -= f * M[k, c]
+            x[r] -= f * x[k]
+    for k in range(2, -1, -1):
+        acc = x[k]
+        for c in range(k + 1, 3):
+            acc -= M[k, c] * x[c]
+        x[k] = acc / M[k, k]
+    return x, True
+
+
+@njit(cache=True)
+def _lm(q, P, uv, t_cor, intr, max_iterations, step_tol):
+    """The damped Gauss–Newton iteration of ``CorSolver.solve`` from the attitude q (finite
+    residuals at q). Returns (q, status, iterations, cost, J at q)."""
+    r, J = _residual_jac(q, P, uv, t_cor, intr)
+    cost = r @ r
+    lam = 1e-6
+    it = 0
+    for it in range(1, max_iterations + 1):
+        H = J.T @ J
+        A = H.copy()
+        for k in range(3):
+            A[k, k] += lam * H[k, k]
+        dp, ok = _solve3(A, J.T @ r)
+        if not ok:
+            return q, _SINGULAR, it, cost, J
+        step = 4.0 * np.sqrt(dp @ dp)  # rotation angle of q(dp), rad (small dp)
+        if step < step_tol:
+            return q, _CONVERGED, it, cost, J  # the next step would rotate by less
+        sq = dp @ dp  # q ⊗ q(dp), q(p) = ((1 − |p|²), 2p)/(1 + |p|²) (cor_model.mrp_to_quat)
+        q_new = _qmul(q, np.array([1.0 - sq, 2.0 * dp[0], 2.0 * dp[1], 2.0 * dp[2]]) / (1.0 + sq))
+        r_new, J_new = _residual_jac(q_new, P, uv, t_cor, intr)
+        cost_new = r_new @ r_new if np.all(np.isfinite(r_new)) else np.inf
+        if cost_new <= cost:
+            q, r, J, cost = q_new, r_new, J_new, cost_new
+            lam = max(lam / 10.0, 1e-12)
+        else:
+            lam *= 10.0
+            if step < 100.0 * step_tol or lam > 1e8:
+                return q, _CONVERGED, it, cost, J  # no step lowers the cost beyond round-off
+    return q, _NOT_CONVERGED, it, cost, J
 
 
 class CorSolver:
@@ -111,6 +219,9 @@ class CorSolver:
     def __init__(self, model: CorModel, config: CorSolverConfig | None = None) -> None:
         self.model = model
         self.config = CorSolverConfig() if config is None else config
+        intr = model.intrinsics
+        self._intr = np.array([intr.fx, intr.fy, intr.cx, intr.cy, intr.k1, intr.k2, intr.k3])
+        self._t_cor = np.asarray(model.t_cor_m, dtype=float)
 
     # -- cold start ---------------------------------------------------------------------------
 
@@ -150,44 +261,10 @@ class CorSolver:
     # -- one frame ----------------------------------------------------------------------------
 
     def _residual_jac(self, q: NDArray, P: NDArray, uv: NDArray) -> tuple[NDArray, NDArray]:
-        """Residual r = uv_meas − uv(q) (2n,) and J = ∂uv/∂p at p = 0 about q (2n, 3).
-
-        The same model as ``CorModel.jacobian_mrp`` written out for speed: with g = ∂u/∂X (a row)
-        and ``∂X/∂p = −4 R(q) [P]× = −4 [R P]× R``, ``∂u/∂p = −4 (g × R P)ᵀ R``.
-        """
-        intr = self.model.intrinsics
-        w, x, y, z = q
-        R = np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ])
-        RP = P @ R.T
-        X = RP + self.model.t_cor_m
-        iz = 1.0 / X[:, 2]
-        xn, yn = X[:, 0] * iz, X[:, 1] * iz
-        r2 = xn * xn + yn * yn
-        s = 1.0 + r2 * (intr.k1 + r2 * (intr.k2 + r2 * intr.k3))
-        ds = intr.k1 + r2 * (2.0 * intr.k2 + 3.0 * r2 * intr.k3)
-        n = len(P)
-        res = np.empty((n, 2))
-        res[:, 0] = uv[:, 0] - (intr.fx * s * xn + intr.cx)
-        res[:, 1] = uv[:, 1] - (intr.fy * s * yn + intr.cy)
-        c = 2.0 * xn * yn * ds
-        a11, a12 = intr.fx * (s + 2.0 * xn * xn * ds) * iz, intr.fx * c * iz
-        a21, a22 = intr.fy * c * iz, intr.fy * (s + 2.0 * yn * yn * ds) * iz
-        G = np.empty((n, 2, 3))
-        G[:, 0, 0], G[:, 0, 1], G[:, 0, 2] = a11, a12, -(a11 * xn + a12 * yn)
-        G[:, 1, 0], G[:, 1, 1], G[:, 1, 2] = a21, a22, -(a21 * xn + a22 * yn)
-        b = RP[:, None, :]
-        GxRP = np.empty((n, 2, 3))  # G × RP, written out (np.cross is slow for tiny arrays)
-        GxRP[..., 0] = G[..., 1] * b[..., 2] - G[..., 2] * b[..., 1]
-        GxRP[..., 1] = G[..., 2] * b[..., 0] - G[..., 0] * b[..., 2]
-        GxRP[..., 2] = G[..., 0] * b[..., 1] - G[..., 1] * b[..., 0]
-        J = -4.0 * GxRP.reshape(-1, 3) @ R
-        if not np.all(X[:, 2] > 0.0):
-            res[:] = np.nan
-        return res.reshape(-1), J
+        """Residual (2n,) and Jacobian (2n, 3) at q for the markers P (n, 3) and their pixels
+        uv (n, 2) (the compiled ``_residual_jac`` with this model)."""
+        return _residual_jac(np.asarray(q, dtype=float), np.ascontiguousarray(P),
+                             np.ascontiguousarray(uv, dtype=float), self._t_cor, self._intr)
 
     def solve(
         self, marker_px: NDArray[np.float64], q_prev: NDArray[np.float64] | None = None
@@ -220,39 +297,17 @@ class CorSolver:
         if q is None:
             q = self.coarse_guess(uv, mask)
 
-        r, J = self._residual_jac(q, P, uv_v)
+        r, _ = self._residual_jac(q, P, uv_v)
         if not np.all(np.isfinite(r)):
             return SolverResult.invalid("start attitude projects markers behind the camera")
-        cost = float(r @ r)
-        lam = 1e-6
-        converged = False
-        it = 0
-        for it in range(1, cfg.max_iterations + 1):  # noqa: B007 (used after the loop)
-            H = J.T @ J
-            A = H + lam * np.diag(np.diag(H))
-            try:
-                dp = np.linalg.solve(A, J.T @ r)
-            except np.linalg.LinAlgError:
-                return SolverResult(
-                    q=np.full(4, np.nan), valid=False, iterations=it,
-                    reason="singular normal equations (markers degenerate)",
-                )
-            step = 4.0 * float(np.sqrt(dp @ dp))  # rotation angle of q(dp), rad (small dp)
-            if step < cfg.step_tol_rad:
-                converged = True  # the next step would rotate by less than the tolerance
-                break
-            q_new = _qmul(q, _mrp_quat(dp))
-            r_new, J_new = self._residual_jac(q_new, P, uv_v)
-            cost_new = float(r_new @ r_new) if np.all(np.isfinite(r_new)) else np.inf
-            if cost_new <= cost:
-                q, r, J, cost = q_new, r_new, J_new, cost_new
-                lam = max(lam / 10.0, 1e-12)
-            else:
-                lam *= 10.0
-                if step < 100.0 * cfg.step_tol_rad or lam > 1e8:
-                    converged = True  # no step lowers the cost beyond round-off: a minimum
-                    break
-        if not converged:
+        q, status, it, cost, J = _lm(q, P, np.ascontiguousarray(uv_v), self._t_cor, self._intr,
+                                     int(cfg.max_iterations), float(cfg.step_tol_rad))
+        if status == _SINGULAR:
+            return SolverResult(
+                q=np.full(4, np.nan), valid=False, iterations=it,
+                reason="singular normal equations (markers degenerate)",
+            )
+        if status == _NOT_CONVERGED:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it,
                 reason=f"did not converge in {cfg.max_iterations} iterations",

@@ -17,6 +17,8 @@ All angles are radians. This is the only module that knows about Euler angles.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -43,6 +45,11 @@ def normalize(q: ArrayLike, name: str = "q") -> NDArray[np.float64]:
     an attitude at all.
     """
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one attitude: plain floats (numpy's per-call overhead dominates)
+        w, x, y, z = q.tolist()
+        n1 = math.sqrt(w * w + x * x + y * y + z * z)
+        if abs(n1 - 1.0) <= UNIT_TOLERANCE:
+            return q / n1
     if q.shape[-1:] != (4,):
         raise ValueError(f"{name} must have shape (..., 4) as (w, x, y, z), got {q.shape}")
     n = np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
@@ -61,6 +68,15 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p ⊗ q`` of quaternions (w, x, y, z); broadcasts over leading axes."""
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
+    if p.shape == (4,) and q.shape == (4,):  # one product: plain floats, as in ``normalize``
+        pw, px, py, pz = p.tolist()
+        qw, qx, qy, qz = q.tolist()
+        return np.array([
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ])
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack(
@@ -181,13 +197,21 @@ def to_zyz(q: ArrayLike) -> tuple[float, float, float]:
     alpha + gamma is observable; then gamma = 0 and alpha holds the rotation about Z. For an
     (N, 4) array use ``to_zyz_array``.
     """
-    alpha, beta, gamma = to_zyz_array(np.asarray(q, dtype=float)[None, :])[0]
+    q = np.asarray(q, dtype=float)
+    if q.shape != (4,):
+        raise ValueError(f"q must have shape (4,) as (w, x, y, z), got {q.shape}")
+    # one attitude: to_matrix's scalar path, the same arithmetic as the array path
+    alpha, beta, gamma = _zyz_of_matrix(to_matrix(q))
     return float(alpha), float(beta), float(gamma)
 
 
 def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
     """(N, 3) array of (spin, tilt, yaw), rad, for (N, 4) quaternions (see ``to_zyz``)."""
-    R = to_matrix(q)
+    return np.stack(_zyz_of_matrix(to_matrix(q)), axis=-1)
+
+
+def _zyz_of_matrix(R: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+    """(spin, tilt, yaw), rad, of rotation matrices (..., 3, 3) (see ``to_zyz``)."""
     s_beta = np.hypot(R[..., 0, 2], R[..., 1, 2])
     beta = np.arctan2(s_beta, R[..., 2, 2])
     regular = s_beta > _SINGULAR_SIN_BETA
@@ -202,7 +226,7 @@ def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
     )
     gamma = np.where(regular, np.arctan2(R[..., 1, 2], R[..., 0, 2]), 0.0)
     two_pi = 2.0 * np.pi
-    return np.stack([np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)], axis=-1)
+    return np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)
 
 
 def tilt(q: ArrayLike) -> float:

@@ -10,8 +10,8 @@ Equations (body frame, about the fixed centre O), shared with the CasADi twin
 with J_O the inertia about O (parallel-axis from the centre-of-mass inertia and offset d) and
 T_stop the tilt stop's contact torque. A fourth-order Runge-Kutta-Munthe-Kaas step on the
 rotation group with every torque, K(q) I included, evaluated at each stage
-(``PHYSICS_SUBSTEPS`` of them per physics step) integrates them: ``plant.rigid_body`` for a
-batch of rotors in numpy, ``plant.twin.CasadiTwin.plant_step`` for this one rotor. The coil
+(``PHYSICS_SUBSTEPS`` of them per physics step) integrates them: ``plant.rigid_body``'s
+compiled step, the same code for this one rotor as for the batched engine's many. The coil
 currents follow their commands through an optional first-order lag (L/R), exact at the step
 start, and are held over the step. MuJoCo holds the model of the scene, the state, the clock
 and the sensors: its natively delayed attitude sensor records the state at the start of each
@@ -21,9 +21,7 @@ step.
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
 
-import casadi as ca
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,15 +29,8 @@ from numpy.typing import ArrayLike, NDArray
 from plant import attitude
 from plant.mjcf import build_mjcf
 from plant.params import PlantParams
-from plant.rigid_body import tilt_stop_contact
+from plant.rigid_body import RigidBody, tilt_stop_contact
 from plant.torque import N_COILS, Allocation, TorqueMap, allocate
-from plant.twin import CasadiTwin
-
-
-@lru_cache(maxsize=8)
-def _plant_step(params_json: str) -> ca.Function:
-    """``CasadiTwin.plant_step`` for these parameters (built once per process)."""
-    return CasadiTwin(PlantParams.model_validate_json(params_json)).plant_step
 
 
 def _is_real_scalar(x: object) -> bool:
@@ -79,7 +70,7 @@ class MujocoPlant:
         self.params = params or PlantParams()
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params, sensor_delay_s))
         self.data = mujoco.MjData(self.model)
-        self._step = _plant_step(self.params.model_dump_json())
+        self.body = RigidBody(self.params)
         self._native_sensor = sensor_delay_s is not None
         self.torque_map = TorqueMap(self.params.motor)
         self.currents = np.zeros(N_COILS)
@@ -214,20 +205,18 @@ class MujocoPlant:
     def _integrate(self, cmd: NDArray[np.float64], steps: list[float]) -> None:
         tau_L = self.params.motor.coil_time_constant_s
         h0 = self.model.opt.timestep
-        x = np.r_[self.data.qpos, self.data.qvel]
-        no_torque = np.zeros(3)
+        q, w = self.data.qpos[None].copy(), self.data.qvel[None].copy()
         for h in steps:
             decay = np.exp(-h / tau_L) if tau_L > 0 else 0.0
             self.currents = cmd + (self.currents - cmd) * decay  # exact first-order lag
-            dist = no_torque if self.disturbance is None else self.disturbance(h)
-            x_next = self._step(x, self.currents, h, dist).full().ravel()
+            dist = None if self.disturbance is None else np.reshape(self.disturbance(h), (1, 3))
+            q, w = self.body.step(q, w, self.currents[None], h, dist)
             if self._native_sensor:  # MuJoCo's step records the sensors at the step start
                 self.model.opt.timestep = h
                 mujoco.mj_step(self.model, self.data)
             else:
                 self.data.time += h
-            x = x_next
-            self.data.qpos[:], self.data.qvel[:] = x[:4], x[4:]
+            self.data.qpos[:], self.data.qvel[:] = q[0], w[0]
         self.model.opt.timestep = h0
 
     def tilt_stop_active(self) -> bool:

@@ -1,4 +1,4 @@
-"""The rotor's rigid-body step, vectorised over a batch of B rotors (shared by both engines).
+"""The rotor's rigid-body step over a batch of B rotors, compiled (shared by both engines).
 
 Equations (body frame, about the fixed centre O; the model of ``plant.dynamics``):
 
@@ -25,14 +25,20 @@ shaft in the stator frame), the axis about which beta grows, so spin and yaw sta
 make it a critically damped contact with time constant ``STOP_TIMECONST_S`` for the inertia
 about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0.03° at
 0.3 N·m).
+
+Code: one numba-compiled loop over the batch rows (``_step_rows``), each row with its own step
+length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
+(``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). numba
+caches the machine code on disk (``cache=True``): the first call in a fresh process loads it
+(about 0.4 s measured under load) or, without a cache, compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
-from plant import attitude
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
 
@@ -45,53 +51,177 @@ PHYSICS_SUBSTEPS = 2
 STOP_TIMECONST_S = 0.002
 
 
-def quat_exp(phi: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Unit quaternions of the rotation vectors phi (..., 3), rad (the exponential map)."""
-    theta = np.sqrt(np.sum(phi * phi, axis=-1))
+# --- the compiled step ---------------------------------------------------------------------
+# One rotor's maths on scalars (numba compiles these into the loop over the batch rows; tuples
+# of floats stay in registers, no arrays are allocated per stage). The constants of the rotor
+# come in ``RigidBody.consts``; the order of the scalars in ``scal`` is ``_SCALARS``.
+_SCALARS = ("viscous", "tau_c", "omega_s", "cos_cutoff", "stop_k", "stop_c", "tilt_max",
+            "cos_tilt_max")
+
+
+@njit(cache=True, inline="always")
+def _qmul(a, b):
+    """Hamilton product of two quaternions given as 4-tuples (w, x, y, z)."""
+    return (a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])
+
+
+@njit(cache=True, inline="always")
+def _cross3(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, inline="always")
+def _quat_exp(p0, p1, p2):
+    """The unit quaternion of the rotation vector (p0, p1, p2), rad (the exponential map)."""
+    theta = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
     half = 0.5 * theta
     # sin(theta/2)/theta, with its series below 1e-4 rad (error < 1e-17)
-    s = np.where(theta > 1e-4, np.sin(half) / np.where(theta > 1e-4, theta, 1.0),
-                 0.5 - theta * theta / 48.0)
-    return np.concatenate([np.cos(half)[..., None], s[..., None] * phi], axis=-1)
+    s = np.sin(half) / theta if theta > 1e-4 else 0.5 - theta * theta / 48.0
+    return (np.cos(half), s * p0, s * p1, s * p2)
 
 
-def quat_matrix(q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rotation matrices (..., 3, 3), rotor to stator, of unit quaternions (..., 4)."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (yy + zz)
-    R[..., 0, 1] = 2 * (xy - wz)
-    R[..., 0, 2] = 2 * (xz + wy)
-    R[..., 1, 0] = 2 * (xy + wz)
-    R[..., 1, 1] = 1 - 2 * (xx + zz)
-    R[..., 1, 2] = 2 * (yz - wx)
-    R[..., 2, 0] = 2 * (xz - wy)
-    R[..., 2, 1] = 2 * (yz + wx)
-    R[..., 2, 2] = 1 - 2 * (xx + yy)
-    return R
-
-
-def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Row-wise cross products (..., 3), written out (numpy's cross is slow on small arrays)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
-
-
-def dexpinv(phi: NDArray[np.float64], omega: NDArray[np.float64]) -> NDArray[np.float64]:
-    """phi_dot of q = q0 ⊗ exp(phi) for the body rate omega (the Bortz equation), (B, 3)."""
-    theta2 = np.sum(phi * phi, axis=-1)
+@njit(cache=True, inline="always")
+def _dexpinv(phi, w):
+    """phi_dot of q = q0 ⊗ exp(phi) for the body rate w (the Bortz equation)."""
+    theta2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
     theta = np.sqrt(theta2)
-    big = theta > 1e-3
-    tb = np.where(big, theta, 1.0)
     # (1 - (theta/2) cot(theta/2)) / theta^2, with its series 1/12 + theta^2/720 when small
-    c = np.where(big, (1.0 - 0.5 * tb / np.tan(0.5 * tb)) / (tb * tb), 1.0 / 12.0 + theta2 / 720.0)
-    pxw = _cross(phi, omega)
-    return omega + 0.5 * pxw + c[:, None] * _cross(phi, pxw)
+    if theta > 1e-3:
+        c = (1.0 - 0.5 * theta / np.tan(0.5 * theta)) / theta2
+    else:
+        c = 1.0 / 12.0 + theta2 / 720.0
+    pxw = _cross3(phi, w)
+    ppw = _cross3(phi, pxw)
+    return (w[0] + 0.5 * pxw[0] + c * ppw[0], w[1] + 0.5 * pxw[1] + c * ppw[1],
+            w[2] + 0.5 * pxw[2] + c * ppw[2])
+
+
+@njit(cache=True)
+def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
+    (3-tuple) with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple), N·m:
+    the equations of the module docstring."""
+    qw, qx, qy, qz = q
+    R00 = 1 - 2 * (qy * qy + qz * qz)
+    R01 = 2 * (qx * qy - qw * qz)
+    R02 = 2 * (qx * qz + qw * qy)
+    R10 = 2 * (qx * qy + qw * qz)
+    R11 = 1 - 2 * (qx * qx + qz * qz)
+    R12 = 2 * (qy * qz - qw * qx)
+    R20 = 2 * (qx * qz - qw * qy)
+    R21 = 2 * (qy * qz + qw * qx)
+    R22 = 1 - 2 * (qx * qx + qy * qy)
+    # K(q) I = sum_j a_j x r_j with r_j the magnet axis in the stator frame and
+    # a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j) (plant.torque.TorqueMap)
+    cut = scal[3]
+    T0 = T1 = T2 = 0.0
+    for j in range(magnets.shape[0]):
+        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
+        r0 = R00 * m0 + R01 * m1 + R02 * m2
+        r1 = R10 * m0 + R11 * m1 + R12 * m2
+        r2 = R20 * m0 + R21 * m1 + R22 * m2
+        a0 = a1 = a2 = 0.0
+        for i in range(coils.shape[0]):
+            x = coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 - cut
+            if x > 0.0:
+                g = x * x * gain[j] * cur[i]
+                a0 += g * coils[i, 0]
+                a1 += g * coils[i, 1]
+                a2 += g * coils[i, 2]
+        T0 += a1 * r2 - a2 * r1
+        T1 += a2 * r0 - a0 * r2
+        T2 += a0 * r1 - a1 * r0
+    # The tilt stop: force -max(0, k (beta - beta_max) + c beta_dot) about u = Z x s / |Z x s|
+    cos_b = min(max(R22, -1.0), 1.0)
+    if cos_b < scal[7]:
+        n = np.sqrt(R12 * R12 + R02 * R02)
+        u0, u1 = -R12 / n, R02 / n
+        ws0 = R00 * w[0] + R01 * w[1] + R02 * w[2]
+        ws1 = R10 * w[0] + R11 * w[1] + R12 * w[2]
+        beta_dot = ws0 * u0 + ws1 * u1
+        force = max(scal[4] * (np.arccos(cos_b) - scal[6]) + scal[5] * beta_dot, 0.0)
+        T0 -= force * u0
+        T1 -= force * u1
+    # Body frame: R^T T, gravity about the centre, viscous and Coulomb friction, gyroscopic
+    tb = (R00 * T0 + R10 * T1 + R20 * T2, R01 * T0 + R11 * T1 + R21 * T2,
+          R02 * T0 + R12 * T1 + R22 * T2)
+    gb = (R00 * m_g[0] + R10 * m_g[1] + R20 * m_g[2], R01 * m_g[0] + R11 * m_g[1] + R21 * m_g[2],
+          R02 * m_g[0] + R12 * m_g[1] + R22 * m_g[2])
+    grav = _cross3((com[0], com[1], com[2]), gb)
+    Jw = (J[0, 0] * w[0] + J[0, 1] * w[1] + J[0, 2] * w[2],
+          J[1, 0] * w[0] + J[1, 1] * w[1] + J[1, 2] * w[2],
+          J[2, 0] * w[0] + J[2, 1] * w[1] + J[2, 2] * w[2])
+    gyro = _cross3(w, Jw)
+    coulomb = scal[1] / np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + scal[2] * scal[2])
+    t0 = tb[0] + grav[0] - scal[0] * w[0] - gyro[0] - coulomb * w[0] + d[0]
+    t1 = tb[1] + grav[1] - scal[0] * w[1] - gyro[1] - coulomb * w[1] + d[1]
+    t2 = tb[2] + grav[2] - scal[0] * w[2] - gyro[2] - coulomb * w[2] + d[2]
+    return (J_inv[0, 0] * t0 + J_inv[0, 1] * t1 + J_inv[0, 2] * t2,
+            J_inv[1, 0] * t0 + J_inv[1, 1] * t1 + J_inv[1, 2] * t2,
+            J_inv[2, 0] * t0 + J_inv[2, 1] * t1 + J_inv[2, 2] * t2)
+
+
+@njit(cache=True)
+def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
+               scal):
+    """Advance every row b of the batch by h[b] s: ``substeps`` RKMK4 steps (module
+    docstring), currents and disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
+    B = q.shape[0]
+    q_out = np.empty((B, 4))
+    w_out = np.empty((B, 3))
+    for b in range(B):
+        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
+        wb = (omega[b, 0], omega[b, 1], omega[b, 2])
+        cur = currents[b]
+        d = (dist[b, 0], dist[b, 1], dist[b, 2])
+        hs = h[b] / substeps
+        for _ in range(substeps):
+            # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
+            k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k1p = wb
+            phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
+            ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
+            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+            k2w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k2p = _dexpinv(phi, ws)
+            phi = (0.5 * hs * k2p[0], 0.5 * hs * k2p[1], 0.5 * hs * k2p[2])
+            ws = (wb[0] + 0.5 * hs * k2w[0], wb[1] + 0.5 * hs * k2w[1], wb[2] + 0.5 * hs * k2w[2])
+            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+            k3w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k3p = _dexpinv(phi, ws)
+            phi = (hs * k3p[0], hs * k3p[1], hs * k3p[2])
+            ws = (wb[0] + hs * k3w[0], wb[1] + hs * k3w[1], wb[2] + hs * k3w[2])
+            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+            k4w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k4p = _dexpinv(phi, ws)
+            c = hs / 6.0
+            phi = (c * (k1p[0] + 2.0 * k2p[0] + 2.0 * k3p[0] + k4p[0]),
+                   c * (k1p[1] + 2.0 * k2p[1] + 2.0 * k3p[1] + k4p[1]),
+                   c * (k1p[2] + 2.0 * k2p[2] + 2.0 * k3p[2] + k4p[2]))
+            wb = (wb[0] + c * (k1w[0] + 2.0 * k2w[0] + 2.0 * k3w[0] + k4w[0]),
+                  wb[1] + c * (k1w[1] + 2.0 * k2w[1] + 2.0 * k3w[1] + k4w[1]),
+                  wb[2] + c * (k1w[2] + 2.0 * k2w[2] + 2.0 * k3w[2] + k4w[2]))
+            qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+            n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
+            qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
+        q_out[b, 0], q_out[b, 1], q_out[b, 2], q_out[b, 3] = qb
+        w_out[b, 0], w_out[b, 1], w_out[b, 2] = wb
+    return q_out, w_out
+
+
+@njit(cache=True)
+def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magnets, gain, scal):
+    """``_acceleration`` for every row of a batch: omega_dot (B, 3), rad/s²."""
+    out = np.empty((q.shape[0], 3))
+    for b in range(q.shape[0]):
+        out[b] = _acceleration((q[b, 0], q[b, 1], q[b, 2], q[b, 3]),
+                               (omega[b, 0], omega[b, 1], omega[b, 2]), currents[b],
+                               (dist[b, 0], dist[b, 1], dist[b, 2]),
+                               J, J_inv, com, m_g, coils, magnets, gain, scal)
+    return out
 
 
 def stop_gains(params: PlantParams) -> tuple[float, float, float]:
@@ -114,7 +244,9 @@ class RigidBody:
     """The rotor's dynamics for a batch of rotors with the same ``PlantParams``.
 
     States are arrays over the batch: ``q`` (B, 4) unit quaternions (w, x, y, z), rotor to
-    stator; ``omega`` (B, 3) body rates, rad/s; ``currents`` (B, 16) coil currents, A.
+    stator; ``omega`` (B, 3) body rates, rad/s; ``currents`` (B, 16) coil currents, A. The step
+    is compiled by numba (``_step_rows``, a loop over the rows, each with its own step length);
+    the first call in a process loads it from numba's on-disk cache (or compiles it once).
     """
 
     def __init__(self, params: PlantParams) -> None:
@@ -122,56 +254,32 @@ class RigidBody:
         r, motor = p.rotor, p.motor
         self.J = p.rotor.inertia_about_centre_kgm2
         self.J_inv = np.linalg.inv(self.J)
-        self.com = np.asarray(r.com_offset_m, dtype=float)
-        self.m_g = r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2])  # stator frame, N
-        self.viscous = r.viscous_Nms_per_rad
-        self.tau_c, self.omega_s = r.coulomb_Nm, r.coulomb_smoothing_rad_s
-        self.coils = coil_axes(motor)  # (16, 3) stator frame
-        self.magnets = magnet_axes()  # (18, 3) rotor frame
-        self.cos_cutoff = float(np.cos(np.deg2rad(motor.cutoff_deg)))
-        # k_T s_j / (1 - cos phi_c)^2 (18, 1), N·m/A: the window's scale folded into the gain
-        self.gain_scaled = (
-            motor.k_T_Nm_per_A * magnet_polarity() / (1.0 - self.cos_cutoff) ** 2
-        )[:, None]
         self.stop_k, self.stop_c, self.tilt_max_rad = stop_gains(p)
-        self.cos_tilt_max = float(np.cos(self.tilt_max_rad))
-
-    # --- torques ---------------------------------------------------------------------------
-    def _windows(self, R: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-        """Magnet axes r (B, 18, 3) in the stator frame and the pair gains
-        g_ij = k_T s_j w(c_i . r_j) (B, 18, 16), N·m/A."""
-        r = np.matmul(self.magnets, np.swapaxes(R, 1, 2))
-        x = np.matmul(r, self.coils.T) - self.cos_cutoff
-        np.maximum(x, 0.0, out=x)
-        x *= x
-        x *= self.gain_scaled
-        return r, x
-
-    def em_torque(self, R: NDArray[np.float64], currents: NDArray[np.float64]) -> NDArray:
-        """K(q) I (B, 3), stator frame, N·m (``plant.torque.TorqueMap``: column i of K is
-        c_i x sum_j g_ij r_j), summed as sum_j a_j x r_j with a_j = sum_i g_ij I_i c_i."""
-        r, g = self._windows(R)
-        a = np.matmul(g * currents[:, None, :], self.coils)  # (B, 18, 3)
-        return np.sum(_cross(a, r), axis=1)
-
-    def stop_torque(
-        self, R: NDArray[np.float64], omega_stator: NDArray[np.float64]
-    ) -> NDArray[np.float64]:
-        """Stator-frame torque (B, 3), N·m, of the tilt stop (zero inside the limit)."""
-        s = R[:, :, 2]  # shaft, stator frame
-        cos_b = np.clip(s[:, 2], -1.0, 1.0)
-        out = np.zeros_like(s)
-        hit = cos_b < self.cos_tilt_max
-        if not hit.any():
-            return out
-        s, w = s[hit], omega_stator[hit]
-        z_x_s = np.stack([-s[:, 1], s[:, 0], np.zeros(len(s))], axis=-1)  # Z x s
-        u = z_x_s / np.linalg.norm(z_x_s, axis=-1, keepdims=True)
-        beta = np.arccos(cos_b[hit])
-        beta_dot = np.sum(w * u, axis=-1)
-        force = np.maximum(self.stop_k * (beta - self.tilt_max_rad) + self.stop_c * beta_dot, 0.0)
-        out[hit] = -force[:, None] * u
-        return out
+        cos_cutoff = float(np.cos(np.deg2rad(motor.cutoff_deg)))
+        scal = {
+            "viscous": r.viscous_Nms_per_rad,
+            "tau_c": r.coulomb_Nm,
+            "omega_s": r.coulomb_smoothing_rad_s,
+            "cos_cutoff": cos_cutoff,
+            "stop_k": self.stop_k,
+            "stop_c": self.stop_c,
+            "tilt_max": self.tilt_max_rad,
+            "cos_tilt_max": float(np.cos(self.tilt_max_rad)),
+        }
+        #: The arguments of the compiled kernels after the state: J, J^-1 (kg·m²), the centre of
+        #: mass offset (m), m g in the stator frame (N), the coil axes (16, 3, stator frame), the
+        #: magnet axes (18, 3, rotor frame), k_T s_j / (1 - cos phi_c)^2 (18,), N·m/A (the
+        #: window's scale folded into the gain), and the scalars of ``_SCALARS``.
+        self.consts = (
+            np.ascontiguousarray(self.J, dtype=float),
+            np.ascontiguousarray(self.J_inv, dtype=float),
+            np.asarray(r.com_offset_m, dtype=float),
+            r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2]),
+            np.ascontiguousarray(coil_axes(motor), dtype=float),
+            np.ascontiguousarray(magnet_axes(), dtype=float),
+            motor.k_T_Nm_per_A * magnet_polarity() / (1.0 - cos_cutoff) ** 2,
+            np.array([scal[k] for k in _SCALARS], dtype=float),
+        )
 
     def acceleration(
         self,
@@ -181,20 +289,11 @@ class RigidBody:
         disturbance: NDArray[np.float64] | None = None,
     ) -> NDArray[np.float64]:
         """omega_dot (B, 3), rad/s², of the equations in the module docstring."""
-        R = quat_matrix(q)
-        Rt = np.swapaxes(R, 1, 2)
-        w_stator = np.matmul(R, omega[:, :, None])[:, :, 0]
-        T_stator = self.em_torque(R, currents) + self.stop_torque(R, w_stator)
-        tau = np.matmul(Rt, T_stator[:, :, None])[:, :, 0]
-        tau += _cross(self.com, Rt @ self.m_g) if self.com.any() else 0.0
-        tau -= self.viscous * omega + _cross(omega, omega @ self.J.T)
-        norm = np.sqrt(np.sum(omega * omega, axis=-1, keepdims=True) + self.omega_s**2)
-        tau -= self.tau_c * omega / norm
-        if disturbance is not None:
-            tau += disturbance
-        return tau @ self.J_inv.T
+        q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
+        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+            np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
+        return _acceleration_rows(q, omega, currents, d, *self.consts)
 
-    # --- time ------------------------------------------------------------------------------
     def step(
         self,
         q: NDArray[np.float64],
@@ -206,27 +305,8 @@ class RigidBody:
         """Advance by ``h`` (s; a scalar or one per rotor, (B,)) with the ``currents`` (B, 16),
         A, and the body-frame ``disturbance`` (B, 3), N·m, held: ``PHYSICS_SUBSTEPS`` RKMK4
         steps. Returns the new ``(q, omega)``; ``q`` is renormalised."""
-        hb = np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],))[:, None]
-        hb = hb / PHYSICS_SUBSTEPS
-        for _ in range(PHYSICS_SUBSTEPS):
-            q, omega = self._rkmk4(q, omega, currents, hb, disturbance)
-        return q, omega
-
-    def _rkmk4(self, q, omega, currents, hb, disturbance):
-        """One RKMK4 step of length ``hb`` (B, 1), s."""
-        phi = np.zeros_like(omega)
-        k_phi, k_w = [], []
-        for a in (0.0, 0.5, 0.5, 1.0):
-            if a == 0.0:
-                qs, ws = q, omega
-            else:
-                phi = a * hb * k_phi[-1]
-                ws = omega + a * hb * k_w[-1]
-                qs = attitude.multiply(q, quat_exp(phi))
-            k_w.append(self.acceleration(qs, ws, currents, disturbance))
-            k_phi.append(ws if a == 0.0 else dexpinv(phi, ws))
-        phi = hb / 6.0 * (k_phi[0] + 2.0 * k_phi[1] + 2.0 * k_phi[2] + k_phi[3])
-        omega_next = omega + hb / 6.0 * (k_w[0] + 2.0 * k_w[1] + 2.0 * k_w[2] + k_w[3])
-        q_next = attitude.multiply(q, quat_exp(phi))
-        q_next /= np.linalg.norm(q_next, axis=-1, keepdims=True)
-        return q_next, omega_next
+        q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
+        hb = np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],)))
+        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+            np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
+        return _step_rows(q, omega, currents, hb, d, PHYSICS_SUBSTEPS, *self.consts)

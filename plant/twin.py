@@ -8,11 +8,8 @@ The same equations as ``plant.dynamics`` (see its docstring), written symbolical
 * ``f(x, u)`` is the continuous-time right-hand side, for multiple shooting;
 * ``step(x, u)`` is one physics step of ``params.physics_dt_s`` discretised as the plant does it
   (``plant.rigid_body``): ``PHYSICS_SUBSTEPS`` fourth-order Runge-Kutta-Munthe-Kaas steps on the
-  rotation group, every torque evaluated at each stage, the currents held;
-* ``plant_step(x, u, h, tau)`` is the same step of any length h (s) with the tilt stop and a
-  held body-frame disturbance torque tau (N·m): ``plant.dynamics.MujocoPlant`` advances one
-  rotor with it (CasADi's virtual machine evaluates it about five times faster than the numpy
-  batch code of ``plant.rigid_body`` does for a single rotor).
+  rotation group, every torque evaluated at each stage, the currents held (an independent code
+  of the plant's compiled step, which tests/test_rigid_body.py checks it against).
 
 ``f``, ``f_torque`` and ``step`` have no tilt stop (the MPC gets a tilt constraint instead); no
 function has the coil lag (they take the actual currents).
@@ -27,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from plant import attitude
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
-from plant.rigid_body import PHYSICS_SUBSTEPS, stop_gains
+from plant.rigid_body import PHYSICS_SUBSTEPS
 from plant.torque import N_COILS, window
 
 
@@ -96,17 +93,6 @@ def rkmk4(acc: ca.Function, q: ca.SX, omega: ca.SX, h: ca.SX | float, n: int, *a
         q = quat_multiply(q, quat_exp(phi))
         q = q / ca.norm_2(q)
     return ca.vertcat(q, omega)
-
-
-def stop_torque(R: ca.SX, omega: ca.SX, params: PlantParams) -> ca.SX:
-    """Stator-frame torque of the tilt stop (``plant.rigid_body.RigidBody.stop_torque``)."""
-    k, c, beta_max = stop_gains(params)
-    s = R[:, 2]
-    cos_b = ca.fmin(ca.fmax(s[2], -1.0), 1.0)
-    z_x_s = ca.vertcat(-s[1], s[0], 0.0)
-    u = z_x_s / ca.fmax(ca.norm_2(z_x_s), 1e-300)
-    force = ca.fmax(k * (ca.acos(cos_b) - beta_max) + c * ca.dot(R @ omega, u), 0.0)
-    return ca.if_else(cos_b < np.cos(beta_max), -force * u, ca.SX.zeros(3))
 
 
 class CasadiTwin:
@@ -187,18 +173,6 @@ class CasadiTwin:
         acc = ca.Function("acc", [q, omega, u], [xdot[4:7]])
         x_next = rkmk4(acc, q, omega, self.dt, PHYSICS_SUBSTEPS, u)
         self.step = ca.Function("step", [x, u], [x_next], ["x", "u"], ["x_next"])
-        # With the tilt stop and a disturbance, for a step of any length.
-        tau = ca.SX.sym("tau", 3)
-        h_sym = ca.SX.sym("h")
-        acc_plant = ca.Function("acc_plant", [q, omega, u, tau], [
-            ca.DM(J_inv) @ (tau_em + coulomb(omega) + passive(q, omega)
-                            + R.T @ stop_torque(R, omega, p) + tau)
-        ])
-        self.plant_step = ca.Function(
-            "plant_step", [x, u, h_sym, tau],
-            [rkmk4(acc_plant, q, omega, h_sym, PHYSICS_SUBSTEPS, u, tau)],
-            ["x", "u", "h", "tau"], ["x_next"],
-        )
 
     def simulate(
         self, q0: ArrayLike, omega0: ArrayLike, currents: ArrayLike

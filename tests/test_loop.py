@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from controller.base import Controller, RefSample
+from controller.base import Controller, Reference, RefSample
 from latency.frontends import ImageFrontEnd, MeasurementConfig, MeasurementFrontEnd
 from latency.loop import ClosedLoop, LoopConfig
 from latency.models import Constant, seed_profile
@@ -22,7 +22,7 @@ P = PlantParams()
 J = P.rotor.inertia_com_kgm2[0]
 
 
-class TiltStep:
+class TiltStep(Reference):
     """A pure tilt of ``tilt_deg`` toward azimuth ``yaw_deg`` from ``t0`` (s)."""
 
     def __init__(self, tilt_deg=5.0, yaw_deg=30.0, t0=0.1):

@@ -199,3 +199,30 @@ def test_random_trajectory_rejects_a_tilt_beyond_the_workspace():
         RandomSmooth(max_rate_rad_s=1.0, tilt_max_deg=20.0)
     with pytest.raises(ValueError, match="max_rate_rad_s"):
         RandomSmooth(max_rate_rad_s=0.0)
+
+
+@pytest.mark.parametrize(
+    "ref",
+    [
+        Steps(times_s=(0.0, 0.3, 0.7), attitudes=((1, 0, 0, 0), tuple(A.from_zyz(0.2, 0.1, 0.5)),
+                                                  tuple(A.from_zyz(-0.4, 0.2, 1.0)))),
+        SeedSteps(axis="yaw", dwell_s=0.25),
+        Ramp(start_deg=(-30.0, 0.0, 30.0), stop_deg=(10.0, 12.0, 80.0), t_start_s=0.2,
+             duration_s=0.5),
+        Cone(tilt_deg=10.0, yaw_rate_rad_s=6.0, t_start_s=0.1),
+        Cone(tilt_deg=8.0, yaw_rate_rad_s=-3.0, spin0_deg=20.0, turn_shaft=False),
+        RandomSmooth(seed=3, max_rate_rad_s=4.0),
+    ],
+    ids=["steps", "seed_steps", "ramp", "cone", "cone_no_shaft_turn", "random"],
+)
+def test_sample_many_equals_the_scalar_sample_at_every_time(ref):
+    """The array sample over a time grid (switches, ramp corners and the start included) is the
+    scalar sample at each time: attitude, body rate and body acceleration to rounding."""
+    t = np.r_[np.linspace(-0.1, 1.2, 523), 0.3, 0.7, 0.2, 0.1, 0.25]
+    many = ref.sample_many(t)
+    assert many.q.shape == (len(t), 4)
+    for k, tk in enumerate(t):
+        one = ref.sample(float(tk))
+        assert A.geodesic_angle(many.q[k], one.q) < 1e-12
+        np.testing.assert_allclose(many.omega[k], one.omega, atol=1e-12)
+        np.testing.assert_allclose(many.alpha[k], one.alpha, atol=1e-10)
