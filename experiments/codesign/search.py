@@ -90,15 +90,15 @@ def constraint_values(spec: CodesignSpec, a: Analysis, mc: dict | None) -> list[
 
 
 def evaluate_designs(
-    spec: CodesignSpec, designs: list[Design], out_dir: Path, mc_workers: int = 1,
-    scheduler: str | None = None,
+    spec: CodesignSpec, designs: list[Design], out_dir: Path, prune: bool = True
 ) -> list[dict]:
-    """Analysis, then Monte Carlo for the designs that pass it. Returns per design a record:
-    ``design`` (dict), ``analysis`` (dict), ``pruned``, ``mc`` (dict or None), ``objectives``
-    (list or None), ``constraints`` and ``feasible``."""
+    """Analysis, then Monte Carlo for the designs that pass it (all of them when not
+    ``prune``). Returns per design a record: ``design`` (dict), ``analysis`` (dict),
+    ``pruned``, ``mc`` (dict or None), ``objectives`` (list or None), ``constraints`` and
+    ``feasible``."""
     analyses = [analyse(spec, d) for d in designs]
-    keep = [i for i, a in enumerate(analyses) if a.meets(spec)]
-    mcs = monte_carlo(spec, [designs[i] for i in keep], out_dir, scheduler, mc_workers)
+    keep = [i for i, a in enumerate(analyses) if a.meets(spec) or not prune]
+    mcs = monte_carlo(spec, [designs[i] for i in keep], out_dir)
     mc_of = dict(zip(keep, mcs, strict=True))
     out = []
     for i, (d, a) in enumerate(zip(designs, analyses, strict=True)):

@@ -58,8 +58,8 @@ class Design(BaseModel):
                f"b={self.integral_ratio:.2g}" if self.controller == "pid" else
                f"MPC N={self.mpc_horizon_steps} {self.mpc_bandwidth_rad_s:.3g} rad/s")
         roi = f"{self.rows}x{self.cols}{' follow' if self.follow else ''}"
-        return (f"{roi} bin{self.binning} {self.exposure_s * 1e3:.2g} ms | {self.tracker} "
-                f"{self.pipeline} | {obs} | {ctl}")
+        return (f"{roi} bin{self.binning} {self.exposure_s * 1e3:.2g} ms; {self.tracker} "
+                f"{self.pipeline}; {obs}; {ctl}")
 
 
 def seed_design() -> Design:

@@ -73,10 +73,10 @@ class CameraSpace(_Model):
     sensor's size reads the whole sensor), ROI following the predicted markers, binning,
     exposure (s)."""
 
-    rows: _choices(int) = Field(default_factory=lambda: [2048, 1024, 512])
-    cols: _choices(int) = Field(default_factory=lambda: [2448, 1024])
+    rows: _choices(Annotated[int, Field(ge=16)]) = Field(default_factory=lambda: [2048, 1024, 512])
+    cols: _choices(Annotated[int, Field(ge=16)]) = Field(default_factory=lambda: [2448, 1024])
     follow: _choices(bool) = Field(default_factory=lambda: [False, True])
-    binning: _choices(int) = Field(default_factory=lambda: [1, 2])
+    binning: _choices(Annotated[int, Field(ge=1, le=4)]) = Field(default_factory=lambda: [1, 2])
     exposure_s: FloatRange = Field(default_factory=lambda: _Range(low=0.5e-3, high=4e-3))
     sensor: SensorTiming = SensorTiming()
 
@@ -104,7 +104,8 @@ class ControllerSpace(_Model):
     crossover_rad_s: FloatRange = Field(default_factory=lambda: _Range(low=4.0, high=25.0))
     zero_ratio: FloatRange = Field(default_factory=lambda: _Range(low=2.0, high=5.0))
     integral_ratio: FloatRange = Field(default_factory=lambda: _Range(low=5.0, high=20.0))
-    mpc_horizon_steps: _choices(int) = Field(default_factory=lambda: [10, 15])
+    mpc_horizon_steps: _choices(Annotated[int, Field(ge=2, le=200)]) = Field(
+        default_factory=lambda: [10, 15])
     mpc_bandwidth_rad_s: FloatRange = Field(default_factory=lambda: _Range(low=8.0, high=25.0))
 
 
