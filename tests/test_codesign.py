@@ -173,6 +173,10 @@ def test_pruning_by_analysis_never_removes_a_design_monte_carlo_accepts(tmp_path
 
 @pytest.mark.slow
 def test_the_search_beats_the_seeds_design_with_the_constraints_met(tmp_path):
+    """The seed's loop (the whole sensor read out in 27.8 ms, 45 ms of delay) leaves 8° of
+    phase margin at its 10 rad/s; a region of interest read in 7 ms and a pipelined tracker
+    let a crossover at least as high keep 30°. The search must find such a design: feasible
+    and with a smaller mean error than the seed's."""
     spec = CodesignSpec.model_validate({
         "duration_s": 1.0, "seeds": [0, 1],
         "references": [{"kind": "tilt_step", "tilt_deg": 3.0, "t_step_s": 0.05}],
@@ -181,7 +185,7 @@ def test_the_search_beats_the_seeds_design_with_the_constraints_met(tmp_path):
                    "binning": [1], "exposure_s": 0.002},
         "observer": {"pipeline": ["sequential", "pipelined"], "kind": ["pixel_kalman"],
                      "q_scale": 0.01, "r_scale": 0.1},
-        "controller": {"crossover_rad_s": [6.0, 14.0], "zero_ratio": 3.0,
+        "controller": {"crossover_rad_s": [10.0, 13.0], "zero_ratio": 3.0,
                        "integral_ratio": 10.0},
         "search": {"n_trials": 8, "batch_size": 4, "sampler": "tpe"},
         "image_check": {"enabled": False}})
