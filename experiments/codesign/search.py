@@ -15,7 +15,8 @@ The study is stored in SQLite in the output folder by default, so that a rerun r
 stops once ``search.n_trials`` trials are finished (complete or pruned). A rerun treats trials
 left running by an interrupted run as failed and asks their designs again (their finished runs
 come from the run cache). Several workers (processes, or a Dask cluster) share one study; each
-asks its own batches.
+asks its own batches (so a shared study may end a few trials over its budget: the workers'
+last batches overlap).
 """
 
 from __future__ import annotations
