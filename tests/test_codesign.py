@@ -213,3 +213,19 @@ def test_the_seeds_design_is_the_seeds_settings():
     assert (d.tracker, d.pipeline, d.observer, d.q_scale, d.r_scale) == (
         "gk_transt", "sequential", "pixel_kalman", 0.01, 0.1)
     assert (d.controller, d.crossover_rad_s) == ("pid", 10.0)
+
+
+def test_non_dominated_keeps_the_feasible_designs_no_other_beats_on_all_objectives():
+    import pandas as pd
+
+    from experiments.codesign.report import non_dominated
+
+    df = pd.DataFrame({
+        "rms_error_deg": [1.0, 2.0, 1.5, 0.5, 1.0],
+        "rms_torque_Nm": [0.01, 0.005, 0.02, 0.001, 0.01],
+        "compute_ms": [16.0, 16.0, 16.0, 10.0, 11.0],
+        "feasible": [True, True, True, False, True],
+    })
+    # Row 2 is beaten by row 0 on error and effort at equal compute; row 0 by row 4 on compute
+    # alone; row 3 beats everything but is infeasible and so is not on the front.
+    assert non_dominated(df).tolist() == [False, True, False, False, True]
