@@ -4,6 +4,7 @@ seed's design, pruning by analysis against Monte Carlo, and resuming the SQLite 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,3 +230,18 @@ def test_non_dominated_keeps_the_feasible_designs_no_other_beats_on_all_objectiv
     # Row 2 is beaten by row 0 on error and effort at equal compute; row 0 by row 4 on compute
     # alone; row 3 beats everything but is infeasible and so is not on the front.
     assert non_dominated(df).tolist() == [False, True, False, False, True]
+
+
+def test_the_spec_takes_a_users_motor_and_camera_files_and_a_measured_profile(tmp_path):
+    from latency.models import Empirical
+    from plant.camera_file import CameraFile
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    profile = tmp_path / "latency.json"
+    Empirical.from_measurements([0.020, 0.024], source="a tracker measured here").save(profile)
+    spec = CodesignSpec.model_validate({
+        "motor_file": str(examples / "motor.yaml"), "camera_file": str(examples / "camera.yaml"),
+        "trackers": ["mine"], "tracker_models": {"mine": {"latency_file": str(profile)}}})
+    assert spec.plant.camera == CameraFile.from_yaml(examples / "camera.yaml").camera
+    assert spec.tracker_models["mine"].latency_model().mean_s == pytest.approx(0.022)
+    assert "gk_transt" in spec.tracker_models  # the seed's catalogue is kept
