@@ -245,3 +245,14 @@ def test_the_spec_takes_a_users_motor_and_camera_files_and_a_measured_profile(tm
     assert spec.plant.camera == CameraFile.from_yaml(examples / "camera.yaml").camera
     assert spec.tracker_models["mine"].latency_model().mean_s == pytest.approx(0.022)
     assert "gk_transt" in spec.tracker_models  # the seed's catalogue is kept
+
+
+def test_monte_carlo_constraints_on_the_means_or_on_the_upper_ends():
+    mc = {"p_loss_of_control": 0.0, "p_loss_of_control_hi": 0.32,
+          "lost_frame_fraction": 0.004, "lost_frame_fraction_hi": 0.008}
+    on_means = _tiny()
+    assert mc_feasible(on_means, mc)
+    upper = _tiny(constraints={"bound": "upper"})
+    assert not mc_feasible(upper, mc)  # 0.32 > 0.001
+    assert mc_feasible(upper, mc | {"p_loss_of_control_hi": 0.0005})
+    assert not mc_feasible(on_means, mc | {"lost_frame_fraction": float("nan")})

@@ -28,7 +28,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from experiments.codesign.analysis import Analysis, analyse
-from experiments.codesign.evaluate import mc_feasible, monte_carlo
+from experiments.codesign.evaluate import mc_excess, mc_feasible, monte_carlo
 from experiments.codesign.space import Design, compute_per_frame_s, suggest
 from experiments.codesign.spec import CodesignSpec
 
@@ -85,9 +85,7 @@ def constraint_values(spec: CodesignSpec, a: Analysis, mc: dict | None) -> list[
     out = [c.min_phase_margin_deg - pm, c.min_delay_headroom_ms - 1e3 * a.headroom_s]
     if mc is None:
         return out + [1.0, 1.0]
-    lost = mc["lost_frame_fraction"]
-    return out + [mc["p_loss_of_control"] - c.max_loss_of_control,
-                  (lost if lost == lost else 1.0) - c.max_lost_frames]
+    return out + list(mc_excess(spec, mc))
 
 
 def evaluate_designs(
