@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -31,6 +32,9 @@ from experiments.codesign.analysis import Analysis, analyse
 from experiments.codesign.evaluate import mc_excess, mc_feasible, monte_carlo
 from experiments.codesign.space import Design, compute_per_frame_s, suggest
 from experiments.codesign.spec import CodesignSpec
+
+if TYPE_CHECKING:
+    import optuna
 
 #: Objective names, in the study's order.
 OBJECTIVES = ("rms_error_deg", "rms_torque_Nm", "compute_per_frame_s")
@@ -54,7 +58,7 @@ def _storage(url: str):
     return url
 
 
-def open_study(spec: CodesignSpec, url: str, worker: int = 0):
+def open_study(spec: CodesignSpec, url: str, worker: int = 0) -> optuna.Study:
     """The spec's study (created or loaded), its sampler seeded with ``search.seed + worker``."""
     import optuna
 
@@ -70,7 +74,7 @@ def open_study(spec: CodesignSpec, url: str, worker: int = 0):
         directions=["minimize"] * len(OBJECTIVES), sampler=sampler, load_if_exists=True)
 
 
-def n_finished(study) -> int:
+def n_finished(study: optuna.Study) -> int:
     """Trials finished: complete or pruned."""
     from optuna.trial import TrialState
 
@@ -112,7 +116,7 @@ def evaluate_designs(
     return out
 
 
-def _retry_interrupted(study) -> None:
+def _retry_interrupted(study: optuna.Study) -> None:
     """Trials left running by an interrupted run: marked failed, their designs asked again."""
     from optuna.trial import TrialState
 
@@ -160,7 +164,7 @@ def run_search(
     workers: int = 1,
     scheduler: str | None = None,
     progress: bool = True,
-):
+) -> optuna.Study:
     """Run (or resume) the study in ``out_dir``; returns it. ``workers`` processes share it
     (this process alone when 1), or the workers of a Dask cluster (``scheduler``: ``"local"``
     for a LocalCluster of ``workers`` processes, or a scheduler address)."""
@@ -194,7 +198,7 @@ def run_search(
     return study
 
 
-def _wait(futures, study, spec: CodesignSpec, progress: bool) -> None:
+def _wait(futures: list, study: optuna.Study, spec: CodesignSpec, progress: bool) -> None:
     """Wait for the workers, showing the study's finished trials; re-raise a worker's error."""
     with tqdm(total=spec.search.n_trials, desc="designs", unit="design",
               disable=not progress) as bar:
@@ -208,7 +212,7 @@ def _wait(futures, study, spec: CodesignSpec, progress: bool) -> None:
         bar.refresh()
 
 
-def trial_records(study) -> list[dict]:
+def trial_records(study: optuna.Study) -> list[dict]:
     """The finished trials as records (``evaluate_designs``'s, plus ``trial``)."""
     from optuna.trial import TrialState
 

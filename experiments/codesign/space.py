@@ -4,7 +4,7 @@ design (``suggest``), and the scenarios that evaluate it (``scenario_dict``)."""
 from __future__ import annotations
 
 import json
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -13,6 +13,9 @@ from experiments.scenario import Scenario
 from experiments.tuning.objective import SEED_Q_SCALE, SEED_R_SCALE
 from plant.camera_mode import CameraMode
 from plant.params import PlantParams
+
+if TYPE_CHECKING:
+    from optuna.trial import BaseTrial
 
 
 class Design(BaseModel):
@@ -69,15 +72,15 @@ def seed_design() -> Design:
     return Design(frame_rate_hz=36.0)
 
 
-def _float(trial, name: str, r) -> float:
+def _float(trial: BaseTrial, name: str, r: FloatRange) -> float:
     return r.low if r.fixed else trial.suggest_float(name, r.low, r.high, log=r.log)
 
 
-def _pick(trial, name: str, options: list):
+def _pick(trial: BaseTrial, name: str, options: list) -> object:
     return options[0] if len(options) == 1 else trial.suggest_categorical(name, options)
 
 
-def suggest(trial, spec: CodesignSpec) -> Design:
+def suggest(trial: BaseTrial, spec: CodesignSpec) -> Design:
     """The design optuna's ``trial`` proposes in the spec's space (define-by-run: only the
     variables the design uses are asked, e.g. q and r only for the pixel filter)."""
     c, o, k = spec.camera, spec.observer, spec.controller
