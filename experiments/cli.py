@@ -791,3 +791,64 @@ def calibrate(
 
 if __name__ == "__main__":
     app()
+
+
+@app.command()
+def codesign(
+    spec_file: Annotated[Path, typer.Argument(help="Co-design spec (YAML).")],
+    out: OutOption = Path("runs/codesign"),
+    trials: Annotated[
+        int | None, typer.Option(help="Finished designs the study should have (default: the "
+                                 "spec's search.n_trials).")
+    ] = None,
+    workers: Annotated[int, typer.Option(help="Worker processes sharing the study.")] = 1,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address, or 'local'.")
+    ] = None,
+    image_check: Annotated[
+        bool | None, typer.Option(help="Re-run the recommended design on rendered frames "
+                                  "(default: the spec's image_check.enabled).")
+    ] = None,
+) -> None:
+    """Choose the camera mode, tracker, observer and controller together (docs/codesign.md):
+    an optuna study (SQLite in <out>/<name>, resumed by running the same command again),
+    then the report: Pareto front, non-dominated designs, the recommended design beside the
+    seed's, and its image-in-the-loop check.
+
+    Example: pmspm codesign examples/codesign.yaml --out runs/codesign
+    """
+    from experiments.codesign.report import write_report
+    from experiments.codesign.search import run_search, trial_records
+    from experiments.codesign.spec import CodesignSpec
+
+    data = _load_yaml(spec_file)
+    if trials is not None:
+        if trials < 1:
+            _fail(f"--trials must be >= 1, got {trials}")
+        data.setdefault("search", {})
+        if isinstance(data["search"], dict):
+            data["search"] = {**data["search"], "n_trials": trials}
+    try:
+        spec = CodesignSpec.model_validate(data)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, str(spec_file))
+    _check_workers_and_scheduler(workers, scheduler)
+    if spec.search.storage is not None:
+        _check_storage(spec.search.storage)
+    folder = _writable_folder(out / spec.name)
+    try:
+        study = run_search(spec, folder, workers=workers, scheduler=scheduler)
+        result = write_report(spec, trial_records(study), folder, image_check)
+    except KeyboardInterrupt:
+        _interrupted()
+    rec = result["recommended"]
+    typer.echo(f"{result['n_designs']} designs ({result['n_pruned']} pruned, "
+               f"{result['n_feasible']} feasible, {result['n_non_dominated']} non-dominated)")
+    if rec is None:
+        typer.echo("no feasible design: relax the constraints or widen the space")
+    else:
+        seed = result["seed"]
+        typer.echo(f"recommended: mean RMS error {rec['rms_error_deg']:.3g} deg against the "
+                   f"seed's {seed['rms_error_deg']:.3g} deg; phase margin "
+                   f"{rec['phase_margin_deg']:.3g} against {seed['phase_margin_deg']:.3g} deg")
+    typer.echo(f"report: {folder / 'report.md'}")

@@ -29,6 +29,7 @@ from observer.trackers import make_pair_tracker
 from observer.tracking import PairTracker
 from plant import attitude
 from plant.camera import marker_pixels
+from plant.camera_mode import RegionOfInterest
 from plant.params import PlantParams
 from plant.texture import TextureParams
 
@@ -91,6 +92,12 @@ class MeasurementConfig(BaseModel):
     Kalman prediction does); a marker outside the window is lost until a re-detection
     ``reacquire_after_frames`` processed frames later. A marker smeared over more than
     ``blur_limit_px`` during the exposure is lost for that frame.
+
+    With a region of interest ``roi`` (``plant.camera_mode.RegionOfInterest``) only those rows
+    and columns are read: a marker outside them is lost for the frame (the motion outran the
+    region). The region sits at the sensor centre, or with ``roi.follow`` on the mean of the
+    predicted marker positions (the same constant-velocity prediction), which stays put while
+    the markers are lost; it is shifted to lie on the sensor.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -120,6 +127,9 @@ class MeasurementConfig(BaseModel):
         description="Marker travel during the exposure beyond which the frame is "
         "lost, sensor px; None: blur never loses it.",
     )
+    roi: RegionOfInterest | None = Field(
+        None, description="Region of interest read out; None: the whole sensor."
+    )
 
 
 class MeasurementFrontEnd:
@@ -142,6 +152,24 @@ class MeasurementFrontEnd:
     def tilt_hint(self, tilt_rad: float) -> None:
         """No geometric check: ignored."""
 
+    def roi_centre_px(self, roi: RegionOfInterest) -> NDArray[np.float64]:
+        """Centre (u, v) of the region of interest for the next frame, sensor px: the sensor
+        centre, or the mean predicted marker position (``roi.follow``, once there is a
+        measurement); shifted so that the region lies on the sensor."""
+        cam = self.params.camera
+        size = np.array([cam.sensor_width_px, cam.sensor_height_px], dtype=float)
+        centre = (size - 1.0) / 2.0
+        if roi.follow and self._last is not None:
+            predicted = self._last + (self._motion if self.config.predictive_search else 0.0)
+            centre = predicted.mean(axis=0)
+        half = 0.5 * np.minimum([roi.cols, roi.rows], size)
+        return np.clip(centre, half - 0.5, size - 0.5 - half)
+
+    def _inside_roi(self, truth: NDArray[np.float64], roi: RegionOfInterest) -> bool:
+        """Both markers' centres inside the region of interest."""
+        offset = np.abs(truth - self.roi_centre_px(roi))
+        return bool(np.all(offset <= 0.5 * np.array([roi.cols, roi.rows])))
+
     def _blur_travel_px(self, q: NDArray[np.float64], omega: NDArray[np.float64]) -> float:
         half = 0.5 * self.params.camera.exposure_s
         ends = [
@@ -159,6 +187,9 @@ class MeasurementFrontEnd:
         if self.rng.random() < c.dropout_prob:
             return Capture(nothing, truth, True, "dropout (measurement model)")
         self._frames_since += 1
+        if c.roi is not None and not self._inside_roi(truth, c.roi):
+            self._lost_frames += 1
+            return Capture(nothing, truth, True, "marker outside the region of interest")
         if (
             c.search_radius_px is not None
             and self._last is not None

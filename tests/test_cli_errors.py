@@ -42,6 +42,12 @@ def sweep(id: str, text: str, fragment: str, *options: str) -> Case:
     return Case(id, argv, fragment, {"w.yaml": text})
 
 
+def codesign(id: str, text: str, fragment: str, *options: str) -> Case:
+    """``pmspm codesign`` on a spec file with ``text``."""
+    argv = ("codesign", "{d}/c.yaml", "--out", "{d}/out", *options)
+    return Case(id, argv, fragment, {"c.yaml": text})
+
+
 def command(id: str, fragment: str, *argv: str, files: dict | None = None) -> Case:
     return Case(id, tuple(argv), fragment, files or {})
 
@@ -433,6 +439,27 @@ CASES = [
             "tcp:/host:8786", "--out", "{d}/o"),
     command("study-out-is-a-file", "cannot write results there", "study", "--out", "{d}/f.txt",
             files={"f.txt": "x"}),
+    # --- codesign ------------------------------------------------------------------------
+    command("codesign-missing-file", "no such file", "codesign", "{d}/nope.yaml"),
+    codesign("codesign-unknown-field", "bogus: 1\n", "bogus: Extra inputs are not permitted"),
+    codesign("codesign-range-reversed", "camera: {exposure_s: [0.004, 0.001]}\n",
+             "camera.exposure_s: high (0.001) must be >= low (0.004)"),
+    codesign("codesign-rows-too-small", "camera: {rows: [8]}\n",
+             "camera.rows.0: Input should be greater than or equal to 16"),
+    codesign("codesign-unknown-tracker", "trackers: [nope]\n", "not in tracker_models"),
+    codesign("codesign-latency-file-missing",
+             "tracker_models: {mine: {latency_file: nope.json}}\n",
+             "latency_file: no such file: nope.json"),
+    codesign("codesign-loss-above-one", "constraints: {max_loss_of_control: 2}\n",
+             "constraints.max_loss_of_control: Input should be less than or equal to 1"),
+    codesign("codesign-reference-beyond-stop",
+             TILT_10_STOP + "references: [{kind: tilt_step, tilt_deg: 12}]\n",
+             "references[0]: the reference reaches 12° of tilt, beyond the tilt stop"),
+    codesign("codesign-sampler-unknown", "search: {sampler: grid}\n",
+             "search.sampler: Input should be 'nsga2' or 'tpe'"),
+    codesign("codesign-storage-bogus", "search: {storage: bogus}\n", "is not a database URL"),
+    codesign("codesign-trials-zero", "name: x\n", "--trials must be >= 1", "--trials", "0"),
+    codesign("codesign-workers-zero", "name: x\n", "--workers must be >= 1", "--workers", "0"),
     # --- the command line's own grammar ---------------------------------------------------
     command("unknown-command", "No such command", "simulat"),
     command("unknown-option", "No such option", "margins", "--crossover", "3"),
@@ -444,6 +471,7 @@ CASES = [
 
 def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
     """Replace the entry points of expensive work with functions that fail the test."""
+    import experiments.codesign.search
     import experiments.scenario
     import experiments.sequences
     import experiments.study
@@ -457,6 +485,7 @@ def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
 
     for module, name in [
         (experiments.scenario, "run"),
+        (experiments.codesign.search, "run_search"),
         (experiments.sweep, "run_sweep"),
         (experiments.study, "run_study"),
         (experiments.tuning, "tune_kalman"),
