@@ -110,17 +110,14 @@ def plot_front(df: pd.DataFrame, seed: pd.Series) -> Figure:
     return fig
 
 
-def image_check(spec: CodesignSpec, design: Design, mc: dict) -> dict:
-    """Re-run ``design`` on rendered frames with its tracker's real implementation (event
-    loop) for ``spec.image_check.seeds`` and compare with the Monte-Carlo intervals ``mc``.
-
-    Returns the image runs' ``summarise`` figures, ``tracker``, and per metric whether it lies
-    inside the interval (``inside_error``, ``inside_lost_frames``, ``inside_loss_of_control``),
-    or ``skipped`` with the reason."""
+def image_scenarios(spec: CodesignSpec, design: Design) -> list[Scenario]:
+    """The image-in-the-loop runs of ``design``: its Monte-Carlo scenarios for
+    ``spec.image_check.seeds`` in image mode, rendered frames, the tracker's scenario tracker
+    (``TrackerModel.image_tracker``; ``ValueError`` when it has none), the whole sensor read."""
     ic = spec.image_check
     tracker = tracker_of(spec, design).image_tracker
     if tracker is None:
-        return {"skipped": f"tracker {design.tracker!r} has no image-in-the-loop implementation"}
+        raise ValueError(f"tracker {design.tracker!r} has no image-in-the-loop implementation")
     scenarios = []
     for seed in ic.seeds:
         for i in range(len(spec.references)):
@@ -129,8 +126,21 @@ def image_check(spec: CodesignSpec, design: Design, mc: dict) -> dict:
                      duration_s=min(ic.duration_s, spec.duration_s))
             d["measurement"]["roi"] = None
             scenarios.append(Scenario.model_validate(d))
+    return scenarios
+
+
+def image_check(spec: CodesignSpec, design: Design, mc: dict) -> dict:
+    """Re-run ``design`` on rendered frames with its tracker's real implementation (event
+    loop) for ``spec.image_check.seeds`` and compare with the Monte-Carlo intervals ``mc``.
+
+    Returns the image runs' ``summarise`` figures, ``tracker``, and per metric whether it lies
+    inside the interval (``inside_error``, ``inside_lost_frames``, ``inside_loss_of_control``),
+    or ``skipped`` with the reason."""
+    tracker = tracker_of(spec, design).image_tracker
+    if tracker is None:
+        return {"skipped": f"tracker {design.tracker!r} has no image-in-the-loop implementation"}
     rows = []
-    for res in run_many(scenarios, engine="event"):
+    for res in run_many(image_scenarios(spec, design), engine="event"):
         s = res.summary
         rows.append({"error": "", **{f"result.{k}": float(s[k]) for k in (
             "rms_error_deg", "rms_torque_Nm", "lost_frame_fraction", "loss_of_control")}})

@@ -23,12 +23,16 @@ from pydantic import (
     model_validator,
 )
 
+from experiments.codesign.catalogue import catalogue_figures
 from experiments.config_files import load_mapping
 from experiments.scenario import ReferenceSpec, RefSpec, Scenario, TiltStepSpec
 from experiments.user_files import plant_from_files
-from latency.models import SEED_LATENCY_S, Constant, Empirical, LatencyModel
+from latency.models import Constant, Empirical, LatencyModel
 from plant.camera_mode import SensorTiming
 from plant.params import PlantParams
+
+#: The trackers a scenario renders with in image mode (``Scenario.tracker``).
+ScenarioTracker = Scenario.model_fields["tracker"].annotation
 
 
 class _Model(BaseModel):
@@ -126,7 +130,7 @@ class TrackerModel(_Model):
     reacquire_after_frames: int = Field(5, ge=1)
     blur_limit_px: float | None = Field(48.0, gt=0.0)
     dropout_prob: float = Field(0.0, ge=0.0, le=1.0)
-    image_tracker: Literal["kcf", "csrt", "transt"] | None = None
+    image_tracker: ScenarioTracker | None = None
 
     @model_validator(mode="after")
     def _one_latency(self) -> TrackerModel:
@@ -141,21 +145,14 @@ class TrackerModel(_Model):
         return self.latency if self.latency is not None else Empirical.load(self.latency_file)
 
 
-def _seed_tracker(name: str, image: str | None, noise_scale: float = 1.0) -> TrackerModel:
-    return TrackerModel(latency=Constant(value_s=SEED_LATENCY_S[name]), noise_scale=noise_scale,
-                        image_tracker=image)
-
-
 def default_trackers() -> dict[str, TrackerModel]:
-    """The seed's trackers with seed 000 Table 1's latencies. Accuracy: the GK sub-pixel stage
-    refines the centres of GK-TransT and of KCF/CSRT inside the GK assistance; the dual TransT
-    reports its boxes' centres, our estimate twice as noisy."""
-    return {
-        "gk_transt": _seed_tracker("gk_transt", "transt"),
-        "dual_transt": _seed_tracker("dual_transt", None, noise_scale=2.0),
-        "kcf_gk": _seed_tracker("kcf", "kcf"),
-        "csrt_gk": _seed_tracker("csrt", "csrt"),
-    }
+    """The catalogue: GK-TransT, dual TransT, KCF and CSRT inside the GK assistance, and K²CF,
+    with the latencies, noise scales and image-in-the-loop trackers of
+    ``experiments.codesign.catalogue`` (seed 000 Table 1 and this project's tracking
+    benchmark); loss behaviour: ``TrackerModel``'s defaults."""
+    return {name: TrackerModel(latency=Constant(value_s=f["latency_s"]),
+                               noise_scale=f["noise_scale"], image_tracker=f["image_tracker"])
+            for name, f in catalogue_figures().items()}
 
 
 class Constraints(_Model):
