@@ -293,10 +293,39 @@ def test_a_measured_latency_is_one_over_the_benchmarks_fps(tmp_path):
         measured_latency_s("kcf", path)
 
 
+def test_re_detection_takes_the_lost_frame_plus_the_slower_markers_reacquisition(tmp_path):
+    import json
+
+    from experiments.codesign.catalogue import reacquire_after_frames
+
+    path = tmp_path / "bench.json"
+    path.write_text(json.dumps({
+        "gk_occlusion_main_reacquire_frames": 1.0, "gk_occlusion_aux_reacquire_frames": 0.0,
+        "k2_occlusion_main_reacquire_frames": 0.0, "k2_occlusion_aux_reacquire_frames": 0.0,
+        "box_occlusion_main_reacquire_frames": float("inf"),
+        "box_occlusion_aux_reacquire_frames": 0.5}))
+    assert reacquire_after_frames("gk", path) == 2
+    assert reacquire_after_frames("k2", path) == 1
+    assert reacquire_after_frames("box", path) is None  # never re-acquired
+    with pytest.raises(ValueError, match="kcf_occlusion"):
+        reacquire_after_frames("kcf", path)
+
+
+def test_a_tracker_that_never_re_detects_keeps_a_lost_marker_lost_for_the_run():
+    from experiments.codesign.space import scenario_dict
+
+    spec = _tiny(tracker_models={"lost": {"latency": {"kind": "constant", "value_s": 0.01},
+                                          "reacquire_after_frames": None}})
+    design = Design(frame_rate_hz=36.0, tracker="lost", observer="solver")
+    frames_in_run = spec.duration_s * 36.0
+    assert scenario_dict(spec, design, 0, 0)["measurement"]["reacquire_after_frames"] > (
+        frames_in_run)
+
+
 def test_the_catalogue_reads_the_seeds_latencies_and_the_tracking_benchmark():
     import json
 
-    from experiments.codesign.catalogue import BENCH_JSON, noise_scales
+    from experiments.codesign.catalogue import BENCH_JSON, noise_scales, reacquire_after_frames
 
     models = CodesignSpec().tracker_models
     assert set(models) == {"gk_transt", "dual_transt", "kcf_gk", "csrt_gk", "k2cf"}
@@ -318,6 +347,10 @@ def test_the_catalogue_reads_the_seeds_latencies_and_the_tracking_benchmark():
     # Box centres are several px off, K²CF's sub-pixel peak a fraction of a px
     # (docs/tracking.md): both noisier than the GK fit, the box centres by far.
     assert 1.0 < models["k2cf"].noise_scale < 5.0 < models["dual_transt"].noise_scale
+    # Re-detection: the GK assistance's (GK-TransT's row) for the three GK trackers.
+    for name, row in (("gk_transt", "gk_transt"), ("kcf_gk", "gk_transt"),
+                      ("csrt_gk", "gk_transt"), ("dual_transt", "dual_transt"), ("k2cf", "k2cf")):
+        assert models[name].reacquire_after_frames == reacquire_after_frames(row)
 
 
 def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():

@@ -11,9 +11,16 @@ Each catalogue tracker is named as ``observer.trackers.make_pair_tracker`` names
   (``main_err_median_px``, ``aux_err_median_px``) over the ``clean`` rows of
   ``benchmarks/results/tracking_metrics.csv`` (the same benchmark's per-run rows; the JSON
   holds no centre errors). GK-TransT is 1: the camera mode's noise stands for the GK sub-pixel
-  centre. KCF and CSRT inside the GK assistance take GK-TransT's row: with the sub-pixel
-  circle fit the centre is the fit's, whichever tracker found the marker (the benchmark's
-  dual TransT with the fit, ``dual_transt_refine``, has GK-TransT's median errors).
+  centre. KCF and CSRT inside the GK assistance (not in the benchmark) take GK-TransT's row:
+  with the sub-pixel circle fit the centre is the fit's, whichever tracker found the marker
+  (the benchmark's dual TransT with the fit, ``dual_transt_refine``, has GK-TransT's median
+  errors), and the GK assistance re-detects a lost marker for all three.
+* **loss**: re-detection after a loss, ``reacquire_after_frames`` of the measurement model,
+  from the re-acquisition the benchmark measured after its occlusion
+  (``<row>_occlusion_main_reacquire_frames`` and ``_aux_`` of ``bench_tracking.json``, frames
+  after the marker reappeared until it was tracked within 20 px): the frame the marker is
+  lost on plus the slower marker's frames; None (never) where the tracker never re-acquired
+  it. The search window and blur limit stay ``TrackerModel``'s defaults (not measured).
 * **image-in-the-loop**: the scenario tracker that renders with it
   (``experiments.scenario.PAIR_TRACKER_OF``), None where scenarios have none.
 """
@@ -22,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -35,8 +43,8 @@ BENCH_JSON = RESULTS_DIR / "bench_tracking.json"
 METRICS_CSV = RESULTS_DIR / "tracking_metrics.csv"
 #: The benchmark row whose centre errors are the reference (noise scale 1).
 REFERENCE_ROW = "gk_transt"
-#: Catalogue tracker -> (the benchmark row of its accuracy, its seed 000 Table 1 latency name
-#: or None for the benchmark's measured latency).
+#: Catalogue tracker -> (the benchmark row of its accuracy and loss, its seed 000 Table 1
+#: latency name or None for the benchmark's measured latency).
 CATALOGUE: dict[str, tuple[str, str | None]] = {
     "gk_transt": ("gk_transt", "gk_transt"),
     "dual_transt": ("dual_transt", "dual_transt"),
@@ -71,10 +79,23 @@ def measured_latency_s(row: str, bench_json: Path = BENCH_JSON) -> float:
     return 1.0 / float(figures[key])
 
 
+def reacquire_after_frames(row: str, bench_json: Path = BENCH_JSON) -> int | None:
+    """Processed frames until ``row`` re-detects a lost marker (module docstring): 1 + the
+    larger of the two markers' re-acquisition frames after the benchmark's occlusion, rounded
+    up; None when it never re-acquired one."""
+    figures = json.loads(Path(bench_json).read_text())
+    keys = [f"{row}_occlusion_{m}_reacquire_frames" for m in ("main", "aux")]
+    missing = [k for k in keys if k not in figures]
+    if missing:
+        raise ValueError(f"{bench_json}: no {missing}")
+    frames = max(float(figures[k]) for k in keys)
+    return None if math.isinf(frames) else 1 + math.ceil(frames)
+
+
 @functools.cache
 def catalogue_figures() -> dict[str, dict]:
-    """Per catalogue tracker: ``latency_s``, ``noise_scale`` and ``image_tracker`` (module
-    docstring), from the benchmark's files."""
+    """Per catalogue tracker: ``latency_s``, ``noise_scale``, ``reacquire_after_frames`` and
+    ``image_tracker`` (module docstring), from the benchmark's files."""
     scales = noise_scales()
     out = {}
     for name, (row, seed_name) in CATALOGUE.items():
@@ -83,5 +104,6 @@ def catalogue_figures() -> dict[str, dict]:
         latency = (SEED_LATENCY_S[seed_name] if seed_name is not None
                    else measured_latency_s(row))
         out[name] = {"latency_s": latency, "noise_scale": float(scales[row]),
+                     "reacquire_after_frames": reacquire_after_frames(row),
                      "image_tracker": SCENARIO_TRACKER_OF.get(name)}
     return out

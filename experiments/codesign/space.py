@@ -4,6 +4,7 @@ design (``suggest``), and the scenarios that evaluate it (``scenario_dict``)."""
 from __future__ import annotations
 
 import json
+import math
 from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -141,6 +142,7 @@ def scenario_dict(spec: CodesignSpec, design: Design, seed: int, reference_index
     if ref.get("kind") == "random":
         ref.setdefault("args", {}).setdefault("seed", int(seed))
     sigma = mode.sigma_px * tracker.noise_scale
+    never = math.ceil(spec.duration_s * mode.rate_hz) + 1  # more frames than the run has
     observer: dict = {"kind": design.observer}
     if design.observer == "pixel_kalman":
         observer |= {"pixel_q_scale": design.q_scale, "pixel_r_scale": design.r_scale}
@@ -166,7 +168,8 @@ def scenario_dict(spec: CodesignSpec, design: Design, seed: int, reference_index
                      "mode": design.pipeline, "readout_s": mode.readout_s},
         "measurement": {
             "sigma_px": sigma, "search_radius_px": tracker.search_radius_px,
-            "reacquire_after_frames": tracker.reacquire_after_frames,
+            "reacquire_after_frames": never if tracker.reacquire_after_frames is None
+            else tracker.reacquire_after_frames,
             "blur_limit_px": tracker.blur_limit_px, "dropout_prob": tracker.dropout_prob,
             "roi": None if roi is None else roi.model_dump(mode="json"),
         },

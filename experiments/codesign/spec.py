@@ -127,7 +127,9 @@ class TrackerModel(_Model):
     latency_file: Path | None = None
     noise_scale: float = Field(1.0, gt=0.0)
     search_radius_px: float | None = Field(240.0, gt=0.0)
-    reacquire_after_frames: int = Field(5, ge=1)
+    reacquire_after_frames: int | None = Field(
+        5, ge=1, description="Processed frames until a lost marker is re-detected; None: never "
+        "(it stays lost for the rest of the run).")
     blur_limit_px: float | None = Field(48.0, gt=0.0)
     dropout_prob: float = Field(0.0, ge=0.0, le=1.0)
     image_tracker: ScenarioTracker | None = None
@@ -149,9 +151,11 @@ def default_trackers() -> dict[str, TrackerModel]:
     """The catalogue: GK-TransT, dual TransT, KCF and CSRT inside the GK assistance, and K²CF,
     with the latencies, noise scales and image-in-the-loop trackers of
     ``experiments.codesign.catalogue`` (seed 000 Table 1 and this project's tracking
-    benchmark); loss behaviour: ``TrackerModel``'s defaults."""
+    benchmark); search window and blur limit: ``TrackerModel``'s defaults."""
     return {name: TrackerModel(latency=Constant(value_s=f["latency_s"]),
-                               noise_scale=f["noise_scale"], image_tracker=f["image_tracker"])
+                               noise_scale=f["noise_scale"],
+                               reacquire_after_frames=f["reacquire_after_frames"],
+                               image_tracker=f["image_tracker"])
             for name, f in catalogue_figures().items()}
 
 
