@@ -3,6 +3,8 @@ chosen together against closed-loop performance (``pmspm codesign SPEC.yaml``, d
 
 * ``spec``: the validated spec file (the design space, objectives, constraints, search and
   report settings).
+* ``catalogue``: the trackers' latency, accuracy and re-detection, from seed 000 Table 1 and
+  the tracking benchmark's result files.
 * ``space``: a design (one point of the space), the seed's design, and the scenarios of a design.
 * ``analysis``: the exact-delay margins of a design (critical phase margin, delay headroom).
 * ``evaluate``: the Monte-Carlo evaluation over seeds on the batched engine, with intervals.
