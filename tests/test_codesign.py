@@ -373,3 +373,22 @@ def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
         for s in runs:
             assert (s.mode, s.tracker, s.measurement.roi) == ("image", scenario_tracker, None)
             assert PAIR_TRACKER_OF[s.tracker] == name  # the loop builds this pair tracker
+
+
+@pytest.mark.slow
+def test_the_image_check_re_runs_a_dual_transt_design_on_rendered_frames():
+    """Both TransT networks on the analytic renderer's frames (no GK assistance): on a 2° step
+    the markers stay tracked (the tracking benchmark's dual TransT keeps precision 1.0 on
+    clean frames) and the loop stays in control."""
+    from experiments.codesign.report import image_check
+    from observer.transt.weights import SMALL_WEIGHTS
+
+    if not SMALL_WEIGHTS.exists():
+        pytest.skip("the TransT weights are not shipped in this checkout")
+    spec = _tiny(trackers=["dual_transt"], image_check={"seeds": [0], "duration_s": 0.4})
+    design = Design(frame_rate_hz=36.0, tracker="dual_transt", observer="solver")
+    check = image_check(spec, design, {})
+    assert check["tracker"] == "dual_transt"
+    assert (check["n_runs"], check["n_failed"]) == (1, 0)
+    assert check["lost_frame_fraction"] == 0.0 and check["p_loss_of_control"] == 0.0
+    assert math.isfinite(check["rms_error_deg"])
