@@ -18,7 +18,7 @@ Each catalogue tracker is named as ``observer.trackers.make_pair_tracker`` names
 * **loss**: re-detection after a loss, ``reacquire_after_frames`` of the measurement model,
   from the re-acquisition the benchmark measured after its occlusion
   (``<row>_occlusion_main_reacquire_frames`` and ``_aux_`` of ``bench_tracking.json``, frames
-  after the marker reappeared until it was tracked within 20 px): the frame the marker is
+  after the marker reappeared until it was tracked within 20 px for 5 frames): the frame it is
   lost on plus the slower marker's frames; None (never) where the tracker never re-acquired
   it. The search window and blur limit stay ``TrackerModel``'s defaults (not measured).
 * **image-in-the-loop**: the scenario tracker that renders with it

@@ -149,7 +149,7 @@ class TrackerModel(_Model):
 
 def default_trackers() -> dict[str, TrackerModel]:
     """The catalogue: GK-TransT, dual TransT, KCF and CSRT inside the GK assistance, and K²CF,
-    with the latencies, noise scales and image-in-the-loop trackers of
+    with the latencies, noise scales, re-detection and image-in-the-loop trackers of
     ``experiments.codesign.catalogue`` (seed 000 Table 1 and this project's tracking
     benchmark); search window and blur limit: ``TrackerModel``'s defaults."""
     return {name: TrackerModel(latency=Constant(value_s=f["latency_s"]),
