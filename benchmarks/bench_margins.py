@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 
 import control as ct
 import numpy as np
 from _report import HERE, record
 from matplotlib.figure import Figure
 
-from latency.margins import attitude_margins, loop_margins, loop_model, pade_margins
+from latency.margins import Margins, attitude_margins, loop_margins, loop_model, pade_margins
 from latency.models import SEED_LATENCY_S
 from plant.params import PlantParams
 
@@ -52,63 +53,76 @@ def controllers(J: float, wc: float, T: float) -> dict[str, ct.TransferFunction]
     }
 
 
-def main() -> None:
-    p = PlantParams()
-    J = p.rotor.inertia_com_kgm2[0]
-    b = p.rotor.viscous_Nms_per_rad
-    frame_rates = {"36hz": p.camera.frame_rate_hz, "61hz": 61.23}
-    crossovers_hz = {"3hz": 3.0, "5hz": 5.0}
-    delays = np.unique(np.r_[np.linspace(0.0, 0.060, 61), GK_TRANST_S, DUAL_TRANST_S])
+@dataclass
+class Sweep:
+    """The hybrid margins of every loop over the delays, with the sampled loop as a check.
 
-    figures: dict[str, float] = {}
-    curves = {}
-    t_hybrid: list[float] = []
-    t_sampled: list[float] = []
-    max_dpm = 0.0
-    max_ddm = 0.0
-    flips = 0
+    Attributes
+    ----------
+    curves : hybrid margins per loop name ``<controller>_<crossover>_<frame rate>``, per delay.
+    t_hybrid_s, t_sampled_s : wall time of each margin evaluation, s.
+    max_dpm_deg, max_ddm_s : largest |hybrid - sampled| phase and delay margins (both stable).
+    flips : delays where the two disagree on stability.
+    """
+
+    curves: dict[str, list[Margins]] = field(default_factory=dict)
+    t_hybrid_s: list[float] = field(default_factory=list)
+    t_sampled_s: list[float] = field(default_factory=list)
+    max_dpm_deg: float = 0.0
+    max_ddm_s: float = 0.0
+    flips: int = 0
+
+    def add(self, C: ct.TransferFunction, J: float, b: float, T: float, d: float) -> Margins:
+        """Margins of controller ``C`` at frame period ``T`` and delay ``d`` (s), both ways;
+        returns the hybrid ones."""
+        kw = dict(inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T, delay_s=d)
+        t0 = time.perf_counter()
+        h = attitude_margins(C, **kw)
+        t1 = time.perf_counter()
+        s = attitude_margins(C, **kw, formulation="sampled")
+        t2 = time.perf_counter()
+        self.t_hybrid_s.append(t1 - t0)
+        self.t_sampled_s.append(t2 - t1)
+        if h.stable != s.stable:
+            self.flips += 1
+        elif h.stable:
+            self.max_dpm_deg = max(self.max_dpm_deg, abs(h.phase_margin_deg - s.phase_margin_deg))
+            self.max_ddm_s = max(self.max_ddm_s, abs(h.delay_margin_s - s.delay_margin_s))
+        return h
+
+
+def sweep(J: float, b: float, frame_rates: dict[str, float], crossovers_hz: dict[str, float],
+          delays: np.ndarray) -> Sweep:
+    """Every controller at every crossover and frame rate, over the delays."""
+    out = Sweep()
     for fr_key, fr in frame_rates.items():
         T = 1.0 / fr
         for fc_key, fc in crossovers_hz.items():
             for c_key, C in controllers(J, 2 * math.pi * fc, T).items():
-                rows = []
-                for d in delays:
-                    t0 = time.perf_counter()
-                    h = attitude_margins(
-                        C, inertia_kgm2=J, damping_Nms_per_rad=b, frame_period_s=T, delay_s=d
-                    )
-                    t_hybrid.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    s = attitude_margins(
-                        C,
-                        inertia_kgm2=J,
-                        damping_Nms_per_rad=b,
-                        frame_period_s=T,
-                        delay_s=d,
-                        formulation="sampled",
-                    )
-                    t_sampled.append(time.perf_counter() - t0)
-                    if h.stable != s.stable:
-                        flips += 1
-                    elif h.stable:
-                        max_dpm = max(max_dpm, abs(h.phase_margin_deg - s.phase_margin_deg))
-                        max_ddm = max(max_ddm, abs(h.delay_margin_s - s.delay_margin_s))
-                    rows.append(h)
-                name = f"{c_key}_{fc_key}_{fr_key}"
-                curves[name] = rows
-                h0 = rows[0]
-                figures[f"{name}_crossover_rad_s"] = h0.crossover_rad_s
-                figures[f"{name}_pm_deg_at_0ms"] = h0.phase_margin_deg
-                figures[f"{name}_max_total_delay_s"] = h0.delay_margin_s
-                for label, dd in (("gk", GK_TRANST_S), ("dual", DUAL_TRANST_S)):
-                    m = rows[int(np.argmin(np.abs(delays - dd)))]
-                    figures[f"{name}_pm_deg_at_{label}"] = m.phase_margin_deg
-                    figures[f"{name}_delay_margin_s_at_{label}"] = m.delay_margin_s
-                    figures[f"{name}_jitter_margin_s_at_{label}"] = m.jitter_margin_s
-                    figures[f"{name}_stable_at_{label}"] = float(m.stable)
+                out.curves[f"{c_key}_{fc_key}_{fr_key}"] = [out.add(C, J, b, T, d) for d in delays]
+    return out
 
-    # Padé comparison timing and agreement on one case
-    T = 1.0 / frame_rates["36hz"]
+
+def curve_figures(curves: dict[str, list[Margins]], delays: np.ndarray) -> dict[str, float]:
+    """Per loop: crossover, margins at zero delay and at the seed's two tracker latencies."""
+    figures: dict[str, float] = {}
+    for name, rows in curves.items():
+        h0 = rows[0]
+        figures[f"{name}_crossover_rad_s"] = h0.crossover_rad_s
+        figures[f"{name}_pm_deg_at_0ms"] = h0.phase_margin_deg
+        figures[f"{name}_max_total_delay_s"] = h0.delay_margin_s
+        for label, dd in (("gk", GK_TRANST_S), ("dual", DUAL_TRANST_S)):
+            m = rows[int(np.argmin(np.abs(delays - dd)))]
+            figures[f"{name}_pm_deg_at_{label}"] = m.phase_margin_deg
+            figures[f"{name}_delay_margin_s_at_{label}"] = m.delay_margin_s
+            figures[f"{name}_jitter_margin_s_at_{label}"] = m.jitter_margin_s
+            figures[f"{name}_stable_at_{label}"] = float(m.stable)
+    return figures
+
+
+def pade_check(J: float, b: float, T: float) -> tuple[float, list[float]]:
+    """Padé (order 6) minus exact phase margin (deg) of the 3 Hz PD at the GK-TransT delay,
+    and the wall time (s) of 20 Padé evaluations."""
     C = controllers(J, 2 * math.pi * 3.0, T)["pd"]
     model = loop_model(ct.tf([1.0], [J, b, 0.0]), C, delay_s=GK_TRANST_S)
     ex = loop_margins(model)
@@ -117,18 +131,11 @@ def main() -> None:
         t0 = time.perf_counter()
         pa = pade_margins(model, 6)
         t_pade.append(time.perf_counter() - t0)
-    figures["pade6_minus_exact_pm_deg_pd_3hz_36hz_gk"] = pa.phase_margin_deg - ex.phase_margin_deg
+    return pa.phase_margin_deg - ex.phase_margin_deg, t_pade
 
-    figures["hybrid_vs_sampled_max_abs_pm_diff_deg"] = max_dpm
-    figures["hybrid_vs_sampled_max_abs_delay_margin_diff_s"] = max_ddm
-    figures["hybrid_vs_sampled_stability_disagreements"] = float(flips)
-    figures["margin_eval_hybrid_median_s"] = float(np.median(t_hybrid))
-    figures["margin_eval_hybrid_p95_s"] = float(np.percentile(t_hybrid, 95))
-    figures["margin_eval_sampled_median_s"] = float(np.median(t_sampled))
-    figures["margin_eval_pade6_median_s"] = float(np.median(t_pade))
-    figures["n_margin_evaluations_each"] = float(len(t_hybrid))
 
-    # table
+def print_table(J: float, b: float, curves: dict[str, list[Margins]], delays: np.ndarray) -> None:
+    """The margins at a few delays, one line per loop and delay."""
     print(f"J = {J:g} kg m^2, b = {b:g} N m s/rad; margins from the hybrid exact-delay model")
     print(
         f"{'loop':>18s} {'delay ms':>8s} {'PM deg':>8s} {'wc rad/s':>9s} {'DM ms':>8s} "
@@ -143,7 +150,9 @@ def main() -> None:
                     f"{m.jitter_margin_s * 1e3:8.2f}  {'stable' if m.stable else 'UNSTABLE'}"
                 )
 
-    # figure
+
+def plot(J: float, b: float, curves: dict[str, list[Margins]], delays: np.ndarray) -> Figure:
+    """Phase, delay and jitter margins against the delay, one curve per loop."""
     fig = Figure(figsize=(11, 9), layout="constrained")
     axs = fig.subplots(3, 1, sharex=True)
     styles = {"36hz": "-", "61hz": "--"}
@@ -184,9 +193,33 @@ def main() -> None:
         f"Per-axis attitude loop 1/(J s² + b s), J = {J:g} kg·m², b = {b:g} N·m·s/rad: "
         "lead PD/PID (a = 9), Tustin at the frame rate, exact delay"
     )
+    return fig
+
+
+def main() -> None:
+    p = PlantParams()
+    J = p.rotor.inertia_com_kgm2[0]
+    b = p.rotor.viscous_Nms_per_rad
+    frame_rates = {"36hz": p.camera.frame_rate_hz, "61hz": 61.23}
+    delays = np.unique(np.r_[np.linspace(0.0, 0.060, 61), GK_TRANST_S, DUAL_TRANST_S])
+
+    sw = sweep(J, b, frame_rates, {"3hz": 3.0, "5hz": 5.0}, delays)
+    figures = curve_figures(sw.curves, delays)
+    pade_diff_deg, t_pade = pade_check(J, b, 1.0 / frame_rates["36hz"])
+    figures["pade6_minus_exact_pm_deg_pd_3hz_36hz_gk"] = pade_diff_deg
+    figures["hybrid_vs_sampled_max_abs_pm_diff_deg"] = sw.max_dpm_deg
+    figures["hybrid_vs_sampled_max_abs_delay_margin_diff_s"] = sw.max_ddm_s
+    figures["hybrid_vs_sampled_stability_disagreements"] = float(sw.flips)
+    figures["margin_eval_hybrid_median_s"] = float(np.median(sw.t_hybrid_s))
+    figures["margin_eval_hybrid_p95_s"] = float(np.percentile(sw.t_hybrid_s, 95))
+    figures["margin_eval_sampled_median_s"] = float(np.median(sw.t_sampled_s))
+    figures["margin_eval_pade6_median_s"] = float(np.median(t_pade))
+    figures["n_margin_evaluations_each"] = float(len(sw.t_hybrid_s))
+
+    print_table(J, b, sw.curves, delays)
     out = HERE / "results" / "margins_vs_delay.png"
     out.parent.mkdir(exist_ok=True)
-    fig.savefig(out, dpi=120)
+    plot(J, b, sw.curves, delays).savefig(out, dpi=120)
     print(f"wrote {out}")
 
     record(

@@ -1,21 +1,36 @@
 """Figures shared by the notebooks and reports: closed-loop runs side by side and a strip of
-what the camera saw."""
+what the camera saw. Each function builds a new ``matplotlib.figure.Figure`` (no pyplot state,
+no backend chosen), saves it to ``path`` if given and returns it."""
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
+import pandas as pd
 from matplotlib.figure import Figure
 
 from latency.loop import LoopResult
 from plant.camera import sensor_to_image
 
+if TYPE_CHECKING:
+    from plant.render_analytic import AnalyticRenderer
+    from plant.render_mujoco import MujocoRenderer
 
-def plot_runs_side_by_side(results: dict[str, LoopResult]) -> Figure:
+
+def _finish(fig: Figure, path: Path | str | None) -> Figure:
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def plot_runs_side_by_side(results: dict[str, LoopResult],
+                           path: Path | str | None = None) -> Figure:
     """Tilt against its reference, geodesic error (deg) and delivered torque (N·m) over time,
     one column per run."""
-    fig, axes = plt.subplots(3, len(results), figsize=(5.5 * len(results), 7), sharex=True,
-                             sharey="row", squeeze=False)
+    fig = Figure(figsize=(5.5 * len(results), 7), layout="tight")
+    axes = fig.subplots(3, len(results), sharex=True, sharey="row", squeeze=False)
     for j, (name, r) in enumerate(results.items()):
         s = r.steps
         axes[0, j].plot(s.t_s, s.tilt_deg, label="tilt")
@@ -32,21 +47,30 @@ def plot_runs_side_by_side(results: dict[str, LoopResult]) -> Figure:
     axes[2, 0].legend()
     for ax in axes.flat:
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    return fig
+    return _finish(fig, path)
 
 
-def frame_strip(results: dict[str, LoopResult], renderer, n_frames: int = 6) -> Figure:
-    """Frames re-rendered at ``n_frames`` times of each run (rows), with the true marker
-    centres marked; ``renderer`` is an ``AnalyticRenderer`` or ``MujocoRenderer``."""
+def strip_rows(results: dict[str, LoopResult], n_frames: int) -> dict[str, pd.DataFrame]:
+    """Per run, the logged rows nearest to ``n_frames`` times spread evenly inside the longest
+    run (its ends excluded)."""
     duration = max(float(r.steps.t_s.iloc[-1]) for r in results.values())
     times = np.linspace(0.0, duration, n_frames + 2)[1:-1]
-    fig, axes = plt.subplots(len(results), len(times), squeeze=False,
-                             figsize=(2.6 * len(times), 2.4 * len(results)))
-    for i, (name, r) in enumerate(results.items()):
-        s = r.steps
-        for j, t in enumerate(times):
-            row = s.iloc[int(np.argmin(np.abs(s.t_s.to_numpy() - t)))]
+    out = {}
+    for name, r in results.items():
+        t = r.steps.t_s.to_numpy()
+        out[name] = r.steps.iloc[[int(np.argmin(np.abs(t - ti))) for ti in times]]
+    return out
+
+
+def frame_strip(results: dict[str, LoopResult], renderer: AnalyticRenderer | MujocoRenderer,
+                n_frames: int = 6, path: Path | str | None = None) -> Figure:
+    """Frames re-rendered at ``n_frames`` times of each run (rows, ``strip_rows``), with the
+    true marker centres marked; ``renderer`` is an ``AnalyticRenderer`` or ``MujocoRenderer``."""
+    rows = strip_rows(results, n_frames)
+    fig = Figure(figsize=(2.6 * n_frames, 2.4 * len(rows)), layout="tight")
+    axes = fig.subplots(len(rows), n_frames, squeeze=False)
+    for i, (name, picked) in enumerate(rows.items()):
+        for j, (_, row) in enumerate(picked.iterrows()):
             q = row[["qw", "qx", "qy", "qz"]].to_numpy(float)
             omega = row[["omega_x_rad_s", "omega_y_rad_s", "omega_z_rad_s"]].to_numpy(float)
             frame = renderer.render(q, t_exposure=float(row.t_s), omega=omega)
@@ -58,5 +82,4 @@ def frame_strip(results: dict[str, LoopResult], renderer, n_frames: int = 6) -> 
             ax.set_xticks([])
             ax.set_yticks([])
         axes[i, 0].set_ylabel(name, fontsize=8)
-    fig.tight_layout()
-    return fig
+    return _finish(fig, path)

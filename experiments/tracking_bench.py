@@ -657,6 +657,159 @@ def _torch_note() -> str:
             f"{os.environ.get('OMP_WAIT_POLICY')}")
 
 
+def _check_arguments(cases: Sequence[str] | None, seeds: int, frames: int) -> list[str]:
+    """The benchmark's cases (all of ``CASES`` if None); ``ValueError`` for an unknown case,
+    fewer than one seed or fewer frames than a case needs (``min_frames``)."""
+    from experiments.sequences import ALL_CASES, CASES
+
+    cases = list(CASES if cases is None else cases)
+    bad = [c for c in cases if c not in ALL_CASES]
+    if bad or not cases:
+        raise ValueError(f"cases must be among {', '.join(ALL_CASES)}, got {cases}")
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    need = max(min_frames(c) for c in cases)
+    if frames < need:
+        each = ", ".join(f"{c} {min_frames(c)}" for c in dict.fromkeys(cases))
+        raise ValueError(f"frames must be >= {need} for cases {cases} ({each}), got {frames}")
+    return cases
+
+
+def _write_plots(out: Path, runs: list[TrackRun], seqs: list[TrackingSequence],
+                 cases: Sequence[str]) -> list[Path]:
+    """Per case, the precision curves and the first sequence's error curve, as PNG files."""
+    plots = []
+    for case in cases:
+        first = next(s for s in seqs if s.case == case)
+        for fig, path in ((plot_precision_curves(runs, seqs, case),
+                           out / f"tracking_precision_{case}.png"),
+                          (plot_error_curves(runs, first), out / f"tracking_errors_{case}.png")):
+            fig.savefig(path, dpi=110)
+            plots.append(path)
+    return plots
+
+
+_Ratio = tuple[str, str, str, float, float]  # (num, den, what, median ratio, mean ratio)
+
+
+@dataclass(frozen=True)
+class _LatencyRatios:
+    """The run's latency ratios: ``default`` is GK-TransT over dual TransT as shipped (not like
+    for like; NaN unless both ran), ``like_for_like`` the pairs of ``RATIO_PAIRS`` that ran."""
+
+    default: _Ratio
+    like_for_like: list[_Ratio]
+
+    @classmethod
+    def of(cls, t1: pd.DataFrame, gk: str, dual: str, tag: str) -> _LatencyRatios:
+        """From Table 1; ``tag`` names the network (``_transt`` or ``_standin``)."""
+        def ratio(num: str, den: str, what: str) -> _Ratio:
+            return (num, den, what, latency_ratio(t1, num, den, "latency_median_ms"),
+                    latency_ratio(t1, num, den, "latency_mean_ms"))
+
+        pairs = [(num.replace("_transt", tag), den.replace("_transt", tag), what)
+                 for num, den, what in RATIO_PAIRS[:2]]
+        return cls(ratio(gk, dual, RATIO_PAIRS[2][2]),
+                   [ratio(*p) for p in pairs if {p[0], p[1]} <= set(t1.algorithm)])
+
+
+def _figures(summary: pd.DataFrame, t1: pd.DataFrame, ratios: _LatencyRatios) -> dict[str, float]:
+    """Flat figures for ``benchmarks/RESULTS.md`` (SI units in the names)."""
+    figures: dict[str, float] = {}
+    for _, r in summary.iterrows():
+        key = f"{r.tracker}_{r.case}"
+        figures[f"{key}_main_precision_20px"] = float(r.main_precision_20px)
+        figures[f"{key}_aux_precision_20px"] = float(r.aux_precision_20px)
+        figures[f"{key}_main_success_auc"] = float(r.main_success_auc)
+        figures[f"{key}_aux_success_auc"] = float(r.aux_success_auc)
+        if "main_reacquire_frames" in summary.columns and r.case == "occlusion":
+            figures[f"{key}_main_reacquire_frames"] = float(r.main_reacquire_frames)
+            figures[f"{key}_aux_reacquire_frames"] = float(r.aux_reacquire_frames)
+    for _, r in t1.iterrows():
+        figures[f"{r.algorithm}_latency_median_s"] = r.latency_median_ms / 1e3
+        figures[f"{r.algorithm}_latency_p95_s"] = r.latency_p95_ms / 1e3
+        figures[f"{r.algorithm}_fps"] = float(r.fps)
+    for num, den, _, r_med, r_mean in (ratios.default, *ratios.like_for_like):
+        figures[f"{num}_over_{den}_median_latency_ratio"] = r_med
+        figures[f"{num}_over_{den}_mean_latency_ratio"] = r_mean
+    return figures
+
+
+def _checks(summary: pd.DataFrame, t1: pd.DataFrame, cases: Sequence[str], gk: str, tag: str,
+            ratios: _LatencyRatios) -> list[str]:
+    """The GK-TransT targets, met or not, one line each (none if GK-TransT did not run)."""
+    if gk not in set(summary.tracker):
+        return []
+    checks = []
+    st = summary.set_index(["tracker", "case"])
+    for case in cases:
+        if (gk, case) not in st.index:
+            continue
+        target = case_target(case)
+        for m in ("main", "aux"):
+            v = float(st.loc[(gk, case), f"{m}_precision_20px"])
+            checks.append(f"{gk} {case} {m} precision@20px {v:.3f} (target >= {target}): "
+                          f"{'met' if v >= target else 'NOT met'}")
+    checks += network_checks(summary, NETWORK_ALONE.replace("_transt", tag),
+                             [c for c in cases if c.startswith("heldout_")])
+    med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
+    checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}): "
+                  f"{'met' if med <= TARGET_MEDIAN_MS else 'NOT met'}")
+    for num, den, what, r_med, _ in ratios.like_for_like:
+        checks.append(f"{num}/{den} median latency ratio {r_med:.3f}, {what} (target <= "
+                      f"{TARGET_RATIO}; seed 0.523): "
+                      f"{'met' if r_med <= TARGET_RATIO else 'NOT met'}")
+    num, den, what, r_med, _ = ratios.default
+    if math.isfinite(r_med):
+        checks.append(f"{num}/{den} median latency ratio {r_med:.3f}, {what} (not like for "
+                      f"like; target <= {TARGET_RATIO}): "
+                      f"{'met' if r_med <= TARGET_RATIO else 'NOT met'}")
+    return checks
+
+
+def _run_note(specs: Sequence, seqs: list[TrackingSequence], cases: Sequence[str], frames: int,
+              wall_s: float) -> str:
+    """What ran (seeds, cases, frames, image size) and on what machine load."""
+    seed_list = sorted({s.seed for s in specs})
+    cam, binning = seqs[0].params.camera, seqs[0].binning
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (
+        f"Validation seeds {seed_list}, cases {cases}, {frames} frames each (frames 1-"
+        f"{frames - 1} scored), {cam.sensor_width_px // binning} x "
+        f"{cam.sensor_height_px // binning} px (binning {binning}); errors in full-sensor px. "
+        f"Wall time {wall_s:.0f} s; {_torch_note()}; {os.cpu_count()} CPUs seen by Python, load "
+        f"average {load:.1f} over the last minute at the end of the run (latencies are wall "
+        "time: other jobs on the machine lengthen them)."
+    )
+
+
+def _result_notes(summary: pd.DataFrame, t1: pd.DataFrame, all_cases: bool, gk: str, dual: str,
+                  ratios: _LatencyRatios, checks: list[str]) -> list[str]:
+    """Table 1, the latency ratios, the precision table, the network beside GK-TransT and the
+    targets, as markdown paragraphs (``all_cases``: Table 1 is over all sequences, not only
+    the clean ones)."""
+    t1_show = t1[["algorithm", "fps", "latency_median_ms", "latency_mean_ms", "latency_p95_ms",
+                  "seed_fps", "seed_latency_ms"]]
+    sum_cols = ["tracker", "case", "main_precision_20px", "aux_precision_20px",
+                "seed_main_precision", "seed_aux_precision", "main_success_auc",
+                "aux_success_auc"]
+    if "main_reacquire_frames" in summary.columns:
+        sum_cols += ["main_reacquire_frames", "aux_reacquire_frames"]
+    return [
+        f"Table 1 measured here ({'all' if all_cases else 'clean'} sequences; FPS = 1/mean "
+        "latency) beside the seed's (RTX 4060 laptop GPU):\n\n"
+        + markdown_table(t1_show, ".2f"),
+        "Latency ratios in this run (seed: 16.33/31.23 = 0.523): " + "; ".join(
+            f"{n}/{d} ({w}) median {a:.3f}, mean {b:.3f}"
+            for n, d, w, a, b in (*ratios.like_for_like, ratios.default)) + ".",
+        "Precision at 20 px and success AUC, mean over seeds (seed's precision beside; "
+        "re-acquisition = frames after frame 110 until measured within 20 px for 5 frames):"
+        "\n\n" + markdown_table(summary[sum_cols]),
+        network_and_gk_table(summary, gk, dual),
+        "Targets:\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
+    ]
+
+
 def run_tracking_benchmark(
     out_dir: Path | str,
     seeds: int = 2,
@@ -682,18 +835,9 @@ def run_tracking_benchmark(
     and, with ``require_transt``, TransT trackers without the shipped network (else their
     rows are left out and ``progress`` and the notes say so).
     """
-    from experiments.sequences import ALL_CASES, CASES, render_sequence, validation_suite
+    from experiments.sequences import render_sequence, validation_suite
 
-    cases = list(CASES if cases is None else cases)
-    bad = [c for c in cases if c not in ALL_CASES]
-    if bad or not cases:
-        raise ValueError(f"cases must be among {', '.join(ALL_CASES)}, got {cases}")
-    if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds}")
-    need = max(min_frames(c) for c in cases)
-    if frames < need:
-        each = ", ".join(f"{c} {min_frames(c)}" for c in dict.fromkeys(cases))
-        raise ValueError(f"frames must be >= {need} for cases {cases} ({each}), got {frames}")
+    cases = _check_arguments(cases, seeds, frames)
     factories, note_transt = tracker_factories(trackers, stand_in, require_transt)
     if not factories:
         raise ValueError(f"no tracker to run: {note_transt}")
@@ -714,113 +858,24 @@ def run_tracking_benchmark(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    files = [out / "tracking_metrics.csv"]
-    metrics.to_csv(files[0], index=False)
-    plots = []
-    for case in cases:
-        first = next(s for s in seqs if s.case == case)
-        for fig, path in ((plot_precision_curves(runs, seqs, case),
-                           out / f"tracking_precision_{case}.png"),
-                          (plot_error_curves(runs, first), out / f"tracking_errors_{case}.png")):
-            fig.savefig(path, dpi=110)
-            plots.append(path)
-    files += plots
+    metrics.to_csv(out / "tracking_metrics.csv", index=False)
+    plots = _write_plots(out, runs, seqs, cases)
 
     summary = summary_table(metrics)
-    t1_cases = ["clean"] if "clean" in cases else None
-    t1 = table1(runs, t1_cases)
+    t1 = table1(runs, ["clean"] if "clean" in cases else None)
     gk = "gk_standin" if stand_in else "gk_transt"
     dual = "dual_standin" if stand_in else "dual_transt"
-    ratio_med = latency_ratio(t1, gk, dual, "latency_median_ms")
-    ratio_mean = latency_ratio(t1, gk, dual, "latency_mean_ms")
-
-    figures: dict[str, float] = {}
-    for _, r in summary.iterrows():
-        key = f"{r.tracker}_{r.case}"
-        figures[f"{key}_main_precision_20px"] = float(r.main_precision_20px)
-        figures[f"{key}_aux_precision_20px"] = float(r.aux_precision_20px)
-        figures[f"{key}_main_success_auc"] = float(r.main_success_auc)
-        figures[f"{key}_aux_success_auc"] = float(r.aux_success_auc)
-        if "main_reacquire_frames" in summary.columns and r.case == "occlusion":
-            figures[f"{key}_main_reacquire_frames"] = float(r.main_reacquire_frames)
-            figures[f"{key}_aux_reacquire_frames"] = float(r.aux_reacquire_frames)
-    for _, r in t1.iterrows():
-        figures[f"{r.algorithm}_latency_median_s"] = r.latency_median_ms / 1e3
-        figures[f"{r.algorithm}_latency_p95_s"] = r.latency_p95_ms / 1e3
-        figures[f"{r.algorithm}_fps"] = float(r.fps)
-    figures[f"{gk}_over_{dual}_median_latency_ratio"] = ratio_med
-    figures[f"{gk}_over_{dual}_mean_latency_ratio"] = ratio_mean
     tag = "_standin" if stand_in else "_transt"
-    ratios = []  # (num, den, what, median ratio, mean ratio) of the like-for-like pairs
-    for num, den, what in RATIO_PAIRS[:2]:
-        num, den = num.replace("_transt", tag), den.replace("_transt", tag)
-        if {num, den} <= set(t1.algorithm):
-            r_med = latency_ratio(t1, num, den, "latency_median_ms")
-            r_mean = latency_ratio(t1, num, den, "latency_mean_ms")
-            ratios.append((num, den, what, r_med, r_mean))
-            figures[f"{num}_over_{den}_median_latency_ratio"] = r_med
-            figures[f"{num}_over_{den}_mean_latency_ratio"] = r_mean
-
-    checks = []
-    if gk in set(metrics.tracker):
-        st = summary.set_index(["tracker", "case"])
-        for case in cases:
-            if (gk, case) not in st.index:
-                continue
-            target = case_target(case)
-            for m in ("main", "aux"):
-                v = float(st.loc[(gk, case), f"{m}_precision_20px"])
-                checks.append(f"{gk} {case} {m} precision@20px {v:.3f} (target >= {target}): "
-                              f"{'met' if v >= target else 'NOT met'}")
-        checks += network_checks(summary, NETWORK_ALONE.replace("_transt", tag),
-                                 [c for c in cases if c.startswith("heldout_")])
-        med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
-        checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}): "
-                      f"{'met' if med <= TARGET_MEDIAN_MS else 'NOT met'}")
-        for num, den, what, r_med, _ in ratios:
-            checks.append(f"{num}/{den} median latency ratio {r_med:.3f}, {what} (target <= "
-                          f"{TARGET_RATIO}; seed 0.523): "
-                          f"{'met' if r_med <= TARGET_RATIO else 'NOT met'}")
-        if math.isfinite(ratio_med):
-            checks.append(f"{gk}/{dual} median latency ratio {ratio_med:.3f}, "
-                          f"{RATIO_PAIRS[2][2]} (not like for like; target <= {TARGET_RATIO}): "
-                          f"{'met' if ratio_med <= TARGET_RATIO else 'NOT met'}")
-
-    parts = network_and_gk_table(summary, gk, dual)
-    t1_show = t1[["algorithm", "fps", "latency_median_ms", "latency_mean_ms", "latency_p95_ms",
-                  "seed_fps", "seed_latency_ms"]]
-    sum_cols = ["tracker", "case", "main_precision_20px", "aux_precision_20px",
-                "seed_main_precision", "seed_aux_precision", "main_success_auc",
-                "aux_success_auc"]
-    if "main_reacquire_frames" in summary.columns:
-        sum_cols += ["main_reacquire_frames", "aux_reacquire_frames"]
-    seed_list = sorted({s.seed for s in specs})
-    cam, binning = seqs[0].params.camera, seqs[0].binning
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    ratios = _LatencyRatios.of(t1, gk, dual, tag)
+    checks = _checks(summary, t1, cases, gk, tag, ratios)
     notes = "\n\n".join(x for x in [
-        f"Validation seeds {seed_list}, cases {cases}, {frames} frames each (frames 1-"
-        f"{frames - 1} scored), {cam.sensor_width_px // binning} x "
-        f"{cam.sensor_height_px // binning} px (binning {binning}); errors in full-sensor px. "
-        f"Wall time {wall:.0f} s; {_torch_note()}; {os.cpu_count()} CPUs seen by Python, load "
-        f"average {load:.1f} over the last minute at the end of the run (latencies are wall "
-        "time: other jobs on the machine lengthen them).",
-        note_transt,
-        f"Table 1 measured here ({'clean' if t1_cases else 'all'} sequences; FPS = 1/mean "
-        "latency) beside the seed's (RTX 4060 laptop GPU):\n\n"
-        + markdown_table(t1_show, ".2f"),
-        "Latency ratios in this run (seed: 16.33/31.23 = 0.523): " + "; ".join(
-            [f"{n}/{d} ({w}) median {a:.3f}, mean {b:.3f}" for n, d, w, a, b in ratios]
-            + [f"{gk}/{dual} ({RATIO_PAIRS[2][2]}) median {ratio_med:.3f}, mean "
-               f"{ratio_mean:.3f}"]) + ".",
-        "Precision at 20 px and success AUC, mean over seeds (seed's precision beside; "
-        "re-acquisition = frames after frame 110 until measured within 20 px for 5 frames):"
-        "\n\n" + markdown_table(summary[sum_cols]),
-        parts,
-        "Targets:\n\n" + "\n".join(f"- {c}" for c in checks) if checks else "",
+        _run_note(specs, seqs, cases, frames, wall), note_transt,
+        *_result_notes(summary, t1, "clean" not in cases, gk, dual, ratios, checks),
         "Plots: " + ", ".join(f"`{link_prefix}{Path(p).name}`" for p in plots),
     ] if x)
-    return BenchmarkReport(metrics, summary, t1, runs, seqs, ratio_med, ratio_mean, checks,
-                           figures, notes, files, wall)
+    return BenchmarkReport(metrics, summary, t1, runs, seqs, ratios.default[3], ratios.default[4],
+                           checks, _figures(summary, t1, ratios), notes,
+                           [out / "tracking_metrics.csv", *plots], wall)
 
 
 __all__ = [

@@ -256,15 +256,7 @@ def stationary_cost(
     Nn = p.size
     h = T / Nn
 
-    # grain discretisation of the plant with a held input
-    F = np.zeros((n + m, n + m))
-    F[:n, :n] = A
-    F[:n, n:] = B
-    Phi, Gam = zoh_integrals(A, B, h)
-    Wh = _van_loan_noise(A, R1c, h)
-    Qx = _van_loan_cost(F, scipy.linalg.block_diag(Q1, np.zeros((m, m))), h)
-    Qu = _van_loan_cost(F, scipy.linalg.block_diag(np.zeros((n, n)), Q2), h)
-    c_noise = _noise_cost(A, R1c, Q1, h)
+    Phi, Gam, Wh, Qx, Qu, c_noise = _grain_discretisation(A, B, (Q1, Q2, R1c), h)
 
     # grain-level state chi = [x; u_old; u_new; x_c(next)]
     nchi, nxi = n + 2 * m + nc, n + m + nc
@@ -285,19 +277,7 @@ def stationary_cost(
     G_new, Z_new = grain(inew)
     W_chi = np.zeros((nchi, nchi))
     W_chi[ix, ix] = Wh
-
-    # period maps per branch j: chi_N = Pi_j chi_0 + noise (same law for every j)
-    M_list = []
-    Gm_list = []
-    for j in range(Nn):
-        Pi = np.linalg.matrix_power(G_new, Nn - j) @ np.linalg.matrix_power(G_old, j)
-        M_list.append(E @ Pi @ S)
-        Gm_list.append(E @ Pi @ H)
-    Wp = np.zeros((nchi, nchi))
-    for i in range(Nn):  # noise accumulated over the period (input does not enter it)
-        Gi = np.linalg.matrix_power(G_new, Nn - 1 - i)
-        Wp = Wp + Gi @ W_chi @ Gi.T
-    W_xi = E @ Wp @ E.T
+    M_list, Gm_list, W_xi = _period_maps(G_old, G_new, W_chi, (S, H, E), Nn)
 
     const = W_xi + sum(pj * Gm @ R2 @ Gm.T for pj, Gm in zip(p, Gm_list, strict=True))
     K = sum(pj * np.kron(M, M) for pj, M in zip(p, M_list, strict=True))
@@ -314,6 +294,47 @@ def stationary_cost(
     state_cost /= T
     input_cost /= T
     return StationaryCost(state_cost + input_cost, state_cost, input_cost, P, rho, True, T, h, p)
+
+
+def _grain_discretisation(
+    A: NDArray, B: NDArray, weights: tuple[NDArray, NDArray, NDArray], h: float,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, float]:
+    """The plant over one grain ``h`` with a held input: ``Phi``, ``Gam`` (zero-order hold),
+    the noise covariance ``Wh``, the state and input cost integrals ``Qx``, ``Qu`` of
+    ``z = [x; u]`` and the noise's own cost over the grain (Van Loan's integrals; weights
+    ``(Q1, Q2, R1c)``)."""
+    Q1, Q2, R1c = weights
+    n, m = B.shape
+    F = np.zeros((n + m, n + m))
+    F[:n, :n] = A
+    F[:n, n:] = B
+    Phi, Gam = zoh_integrals(A, B, h)
+    Wh = _van_loan_noise(A, R1c, h)
+    Qx = _van_loan_cost(F, scipy.linalg.block_diag(Q1, np.zeros((m, m))), h)
+    Qu = _van_loan_cost(F, scipy.linalg.block_diag(np.zeros((n, n)), Q2), h)
+    return Phi, Gam, Wh, Qx, Qu, _noise_cost(A, R1c, Q1, h)
+
+
+def _period_maps(
+    G_old: NDArray, G_new: NDArray, W_chi: NDArray, maps: tuple[NDArray, NDArray, NDArray],
+    Nn: int,
+) -> tuple[list[NDArray], list[NDArray], NDArray]:
+    """Per delay branch j (the new command arrives after j of the ``Nn`` grains), the period
+    maps ``M_j = E Pi_j S`` and ``Gm_j = E Pi_j H`` with ``Pi_j = G_new^(Nn-j) G_old^j``, and
+    the noise covariance ``W_xi`` accumulated over the period (the same for every branch: the
+    input does not enter it). ``maps`` are ``(S, H, E)`` of ``_sample_maps``."""
+    S, H, E = maps
+    M_list = []
+    Gm_list = []
+    for j in range(Nn):
+        Pi = np.linalg.matrix_power(G_new, Nn - j) @ np.linalg.matrix_power(G_old, j)
+        M_list.append(E @ Pi @ S)
+        Gm_list.append(E @ Pi @ H)
+    Wp = np.zeros_like(W_chi)
+    for i in range(Nn):
+        Gi = np.linalg.matrix_power(G_new, Nn - 1 - i)
+        Wp = Wp + Gi @ W_chi @ Gi.T
+    return M_list, Gm_list, E @ Wp @ E.T
 
 
 def _sample_maps(C: NDArray, controller: tuple[NDArray, NDArray, NDArray, NDArray],

@@ -47,6 +47,18 @@ from plant.params import PlantParams
 from plant.twin import CasadiTwin, quat_to_matrix
 
 
+def _inside_gate(e: NDArray[np.float64], HP: NDArray[np.float64], H: NDArray[np.float64],
+                 var_px2: NDArray[np.float64], probability: float) -> NDArray[np.bool_]:
+    """Points whose innovation 2-vector lies inside the chi-square gate (2 dof, ``probability``)
+    of its own 2x2 ``H_i P H_i^T + var_i I`` (``var_px2`` per point)."""
+    n = len(var_px2)
+    blocks = np.einsum("nia,nja->nij", HP.reshape(n, 2, 7), H.reshape(n, 2, 7))
+    blocks += np.einsum("n,ij->nij", var_px2, np.eye(2))
+    e2 = e.reshape(n, 2)
+    d2 = np.einsum("ni,ni->n", e2, np.linalg.solve(blocks, e2[..., None])[..., 0])
+    return d2 <= chi2.ppf(probability, 2)
+
+
 def _check_time(name: str, t: object) -> float:
     """``t`` as a float time (s), or ``ValueError`` naming ``name`` if it is not a finite
     real number (NaN would otherwise surface as "cannot convert float NaN to integer")."""
@@ -415,19 +427,9 @@ class QuaternionAEKF:
         Pk = self.ekf.P
         HP = H @ Pk
         # 1. covariance matching per component (App. C.3), over all points of this frame
-        lam = 1.0
-        if c.adaptive:
-            self._point_window.append((float(e @ e), 2 * n))
-            sum_e2 = sum(a for a, _ in self._point_window)
-            sum_m = sum(b for _, b in self._point_window)
-            c_theory = (float(np.einsum("ij,ij->", HP, H)) + float(r.sum())) / (2 * n)
-            lam = max(1.0, (sum_e2 / sum_m) / c_theory)
+        lam = self._matched_lambda(e, HP, H, r) if c.adaptive else 1.0
         # 2. per-point gate with λR
-        blocks = np.einsum("nia,nja->nij", HP.reshape(n, 2, 7), H.reshape(n, 2, 7))
-        blocks += lam * np.einsum("n,ij->nij", sig**2, np.eye(2))
-        e2 = e.reshape(n, 2)
-        d2 = np.einsum("ni,ni->n", e2, np.linalg.solve(blocks, e2[..., None])[..., 0])
-        inside = d2 <= chi2.ppf(c.gate_probability, 2)
+        inside = _inside_gate(e, HP, H, lam * sig**2, c.gate_probability)
         if inside.sum() < min_points:
             return UpdateResult(
                 False,
@@ -439,21 +441,41 @@ class QuaternionAEKF:
         rows = np.repeat(inside, 2)
         H, e, r = H[rows], e[rows], r[rows]
         m = len(e)
-        # 3. gain and NIS with λR; S^-1 = W - W H (I + P H^T W H)^-1 P H^T W, W = (λR)^-1
-        W = 1.0 / (lam * r)
+        nis = self._fuse(H, e, lam * r)
+        self.lam = lam
+        return UpdateResult(True, "", lam, nis, m // 2)
+
+    def _matched_lambda(self, e: NDArray[np.float64], HP: NDArray[np.float64],
+                        H: NDArray[np.float64], r: NDArray[np.float64]) -> float:
+        """Covariance matching per observation component (seed 001 App. C.3): the mean squared
+        innovation over the last point updates (this one, ``e``, included) over the predicted
+        ``tr(H P H^T + R) / m``, at least 1."""
+        m = len(e)
+        self._point_window.append((float(e @ e), m))
+        sum_e2 = sum(a for a, _ in self._point_window)
+        sum_m = sum(b for _, b in self._point_window)
+        c_theory = (float(np.einsum("ij,ij->", HP, H)) + float(r.sum())) / m
+        return max(1.0, (sum_e2 / sum_m) / c_theory)
+
+    def _fuse(self, H: NDArray[np.float64], e: NDArray[np.float64],
+              r: NDArray[np.float64]) -> float:
+        """Update (seed 001 App. C.2) with the innovation ``e`` of variances ``r`` (px², the
+        λ-scaled ones), Joseph form, quaternion renormalised; returns the NIS. The gain
+        ``K = P H^T (H P H^T + R)^-1`` is computed as ``(I + P H^T W H)^-1 P H^T W`` with
+        ``W = R^-1`` (a 7x7 solve), and ``S^-1 = W - W H (I + P H^T W H)^-1 P H^T W``."""
+        Pk = self.ekf.P
+        W = 1.0 / r
         HtW = H.T * W  # (7, m)
         A = np.eye(7) + Pk @ HtW @ H
         K = np.linalg.solve(A, Pk @ HtW)  # (7, m): P H^T (H P H^T + λR)^-1
         g = HtW @ e
         nis = float(e @ (W * e) - g @ np.linalg.solve(A, Pk @ g))
-        # 4. update (App. C.2), Joseph form
         I_KH = np.eye(7) - K @ H
         self.ekf.x = self.ekf.x + K @ e
         self.ekf.x[:4] /= np.linalg.norm(self.ekf.x[:4])
-        P_new = I_KH @ Pk @ I_KH.T + (K * (lam * r)) @ K.T
+        P_new = I_KH @ Pk @ I_KH.T + (K * r) @ K.T
         self.ekf.P = 0.5 * (P_new + P_new.T)
-        self.lam = lam
-        return UpdateResult(True, "", lam, nis, m // 2)
+        return nis
 
     @property
     def q(self) -> NDArray[np.float64]:

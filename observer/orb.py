@@ -390,24 +390,9 @@ class OrbFrontEnd:
             return replace(m, compute_time_s=self.clock() - t0)
 
         c, ref = self.config, self.reference
-        if binning != ref.binning:
-            return done(
-                OrbMeasurement.invalid(
-                    f"frame binning {binning} differs from the reference's {ref.binning}"
-                )
-            )
-        gray = _to_gray(image)
+        gray = self._gray(image, binning)
         if isinstance(gray, str):
             return done(OrbMeasurement.invalid(gray))
-        cam = self.params.camera
-        expected = (cam.sensor_height_px // binning, cam.sensor_width_px // binning)
-        if gray.shape != expected:  # e.g. a resized frame: its pixels would mean other rays
-            return done(
-                OrbMeasurement.invalid(
-                    f"frame size {gray.shape[1]} x {gray.shape[0]} px does not match the camera "
-                    f"at binning {binning}: expected {expected[1]} x {expected[0]} px"
-                )
-            )
         kps, desc = self._orb.detectAndCompute(gray, None)
         n_kp = len(kps)
         if desc is None or n_kp < 2:
@@ -433,17 +418,7 @@ class OrbFrontEnd:
         i_ref = np.array([m.trainIdx for m in good])
         cur_px = keypoint_pixels([kps[i] for i in i_cur], c.scale_factor, binning)
         octave = np.array([kps[i].octave for i in i_cur])
-        Hmat, mask = cv2.findHomography(
-            self._ref_ideal[i_ref],
-            self._ideal(cur_px),
-            cv2.RANSAC,
-            c.ransac_threshold_image_px,
-            maxIters=2000,
-            confidence=c.ransac_confidence,
-        )
-        inl = np.zeros(n_match, bool) if mask is None else mask.ravel().astype(bool)
-        # One current keypoint per reference point and vice versa (a duplicate is ambiguous).
-        inl &= _unique(i_ref) & _unique(i_cur)
+        Hmat, inl = self._homography(i_ref, i_cur, cur_px)
         n_in = int(inl.sum())
         if n_in < c.min_inliers:
             return done(
@@ -484,6 +459,39 @@ class OrbFrontEnd:
                 n_inliers=n_in,
             )
         )
+
+    def _gray(self, image: NDArray[np.uint8], binning: int) -> NDArray[np.uint8] | str:
+        """The grey frame, or why it cannot be matched to the reference (another binning, not
+        an RGB uint8 image, or a size that is not the camera's at ``binning``)."""
+        if binning != self.reference.binning:
+            return f"frame binning {binning} differs from the reference's {self.reference.binning}"
+        gray = _to_gray(image)
+        if isinstance(gray, str):
+            return gray
+        cam = self.params.camera
+        expected = (cam.sensor_height_px // binning, cam.sensor_width_px // binning)
+        if gray.shape != expected:  # e.g. a resized frame: its pixels would mean other rays
+            return (f"frame size {gray.shape[1]} x {gray.shape[0]} px does not match the camera "
+                    f"at binning {binning}: expected {expected[1]} x {expected[0]} px")
+        return gray
+
+    def _homography(
+        self, i_ref: NDArray[np.int_], i_cur: NDArray[np.int_], cur_px: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64] | None, NDArray[np.bool_]]:
+        """RANSAC homography from the reference's to the current keypoints (ideal image
+        coordinates) and the inlier mask of the matches, keeping only one-to-one matches."""
+        c = self.config
+        Hmat, mask = cv2.findHomography(
+            self._ref_ideal[i_ref],
+            self._ideal(cur_px),
+            cv2.RANSAC,
+            c.ransac_threshold_image_px,
+            maxIters=2000,
+            confidence=c.ransac_confidence,
+        )
+        inl = np.zeros(len(i_ref), bool) if mask is None else mask.ravel().astype(bool)
+        # One current keypoint per reference point and vice versa (a duplicate is ambiguous).
+        return Hmat, inl & _unique(i_ref) & _unique(i_cur)
 
 
 def _unique(idx: NDArray[np.int_]) -> NDArray[np.bool_]:

@@ -86,7 +86,7 @@ def test_jitter_margin_never_exceeds_the_delay_margin_on_the_study_grid(quick_st
 
 def test_cli_study_and_notebook_give_the_same_margins(quick_study, tmp_path):
     """The same scenario (PID, 10 rad/s crossover, 31.23 ms, sequential observer) in the CLI's
-    output, the study's table and the call the notebook makes."""
+    output, the study's table and the call the notebook makes; the command writes its plots."""
     from experiments.study import pid_axis_margins
     from plant.params import PlantParams
 
@@ -94,6 +94,9 @@ def test_cli_study_and_notebook_give_the_same_margins(quick_study, tmp_path):
                                  "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     assert "case: sequential observer" in result.output and "55.56 ms" in result.output
+    assert "stable" in result.output
+    (folder,) = tmp_path.iterdir()
+    assert (folder / "bode.png").exists() and (folder / "nyquist.png").exists()
     cli_pm = float(re.search(r"PM ([-0-9.]+) deg", result.output).group(1))
     cli_dm = float(re.search(r"delay margin ([0-9.]+) ms", result.output).group(1))
     cli_jm = float(re.search(r"jitter margin ([0-9.]+) ms", result.output).group(1))
@@ -140,14 +143,6 @@ def test_sweep_grid_expansion():
     configs = _expand({"a": {"b": 1}}, {"a.b": [1, 2], "c": ["x", "y", "z"]})
     assert len(configs) == 6
     assert {(c["a"]["b"], c["c"]) for c in configs} == {(i, s) for i in (1, 2) for s in "xyz"}
-
-
-def test_margins_command_writes_plots(tmp_path):
-    result = RUNNER.invoke(app, ["margins", "--delay-ms", "31.23", "--out", str(tmp_path)])
-    assert result.exit_code == 0, result.output
-    assert "stable" in result.output
-    (folder,) = tmp_path.iterdir()
-    assert (folder / "bode.png").exists() and (folder / "nyquist.png").exists()
 
 
 def test_every_command_has_an_example_in_its_help():

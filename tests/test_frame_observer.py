@@ -25,8 +25,19 @@ def cone(t):
     return A.from_zyz(-g, np.deg2rad(8.0), g)
 
 
-def run(backend, n=40):
+N_CONE_FRAMES = 150
+
+
+@pytest.fixture(scope="module")
+def cone_frames():
+    """The cone rendered at the frame rate (analytic renderer, seed 3), shared by the tests
+    that run an observer on it (rendering is most of their time); the frames are read only."""
     renderer = AnalyticRenderer(P, seed=3)
+    dt = 1.0 / P.camera.frame_rate_hz
+    return [renderer.render(cone(k * dt), t_exposure=k * dt) for k in range(N_CONE_FRAMES)]
+
+
+def run(backend, frames, n=40):
     # The estimate is released after the pair tracker's measured time: an injected clock
     # (2-10 ms per reading) keeps the release times, and so the validity, independent of
     # machine load.
@@ -36,7 +47,7 @@ def run(backend, n=40):
     dt = 1.0 / P.camera.frame_rate_hz
     for k in range(n):
         t = k * dt
-        frame = renderer.render(cone(t), t_exposure=t)
+        frame = frames[k]
         if k == 0:
             obs.start(frame.image, frame.binning, frame.boxes_px)
         est = obs.update(frame, t)
@@ -45,20 +56,20 @@ def run(backend, n=40):
     return np.array(errors), ests
 
 
-def test_solver_observer_on_rendered_frames():
-    errors, ests = run(SolverObserver(CorSolver(CorModel.nominal(P))))
+def test_solver_observer_on_rendered_frames(cone_frames):
+    errors, ests = run(SolverObserver(CorSolver(CorModel.nominal(P))), cone_frames)
     assert all(e.valid and not e.lost for e in ests)
     assert np.degrees(errors.max()) < 0.15
     assert all(e.compute_time_s > 0 and e.latency_s >= e.compute_time_s for e in ests)
 
 
-def test_filter_observer_on_rendered_frames_estimates_the_rate():
+def test_filter_observer_on_rendered_frames_estimates_the_rate(cone_frames):
     # The cone is imposed kinematically (a rotary table): no torque is recorded, so the filter's
     # model is given no friction, which would otherwise brake its predicted rate.
     free = P.model_copy(
         update={"rotor": P.rotor.model_copy(update={"viscous_Nms_per_rad": 0.0, "coulomb_Nm": 0.0})}
     )
-    errors, ests = run(FilterObserver(free, compensate_delay=False), n=60)
+    errors, ests = run(FilterObserver(free, compensate_delay=False), cone_frames, n=60)
     assert np.degrees(errors[10:].max()) < 0.15
     # Body rate of R = Rz(g) Ry(b) Rz(-g): omega_stator = g' (z - shaft), |omega| = 2 sin(b/2) g'.
     for e in ests[30:]:
@@ -208,7 +219,7 @@ def _hide_markers(frame):
 
 
 @pytest.mark.parametrize("kind", ["solver", "aekf"])
-def test_coasting_through_lost_markers_is_flagged_and_bounded_then_reacquired(kind):
+def test_coasting_through_lost_markers_is_flagged_and_bounded_then_reacquired(kind, cone_frames):
     """10 good frames of the cone, 30 frames with both markers hidden, 30 good, 30 all-black
     frames, 50 good. While the markers are hidden the GK prediction stands in for them: every
     estimate is ``lost`` and says it is coasting, and once no marker has been measured for more
@@ -222,12 +233,10 @@ def test_coasting_through_lost_markers_is_flagged_and_bounded_then_reacquired(ki
                else FilterObserver(P, compensate_delay=False))
     obs = FrameObserver(make_pair_tracker("kcf_gk", P, clock=StepClock(2e-3, 10e-3)), backend)
     assert obs.max_coast_s == 0.1
-    renderer = AnalyticRenderer(P, seed=3)
     obs.reset(cone(0.0), 0.0)
     dt = 1.0 / P.camera.frame_rate_hz
     ests, hidden, black = [], range(10, 40), range(70, 100)
-    for k in range(150):
-        f = renderer.render(cone(k * dt), t_exposure=k * dt)
+    for k, f in enumerate(cone_frames):
         if k == 0:
             obs.start(f.image, f.binning, f.boxes_px)
         image = (_hide_markers(f) if k in hidden else np.zeros_like(f.image) if k in black

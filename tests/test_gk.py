@@ -678,8 +678,9 @@ def test_predicted_window_gives_the_full_search_result(
     renderer = AnalyticRenderer(params, options=AnalyticRenderOptions(colour_distractor="yellow"),
                                 seed=3)
     qs = [attitude.from_zyz(0.1 * k, math.radians(3 + 0.05 * k), 0.02 * k) for k in range(60)]
-    frames = [im for im in seq.images] + [renderer.render(q, 0.0).image for q in qs]
-    boxes = list(seq.boxes_px[:, 0]) + [renderer.render(q, 0.0).boxes_px[0] for q in qs]
+    extra = [renderer.render(q, 0.0) for q in qs]
+    frames = [im for im in seq.images] + [f.image for f in extra]
+    boxes = list(seq.boxes_px[:, 0]) + [f.boxes_px[0] for f in extra]
     used = []
     real = AuxLocator._candidates
 

@@ -94,8 +94,10 @@ def network():
     torch.set_num_threads(threads)
 
 
-def _run(case: str, factory, **kw):
-    seq = render_sequence(SequenceSpec(seed=SEED, case=case, n_frames=HARD_FRAMES.stop + 9))
+def _run(case: str, factory, seq=None, **kw):
+    """GK-TransT on the rendered ``case`` (or on ``seq``, that case already rendered)."""
+    if seq is None:
+        seq = render_sequence(SequenceSpec(seed=SEED, case=case, n_frames=HARD_FRAMES.stop + 9))
     run = run_tracker(make_pair_tracker("gk_transt", transt_factory=factory, **kw), seq)
     return seq, run, run.errors(seq)
 
@@ -132,7 +134,7 @@ def test_gk_transt_flags_the_frames_a_finger_hides(skin):
 
 def test_the_seed_gate_alone_follows_the_finger(network, skin):
     """The case is hard: without the trust rule GK-TransT reports wrong boxes as measured."""
-    seq, run, e = _run("occluder_skin", network, trust=None)
+    seq, run, e = _run("occluder_skin", network, seq=skin[0], trust=None)
     assert np.any((e[1:, 0] > PRECISION_PX) & run.measured[1:, 0])
 
 

@@ -11,6 +11,7 @@ analysis has none).
 
 import control as ct
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from controller.pid import PIDConfig, PIDController
 from controller.reference import Steps
@@ -23,7 +24,6 @@ from latency.pipeline import PipelineConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.pixel_observer import SolverObserver
-from plant import attitude as A
 from plant.params import PlantParams, RotorParams
 
 P = PlantParams(rotor=RotorParams(coulomb_Nm=0.0), camera={"frame_rate_hz": 40.0})
@@ -69,7 +69,9 @@ def test_stationary_cost_matches_the_simulated_loop():
     runs = []
     for result in run_batched(loops):  # the runs advanced together (same results, faster)
         st = result.steps
-        theta_y = [A.to_rotvec(q)[1] for q in st[["qw", "qx", "qy", "qz"]].to_numpy()]
+        # rotation vector of every logged attitude at once (scipy wants the scalar last)
+        q = st[["qx", "qy", "qz", "qw"]].to_numpy()
+        theta_y = Rotation.from_quat(q).as_rotvec()[:, 1]
         x = np.column_stack([theta_y, st.omega_y_rad_s.to_numpy()])
         runs.append((st.t_s.to_numpy(), x, st[["torque_delivered_y_Nm"]].to_numpy()))
     cmp = compare_with_simulation(analysis, runs, Q1, Q2, t_start_s=2.0)

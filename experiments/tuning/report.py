@@ -155,6 +155,16 @@ def _verdict(cmp: pd.DataFrame, tuned_name: str | None, delay_s: float) -> str:
     return head + ": the tuned setting does not beat the defaults on the held-out seeds."
 
 
+def _objectives(base: TuningObjective, delays_s: Sequence[float], seeds: Sequence[int],
+                duration_s: float, sigma_px: float) -> list[TuningObjective]:
+    """``base`` at each vision delay (s), with the tuning seeds, run length (s) and pixel noise
+    (sensor px) replaced."""
+    update = {"seeds": tuple(int(s) for s in seeds), "duration_s": float(duration_s),
+              "sigma_px": float(sigma_px)}
+    return [TuningObjective.model_validate({**base.model_dump(), **update, "delay_s": float(d)})
+            for d in delays_s]
+
+
 def tune_kalman(
     out_dir: str | Path,
     *,
@@ -216,21 +226,16 @@ def tune_kalman(
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    base = objective or TuningObjective()
-    update = {"seeds": tuple(int(s) for s in seeds), "duration_s": float(duration_s),
-              "sigma_px": float(sigma_px)}
-    objs = [TuningObjective.model_validate({**base.model_dump(), **update, "delay_s": float(d)})
-            for d in delays_s]
+    objs = _objectives(objective or TuningObjective(), delays_s, seeds, duration_s, sigma_px)
     q_bounds = (SEED_Q_SCALE * 10**-grid_decades, SEED_Q_SCALE * 10**grid_decades)
     r_bounds = (SEED_R_SCALE * 10**-grid_decades, SEED_R_SCALE * 10**grid_decades)
 
     grid = pd.DataFrame()
     if grid_points > 0:
-        qs = log_grid(SEED_Q_SCALE, grid_points, grid_decades)
-        rs = log_grid(SEED_R_SCALE, grid_points, grid_decades)
         grid = grid_search(
-            objs, qs, rs, out, scheduler=scheduler, workers=workers, progress=progress,
-            engine=engine,
+            objs, log_grid(SEED_Q_SCALE, grid_points, grid_decades),
+            log_grid(SEED_R_SCALE, grid_points, grid_decades), out, scheduler=scheduler,
+            workers=workers, progress=progress, engine=engine,
         )
 
     trials = []

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike
 
 from latency.margins.model import LoopModel
 from latency.margins.nyquist import _grid, nyquist_count
-from latency.margins.result import Margins, _crossings, _margins_from_crossings, _scalar
+from latency.margins.result import Margins, _crossings, _scalar, margins_from_crossings
 
 
 def jitter_margin(model: LoopModel, omega: ArrayLike | None = None) -> tuple[float, float]:
@@ -97,30 +97,8 @@ def loop_margins(model: LoopModel, omega: ArrayLike | None = None) -> Margins:
     formulation = "continuous" if model.sample_period_s is None else "hybrid"
     if any(x > model.nyquist_rad_s for x in cr.wc):
         notes.append("a gain crossover lies above the Nyquist frequency pi/T: hybrid model invalid")
-    if stable:
-        pm_deg, wc, gm, wpc, gm_lower, dm = _margins_from_crossings(cr)
-        jm, wj = jitter_margin(model, w)
-    else:
-        pm_deg = gm = gm_lower = dm = jm = math.nan
-        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
-        wpc = wj = math.nan
-    return Margins(
-        stable=stable,
-        unstable_poles=max(Z, 0),
-        phase_margin_deg=pm_deg,
-        gain_margin=gm,
-        gain_margin_lower=gm_lower,
-        crossover_rad_s=wc,
-        phase_crossover_rad_s=wpc,
-        delay_margin_s=dm,
-        delay_s=model.delay_s,
-        jitter_margin_s=jm,
-        jitter_frequency_rad_s=wj,
-        crossovers_rad_s=cr.wc,
-        phase_margins_deg=tuple(math.degrees(p) for p in cr.pm),
-        phase_crossovers_rad_s=cr.wpc,
-        phase_crossover_gains=cr.gpc,
-        formulation=formulation,
-        confirmation=conf,
+    return margins_from_crossings(
+        cr, stable=stable, unstable_poles=max(Z, 0), delay_s=model.delay_s, formulation=formulation,
+        confirmation=conf, jitter=jitter_margin(model, w) if stable else (math.nan, math.nan),
         notes=tuple(notes),
     )

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import math
-
 import control as ct
 import numpy as np
 from numpy.typing import NDArray
 
 from latency.margins.model import LoopModel
 from latency.margins.nyquist import _base_grid, _refine
-from latency.margins.result import Margins, _crossings, _margins_from_crossings
+from latency.margins.result import Margins, _crossings, margins_from_crossings
 
 
 def _pade_poly(T: float, order: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -90,28 +88,7 @@ def pade_margins(model: LoopModel, order: int = 6) -> Margins:
 
     w, Lw = _refine(fun, _base_grid(model))
     cr = _crossings(fun, w, Lw)
-    stable = Z == 0
-    if stable:
-        pm_deg, wc, gm, wpc, gm_lower, dm = _margins_from_crossings(cr)
-    else:
-        pm_deg = gm = gm_lower = dm = wpc = math.nan
-        wc = math.nan
-    return Margins(
-        stable=stable,
-        unstable_poles=Z,
-        phase_margin_deg=pm_deg,
-        gain_margin=gm,
-        gain_margin_lower=gm_lower,
-        crossover_rad_s=wc,
-        phase_crossover_rad_s=wpc,
-        delay_margin_s=dm,
-        delay_s=model.delay_s,
-        jitter_margin_s=math.nan,
-        jitter_frequency_rad_s=math.nan,
-        crossovers_rad_s=cr.wc,
-        phase_margins_deg=tuple(math.degrees(p) for p in cr.pm),
-        phase_crossovers_rad_s=cr.wpc,
-        phase_crossover_gains=cr.gpc,
-        formulation=f"pade-{order}",
+    return margins_from_crossings(
+        cr, stable=Z == 0, unstable_poles=Z, delay_s=model.delay_s, formulation=f"pade-{order}",
         confirmation=f"closed-loop poles of the Padé-{order} loop: {Z} in the RHP",
     )

@@ -240,3 +240,49 @@ def _margins_from_crossings(cr: _Crossings) -> tuple[float, float, float, float,
     gm, wpc = min(up) if up else (math.inf, math.nan)
     gm_lower = max(down) if down else 0.0
     return pm_deg, wc, gm, wpc, gm_lower, dm
+
+
+def margins_from_crossings(
+    cr: _Crossings,
+    *,
+    stable: bool,
+    unstable_poles: int,
+    delay_s: float,
+    formulation: str,
+    confirmation: str,
+    delay_margin_s: float | None = None,
+    jitter: tuple[float, float] = (math.nan, math.nan),
+    notes: tuple[str, ...] = (),
+) -> Margins:
+    """The :class:`Margins` of a loop (``stable`` or not, with ``unstable_poles`` closed-loop
+    poles) from its crossings: phase, gain and delay margins of the crossings
+    (``delay_margin_s`` in place of theirs when the formulation finds it otherwise), ``jitter``
+    = (margin s, frequency rad/s) when it has one. An unstable loop reports ``nan`` margins and
+    its critical crossover."""
+    if stable:
+        pm_deg, wc, gm, wpc, gm_lower, dm = _margins_from_crossings(cr)
+        dm = dm if delay_margin_s is None else delay_margin_s
+        jm, wj = jitter
+    else:
+        pm_deg = gm = gm_lower = dm = wpc = jm = wj = math.nan
+        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
+    return Margins(
+        stable=stable,
+        unstable_poles=unstable_poles,
+        phase_margin_deg=pm_deg,
+        gain_margin=gm,
+        gain_margin_lower=gm_lower,
+        crossover_rad_s=wc,
+        phase_crossover_rad_s=wpc,
+        delay_margin_s=dm,
+        delay_s=delay_s,
+        jitter_margin_s=jm,
+        jitter_frequency_rad_s=wj,
+        crossovers_rad_s=cr.wc,
+        phase_margins_deg=tuple(math.degrees(p) for p in cr.pm),
+        phase_crossovers_rad_s=cr.wpc,
+        phase_crossover_gains=cr.gpc,
+        formulation=formulation,
+        confirmation=confirmation,
+        notes=notes,
+    )

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from latency.margins.model import _check_delay
 from latency.margins.nyquist import _refine
-from latency.margins.result import Margins, _crossings, _margins_from_crossings
+from latency.margins.result import Margins, _Crossings, _crossings, margins_from_crossings
 from latency.zoh import zoh_integrals
 
 
@@ -171,55 +171,46 @@ def sampled_margins(
     w, Lw = _refine(fun, w0)
     cr = _crossings(fun, w, Lw)
     conf = f"closed-loop eigenvalues of the sampled loop: spectral radius {rho:.6f}"
+    dm = None
     if stable:
-        pm_deg, wc, gm, wpc, gm_lower, _ = _margins_from_crossings(cr)
-        est = min(
-            ((p % (2 * np.pi)) / x for p, x in zip(cr.pm, cr.wc, strict=True)), default=math.inf
-        )
-        limit = max_extra_delay_s
-        if limit is None:
-            limit = max(20 * T, 4 * est) if np.isfinite(est) else 20 * T
-
-        def rho_at(extra: float) -> float:
-            Lx = sampled_loop(plant, controller, delay_s=delay_s + extra, observer=observer)
-            return _spectral_radius_closed(Lx)
-
-        dm = math.inf
-        step = T / 16
-        prev = 0.0
-        x = step
-        while x <= limit + 1e-15:
-            if rho_at(x) >= 1.0:
-                lo, hi = prev, x
-                while hi - lo > 1e-9 * T:
-                    mid = 0.5 * (lo + hi)
-                    if rho_at(mid) >= 1.0:
-                        hi = mid
-                    else:
-                        lo = mid
-                dm = 0.5 * (lo + hi)
-                break
-            prev = x
-            x += step
-    else:
-        pm_deg = gm = gm_lower = dm = wpc = math.nan
-        wc = cr.wc[int(np.argmin(np.abs(cr.pm)))] if cr.wc else math.nan
-    return Margins(
-        stable=stable,
-        unstable_poles=Z,
-        phase_margin_deg=pm_deg,
-        gain_margin=gm,
-        gain_margin_lower=gm_lower,
-        crossover_rad_s=wc,
-        phase_crossover_rad_s=wpc,
-        delay_margin_s=dm,
-        delay_s=float(delay_s),
-        jitter_margin_s=math.nan,
-        jitter_frequency_rad_s=math.nan,
-        crossovers_rad_s=cr.wc,
-        phase_margins_deg=tuple(math.degrees(p) for p in cr.pm),
-        phase_crossovers_rad_s=cr.wpc,
-        phase_crossover_gains=cr.gpc,
-        formulation="sampled",
-        confirmation=conf,
+        dm = _delay_margin(plant, controller, delay_s, observer, cr, T, max_extra_delay_s)
+    return margins_from_crossings(
+        cr, stable=stable, unstable_poles=Z, delay_s=float(delay_s), formulation="sampled",
+        confirmation=conf, delay_margin_s=dm,
     )
+
+
+def _delay_margin(
+    plant: ct.LTI, controller: ct.LTI, delay_s: float, observer: ct.LTI | None, cr: _Crossings,
+    T: float, max_extra_delay_s: float | None,
+) -> float:
+    """Extra delay (s) at which the sampled loop's spectral radius first reaches 1: a scan in
+    steps of ``T/16`` up to ``max_extra_delay_s`` (default ``max(20 T, 4 x`` the phase
+    estimate of the crossings``)``), then bisection to 1e-9 T; ``inf`` if none."""
+    est = min(
+        ((p % (2 * np.pi)) / x for p, x in zip(cr.pm, cr.wc, strict=True)), default=math.inf
+    )
+    limit = max_extra_delay_s
+    if limit is None:
+        limit = max(20 * T, 4 * est) if np.isfinite(est) else 20 * T
+
+    def rho_at(extra: float) -> float:
+        Lx = sampled_loop(plant, controller, delay_s=delay_s + extra, observer=observer)
+        return _spectral_radius_closed(Lx)
+
+    step = T / 16
+    prev = 0.0
+    x = step
+    while x <= limit + 1e-15:
+        if rho_at(x) >= 1.0:
+            lo, hi = prev, x
+            while hi - lo > 1e-9 * T:
+                mid = 0.5 * (lo + hi)
+                if rho_at(mid) >= 1.0:
+                    hi = mid
+                else:
+                    lo = mid
+            return 0.5 * (lo + hi)
+        prev = x
+        x += step
+    return math.inf

@@ -331,7 +331,6 @@ class GKAssist:
         GKResult
         """
         t0 = time.perf_counter()
-        cfg = self.config
         reasons: list[str] = []
         bad_frame = check_frame(image, self.params, binning)
         b = 1 if bad_frame else int(binning)
@@ -343,68 +342,23 @@ class GKAssist:
         # 1-2. the tracker's observation and the HSV gate
         box, centre, why = self._tracker_box(box_sensor_px, centre_sensor_px)
         score_f = math.nan if score is None else float(score)
-        if bad_frame:
-            gate = GateResult(0.0, False, 0, bad_frame)
-        elif judged is not None:
-            gate = GateResult(judged.ratio, judged.centre_sensor_px is not None, 0, judged.reason)
-        elif box is None:
-            gate = GateResult(0.0, False, 0, why)
-        else:
-            gate = self.gate.ratio(image, box_sensor_to_image(box, b), "red")
-        confident = gate.confident
-        if confident and cfg.min_score is not None and not score_f >= cfg.min_score:
-            confident = False
-            reasons.append(f"tracker score {score_f} below {cfg.min_score}")
-        elif not confident and not bad_frame:
-            reasons.append(gate.reason)
+        gate, confident = self._gate(image, b, bad_frame, judged, box, why, score_f, reasons)
 
         # 3. observe, or let the prediction stand in
         red_fit: SubpixelResult | None = None
         refined = False
-        if confident and judged is not None:
-            z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
-        elif confident:
-            z, red_fit, refined = self._refine_red(image, b, box, centre)
         if confident:
-            if self._lost or not self.kalman.initialised:
-                self.kalman.initialise(z)
+            if judged is not None:
+                z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
             else:
-                self.kalman.update(z)
-            self._coast, self._lost = 0, False
-            if cfg.red_output == "filtered":
-                red, red_cov = self.kalman.position, self.kalman.position_cov
-            else:
-                red, red_cov = np.asarray(z, dtype=float), np.asarray(cfg.kalman.R, dtype=float)
+                z, red_fit, refined = self._refine_red(image, b, box, centre)
+            red, red_cov = self._observe(z)
             source: RedSource = "measurement"
-        elif self.kalman.initialised:
-            self.kalman.coast()
-            self._coast += 1
-            red, red_cov, source = prior, prior_cov, "prediction"
-            cam = self.params.camera
-            inside = (-0.5 <= prior[0] <= cam.sensor_width_px - 0.5
-                      and -0.5 <= prior[1] <= cam.sensor_height_px - 0.5)
-            if self._coast > cfg.max_coast_frames:
-                self._lost = True
-                reasons.append(f"no confident observation for {self._coast} frames "
-                               f"(> {cfg.max_coast_frames})")
-            elif not inside:
-                self._lost = True
-                reasons.append("predicted main marker left the sensor")
-            elif self._lost:
-                reasons.append("track lost earlier; waiting for a confident observation")
         else:
-            red, red_cov, source = np.full(2, np.nan), np.full((2, 2), np.nan), "none"
-            self._lost = True
-            reasons.append("no confident main-marker observation yet")
+            red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
 
         # 4. the auxiliary point
-        if source == "none":
-            aux = AuxResult(np.full(2, np.nan), "none", reason="no main-marker position")
-        elif bad_frame:
-            aux = self.aux.fallback(red, "frame unusable")
-        else:
-            aux = self.aux.locate(image, b, red, self.scale.S, tilt_prev_rad,
-                                  red_is_measurement=(source == "measurement"))
+        aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
         if aux.source != "measurement" and source != "none":
             reasons.append(f"yellow: {aux.reason}")
 
@@ -433,3 +387,77 @@ class GKAssist:
             aux=aux,
             red_fit=red_fit,
         )
+
+    def _gate(
+        self, image: NDArray[np.uint8], b: int, bad_frame: str, judged: JudgedObservation | None,
+        box: NDArray[np.float64] | None, why: str, score: float, reasons: list[str],
+    ) -> tuple[GateResult, bool]:
+        """The HSV gate of the tracker's red box (or the trust rule's judgement) and whether
+        the observation is confident (the gate, then ``config.min_score``); appends the reason
+        for a rejection to ``reasons``."""
+        min_score = self.config.min_score
+        if bad_frame:
+            gate = GateResult(0.0, False, 0, bad_frame)
+        elif judged is not None:
+            gate = GateResult(judged.ratio, judged.centre_sensor_px is not None, 0, judged.reason)
+        elif box is None:
+            gate = GateResult(0.0, False, 0, why)
+        else:
+            gate = self.gate.ratio(image, box_sensor_to_image(box, b), "red")
+        confident = gate.confident
+        if confident and min_score is not None and not score >= min_score:
+            confident = False
+            reasons.append(f"tracker score {score} below {min_score}")
+        elif not confident and not bad_frame:
+            reasons.append(gate.reason)
+        return gate, confident
+
+    def _observe(self, z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Feed a confident red centre ``z`` (sensor px) to the Kalman filter (initialising it
+        after a loss); returns the red position and its covariance per ``config.red_output``."""
+        if self._lost or not self.kalman.initialised:
+            self.kalman.initialise(z)
+        else:
+            self.kalman.update(z)
+        self._coast, self._lost = 0, False
+        if self.config.red_output == "filtered":
+            return self.kalman.position, self.kalman.position_cov
+        return np.asarray(z, dtype=float), np.asarray(self.config.kalman.R, dtype=float)
+
+    def _coast_on(
+        self, prior: NDArray[np.float64], prior_cov: NDArray[np.float64], reasons: list[str],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], RedSource]:
+        """No confident observation: the Kalman prediction stands in, and the track is lost
+        after ``config.max_coast_frames`` frames or once the prediction leaves the sensor;
+        appends why to ``reasons``."""
+        if not self.kalman.initialised:
+            self._lost = True
+            reasons.append("no confident main-marker observation yet")
+            return np.full(2, np.nan), np.full((2, 2), np.nan), "none"
+        self.kalman.coast()
+        self._coast += 1
+        cam = self.params.camera
+        inside = (-0.5 <= prior[0] <= cam.sensor_width_px - 0.5
+                  and -0.5 <= prior[1] <= cam.sensor_height_px - 0.5)
+        if self._coast > self.config.max_coast_frames:
+            self._lost = True
+            reasons.append(f"no confident observation for {self._coast} frames "
+                           f"(> {self.config.max_coast_frames})")
+        elif not inside:
+            self._lost = True
+            reasons.append("predicted main marker left the sensor")
+        elif self._lost:
+            reasons.append("track lost earlier; waiting for a confident observation")
+        return prior, prior_cov, "prediction"
+
+    def _auxiliary(
+        self, image: NDArray[np.uint8], b: int, bad_frame: str, red: NDArray[np.float64],
+        source: RedSource, tilt_prev_rad: float | None,
+    ) -> AuxResult:
+        """The auxiliary (yellow) point from the red position (seed 000 §3.2.3)."""
+        if source == "none":
+            return AuxResult(np.full(2, np.nan), "none", reason="no main-marker position")
+        if bad_frame:
+            return self.aux.fallback(red, "frame unusable")
+        return self.aux.locate(image, b, red, self.scale.S, tilt_prev_rad,
+                               red_is_measurement=(source == "measurement"))

@@ -371,38 +371,16 @@ def refine_marker_centre(
         hsv_range = _range_of(colour)
     except KeyError:
         return SubpixelResult.invalid(f"unknown colour {colour!r}")
-    try:
-        x, y, w, h = (float(c) for c in np.asarray(roi_image_px, dtype=float).reshape(4))
-    except (TypeError, ValueError):
-        return SubpixelResult.invalid("roi must be (x, y, w, h)")
-    if not all(math.isfinite(c) for c in (x, y, w, h)) or w <= 0.0 or h <= 0.0:
-        return SubpixelResult.invalid("roi is not finite or has w, h <= 0")
-    H, W = image_rgb.shape[:2]
-    c0 = max(int(math.floor(x)) - cfg.pad_px, 0)
-    r0 = max(int(math.floor(y)) - cfg.pad_px, 0)
-    c1 = min(int(math.ceil(x + w)) + cfg.pad_px + 1, W)
-    r1 = min(int(math.ceil(y + h)) + cfg.pad_px + 1, H)
-    if c1 - c0 < 3 or r1 - r0 < 3:
-        return SubpixelResult.invalid("roi lies outside the frame")
-    crop = np.ascontiguousarray(image_rgb[r0:r1, c0:c1])
-    offset = np.array([c0, r0], dtype=float)
+    cropped = _crop(image_rgb, roi_image_px, cfg.pad_px)
+    if isinstance(cropped, SubpixelResult):
+        return cropped
+    crop, offset = cropped
 
     # 1. segmentation: colour mask, opening, largest connected region
-    mask = colour_mask(crop, hsv_range)
-    if cfg.open_kernel_px > 0:
-        kern = cv2.getStructuringElement(
-            cv2.MORPH_ELLIPSE, (cfg.open_kernel_px, cfg.open_kernel_px)
-        )
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kern)
-    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n_lab < 2:
-        return SubpixelResult.invalid("no marker-coloured region in the roi")
-    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    area = int(stats[k, cv2.CC_STAT_AREA])
-    if area < cfg.min_area_px:
-        return SubpixelResult.invalid(f"marker region too small ({area} px)")
-    region = (labels == k).astype(np.uint8)
-    r_area = math.sqrt(area / math.pi)
+    segmented = _segment(crop, hsv_range, cfg)
+    if isinstance(segmented, SubpixelResult):
+        return segmented
+    region, r_area = segmented
 
     # marker and background colours -> coverage map alpha
     alpha = _coverage(crop, region, cfg)
@@ -416,19 +394,10 @@ def refine_marker_centre(
     hh, ww = region.shape
 
     # 3. burr removal (seed 004 eq. 25)
-    spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
-    span = max(2, int(round(cfg.burr_span_fraction * r_area / max(spacing, 1e-6))))
-    k = contour_curvature(edge, span, closed=True)
-    k_ref = float(np.median(k))
-    if k_ref < 0.0:  # the contour runs clockwise: make the marker's convex outline positive
-        k, k_ref = -k, -k_ref
-    if k_ref <= 0.0:
-        return SubpixelResult.invalid("contour has no convex outline", len(edge))
-    burr = burr_mask(k, k_ref, cfg.burr_curvature_factor)
-    pts = edge[~burr]
-    n_burrs = int(burr.sum())
-    if len(pts) < cfg.min_points:
-        return SubpixelResult.invalid("too few points after burr removal", len(pts))
+    kept = _remove_burrs(edge, r_area, cfg)
+    if isinstance(kept, SubpixelResult):
+        return kept
+    pts, n_burrs = kept
 
     # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
     c_alg, R_alg = fit_circle_algebraic(pts)
@@ -452,6 +421,66 @@ def refine_marker_centre(
         return SubpixelResult(np.full(2, np.nan), math.nan, rms, len(pts), n_burrs, n_out,
                               cover, False, reason)
     return result
+
+
+def _crop(image_rgb: NDArray[np.uint8], roi_image_px: ArrayLike,
+          pad_px: int) -> tuple[NDArray[np.uint8], NDArray[np.float64]] | SubpixelResult:
+    """The ROI (x, y, w, h) padded by ``pad_px`` and clipped to the frame, and its top-left
+    corner (image px); an invalid result for a malformed ROI or one outside the frame."""
+    try:
+        x, y, w, h = (float(c) for c in np.asarray(roi_image_px, dtype=float).reshape(4))
+    except (TypeError, ValueError):
+        return SubpixelResult.invalid("roi must be (x, y, w, h)")
+    if not all(math.isfinite(c) for c in (x, y, w, h)) or w <= 0.0 or h <= 0.0:
+        return SubpixelResult.invalid("roi is not finite or has w, h <= 0")
+    H, W = image_rgb.shape[:2]
+    c0 = max(int(math.floor(x)) - pad_px, 0)
+    r0 = max(int(math.floor(y)) - pad_px, 0)
+    c1 = min(int(math.ceil(x + w)) + pad_px + 1, W)
+    r1 = min(int(math.ceil(y + h)) + pad_px + 1, H)
+    if c1 - c0 < 3 or r1 - r0 < 3:
+        return SubpixelResult.invalid("roi lies outside the frame")
+    return np.ascontiguousarray(image_rgb[r0:r1, c0:c1]), np.array([c0, r0], dtype=float)
+
+
+def _segment(crop: NDArray[np.uint8], hsv_range: HSVRange,
+             cfg: SubpixelConfig) -> tuple[NDArray[np.uint8], float] | SubpixelResult:
+    """The largest connected region of the colour mask after an opening (a 0/1 mask of the
+    crop) and the radius of a disc of its area, px; invalid if none or too small."""
+    mask = colour_mask(crop, hsv_range)
+    if cfg.open_kernel_px > 0:
+        kern = cv2.getStructuringElement(
+            cv2.MORPH_ELLIPSE, (cfg.open_kernel_px, cfg.open_kernel_px)
+        )
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kern)
+    n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n_lab < 2:
+        return SubpixelResult.invalid("no marker-coloured region in the roi")
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    area = int(stats[k, cv2.CC_STAT_AREA])
+    if area < cfg.min_area_px:
+        return SubpixelResult.invalid(f"marker region too small ({area} px)")
+    return (labels == k).astype(np.uint8), math.sqrt(area / math.pi)
+
+
+def _remove_burrs(edge: NDArray[np.float64], r_area: float,
+                  cfg: SubpixelConfig) -> tuple[NDArray[np.float64], int] | SubpixelResult:
+    """The contour points whose curvature is not a burr's (seed 004 eq. 25, over a span of
+    ``cfg.burr_span_fraction`` of the radius) and the number removed; invalid if the contour
+    has no convex outline or too few points remain."""
+    spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
+    span = max(2, int(round(cfg.burr_span_fraction * r_area / max(spacing, 1e-6))))
+    k = contour_curvature(edge, span, closed=True)
+    k_ref = float(np.median(k))
+    if k_ref < 0.0:  # the contour runs clockwise: make the marker's convex outline positive
+        k, k_ref = -k, -k_ref
+    if k_ref <= 0.0:
+        return SubpixelResult.invalid("contour has no convex outline", len(edge))
+    burr = burr_mask(k, k_ref, cfg.burr_curvature_factor)
+    pts = edge[~burr]
+    if len(pts) < cfg.min_points:
+        return SubpixelResult.invalid("too few points after burr removal", len(pts))
+    return pts, int(burr.sum())
 
 
 def refine_in_box(

@@ -33,6 +33,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,13 @@ from observer.transt.data import (
     validation_sequence,
 )
 from observer.transt.losses import TransTLoss, cxcywh_to_xyxy, giou
-from observer.transt.network import CONFIGS, TransTNet, build_transt, count_parameters
+from observer.transt.network import (
+    CONFIGS,
+    TransTConfig,
+    TransTNet,
+    build_transt,
+    count_parameters,
+)
 from observer.transt.tracker import TransTTracker, hanning_window
 from observer.transt.weights import load_weights, save_weights
 
@@ -302,7 +309,8 @@ def write_model_card(path: Path, meta: dict) -> None:
     path.write_text("\n".join(lines))
 
 
-def main(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m observer.transt.train``."""
     ap = argparse.ArgumentParser(description="Train the small TransT on analytic renders.")
     ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
     ap.add_argument("--cache", default="runs/transt_cache", help="folder of the pair caches")
@@ -340,14 +348,11 @@ def main(argv: list[str] | None = None) -> None:
         help="skip training: evaluate this checkpoint (last.pt or best.pt of --out) and "
         "export it to --export",
     )
-    a = ap.parse_args(argv)
+    return ap
 
-    from tqdm import tqdm
 
-    torch.set_num_threads(a.threads)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    config = CONFIGS[a.config]
+def _caches(a: argparse.Namespace, config: TransTConfig) -> tuple[CropPairs, CropPairs, float]:
+    """The training and validation pair caches (rendered if missing) and the render time, s."""
     spec = PairSpec.for_config(config, a.yellow_fraction, a.randomise)
     t_cache = time.perf_counter()
     tag = f"_y{a.yellow_fraction:g}" if a.yellow_fraction > 0 else ""
@@ -365,7 +370,12 @@ def main(argv: list[str] | None = None) -> None:
     cache_s = float(train.meta.get("seconds", 0.0)) + float(val.meta.get("seconds", 0.0))
     print(f"caches ready in {time.perf_counter() - t_cache:.0f} s: {len(train)} train, "
           f"{len(val)} validation pairs", flush=True)
+    return train, val, cache_s
 
+
+def _network(a: argparse.Namespace, config: TransTConfig) -> tuple[TransTNet, dict]:
+    """A new network of ``config`` (seeded by ``--seed``), or the ``--init-from`` weights with
+    their metadata."""
     torch.manual_seed(a.seed)
     net = build_transt(config)
     init_meta: dict = {}
@@ -375,12 +385,28 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"--init-from {a.init_from} holds a {start.config.name} network")
         net.load_state_dict(start.state_dict())
         print(f"initialised from {a.init_from} ({init_meta.get('steps')} steps)", flush=True)
-    loss_fn = TransTLoss()
-    opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=a.weight_decay)
-    rng = np.random.default_rng(a.seed)
+    return net, init_meta
+
+
+@dataclass
+class _Run:
+    """What training changes: the network, the optimiser, the batch-order generator, the step,
+    the training wall time (s) and the best validation median centre error (sensor px)."""
+
+    net: TransTNet
+    opt: torch.optim.Optimizer
+    rng: np.random.Generator
+    best: float
+    step: int = 0
+    wall: float = 0.0
+
+
+def _restore(a: argparse.Namespace, out: Path, run: _Run) -> None:
+    """Load ``--export-from``, or resume from ``out/last.pt`` (dropping later history records)
+    unless ``--fresh``."""
+    net, opt, rng = run.net, run.opt, run.rng
     step, wall = 0, 0.0
     ckpt = out / "last.pt"
-    best = _read_history_best(out / "history.jsonl")
     if a.export_from:
         st = torch.load(a.export_from, map_location="cpu", weights_only=False)
         net.load_state_dict(st["net"])
@@ -401,22 +427,45 @@ def main(argv: list[str] | None = None) -> None:
             hist_path.write_text("".join(ln + "\n" for ln in keep))
     elif a.fresh:
         (out / "history.jsonl").unlink(missing_ok=True)
+    run.step, run.wall = step, wall
 
+
+def _train_step(
+    a: argparse.Namespace, net: TransTNet, opt: torch.optim.Optimizer, loss_fn: TransTLoss,
+    train: CropPairs, rng: np.random.Generator, step: int,
+) -> dict[str, float]:
+    """One optimiser step on a random batch (learning rate by ``lr_factor``); the loss parts."""
+    net.train()
+    for g in opt.param_groups:
+        g["lr"] = a.lr * lr_factor(step, a.steps, a.warmup)
+    b = train.batch(rng.choice(len(train), a.batch, replace=False), rng)
+    logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
+    loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]))
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+    opt.step()
+    return parts
+
+
+def _train(
+    a: argparse.Namespace, out: Path, run: _Run, train: CropPairs, val: CropPairs,
+    config: TransTConfig,
+) -> list[float]:
+    """Train from ``run.step`` to ``--steps``: validation every ``--eval-every`` steps, a record
+    per step in ``history.jsonl``, ``best.pt`` at the best validation median error, ``last.pt``
+    every ``--ckpt-every`` steps. Returns the last 50 losses."""
+    from tqdm import tqdm
+
+    net, opt, rng, step, wall, best = run.net, run.opt, run.rng, run.step, run.wall, run.best
+    loss_fn = TransTLoss()
+    ckpt = out / "last.pt"
     hist = (out / "history.jsonl").open("a")
     recent = _recent_losses(out / "history.jsonl", step)
     bar = tqdm(total=a.steps, initial=step, desc="training", unit="step")
     while step < a.steps and not a.export_from:
         t0 = time.perf_counter()
-        net.train()
-        for g in opt.param_groups:
-            g["lr"] = a.lr * lr_factor(step, a.steps, a.warmup)
-        b = train.batch(rng.choice(len(train), a.batch, replace=False), rng)
-        logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
-        loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]))
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
+        parts = _train_step(a, net, opt, loss_fn, train, rng, step)
         step += 1
         wall += time.perf_counter() - t0
         recent = (recent + [parts["loss"]])[-50:]
@@ -440,7 +489,12 @@ def main(argv: list[str] | None = None) -> None:
             _save_ckpt(ckpt, net, opt, step, wall, rng)
     bar.close()
     hist.close()
+    run.step, run.wall, run.best = step, wall, best
+    return recent
 
+
+def _final_metrics(net: TransTNet, val: CropPairs, config: TransTConfig) -> dict[str, float]:
+    """Validation pairs, then sequences of both markers, clean and on the held-out families."""
     net.eval()
     metrics = evaluate_pairs(net, val, config.window_influence)
     metrics.update(evaluate_sequences(net))
@@ -448,6 +502,24 @@ def main(argv: list[str] | None = None) -> None:
     for family in ("pattern", "lighting"):
         for marker in (0, 1):
             metrics.update(evaluate_sequences(net, marker=marker, heldout=family))
+    return metrics
+
+
+def main(argv: list[str] | None = None) -> None:
+    a = _parser().parse_args(argv)
+    torch.set_num_threads(a.threads)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = CONFIGS[a.config]
+    train, val, cache_s = _caches(a, config)
+    net, init_meta = _network(a, config)
+    opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=a.weight_decay)
+    run = _Run(net, opt, np.random.default_rng(a.seed), _read_history_best(out / "history.jsonl"))
+    _restore(a, out, run)
+    recent = _train(a, out, run, train, val, config)
+    step, wall = run.step, run.wall
+
+    metrics = _final_metrics(net, val, config)
     final_loss = float(np.mean(recent)) if recent else float("nan")
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     print(json.dumps(metrics, indent=2))
