@@ -22,13 +22,18 @@ from enum import Enum
 from pathlib import Path
 from typing import Annotated, NoReturn
 
-import typer
-from pydantic import ValidationError
-
-from experiments.config_files import ConfigFileError, load_mapping
-from latency.models import seed_latency_ms
-
 os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
+# One BLAS thread, before anything imports numpy: the toolkit's linear algebra is on 3x3 to
+# 20x20 matrices, where OpenBLAS's thread hand-off costs more than the work (a 3x3 ``expm``,
+# called tens of thousands of times by the margins tables, took 24 ms with the default threads
+# on a loaded 2-core machine and 0.08 ms with one). Sweep workers inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import typer  # noqa: E402
+from pydantic import ValidationError  # noqa: E402
+
+from experiments.config_files import ConfigFileError, load_mapping  # noqa: E402
+from latency.models import seed_latency_ms  # noqa: E402
 
 app = typer.Typer(
     help="Closed-loop co-design toolkit for a vision-measured spherical motor.",
