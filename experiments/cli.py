@@ -1,5 +1,6 @@
 """The ``pmspm`` command line (typer). ``pmspm --help`` lists the commands; every command's
-``--help`` shows an example.
+``--help`` shows an example. One module of about 860 lines: one typer application, each command a
+thin function that checks its arguments and calls the module that does the work.
 
 Every mistake on the command line (a file that is not a YAML mapping, a field out of range, a
 combination that cannot run, a non-finite or negative number, an output folder that cannot be

@@ -1,5 +1,9 @@
 """The headline study: what does vision delay do to the PMSpM attitude loop?
 
+One module of about 780 lines: its parts (margins, sweep, time series, image loop, summary) read
+one configuration and each other's tables; the plots are in ``study_plots``, the page in
+``report``.
+
 ``run_study`` answers the design card's questions on the embedded default, or on the user's
 motor and camera (``StudyConfig.motor_file``, ``camera_file``), and writes a report
 folder (``runs/<timestamp>-study/``) with ``report.md``, ``report.html``, PNG plots and Parquet

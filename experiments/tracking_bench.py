@@ -1,6 +1,6 @@
 """The tracking benchmark of seed 000 §4: metrics per marker, runs, tables and plots.
 
-One module of about 790 lines: its parts (metrics, runs, tables, plots, the whole benchmark) form
+One module of about 920 lines: its parts (metrics, runs, tables, plots, the whole benchmark) form
 one pipeline that only the benchmark uses; the seams are the section comments below.
 
 **Protocol.** A pair tracker (``observer.trackers``) is started on frame 0 with the true boxes of

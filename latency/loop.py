@@ -1,5 +1,8 @@
 """The timed closed loop: plant, camera, observer and controller on one event timeline.
 
+One module of about 790 lines: the event handlers, the timeline and the run's tables share one
+run's state (event queue, frame scheduler, logs); apart, each would reach into the others'.
+
 Simulated time only (s). Per run:
 
 * **physics** (``plant.dynamics.MujocoPlant``) at ``params.physics_dt_s`` (1 kHz by default),
