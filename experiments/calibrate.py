@@ -152,17 +152,15 @@ def read_frames(spec: str, step: int = 1) -> list[tuple[str, NDArray[np.uint8]]]
 
 def write_report(cal: CameraCalibration, out_dir: Path | str, source: str) -> Path:
     """``camera.yaml``, ``coverage.png``, ``residuals.png`` and ``report.md`` in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cal.camera.save(out / "camera.yaml")
     c = cal.camera.camera
     w, h = c.sensor_width_px // c.binning, c.sensor_height_px // c.binning
-    fig, ax = plt.subplots(figsize=(6, 6 * h / w))
+    fig = Figure(figsize=(6, 6 * h / w))
+    ax = fig.subplots()
     for pts in cal.corners_px:
         hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
         ax.fill(hull[:, 0], hull[:, 1], alpha=0.08, color="C0")
@@ -173,8 +171,8 @@ def write_report(cal: CameraCalibration, out_dir: Path | str, source: str) -> Pa
     ax.set_title(f"coverage: {len(cal.corners_px)} views (corners and board outlines)")
     fig.tight_layout()
     fig.savefig(out / "coverage.png", dpi=100)
-    plt.close(fig)
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    fig = Figure(figsize=(10, 4))
+    a1, a2 = fig.subplots(1, 2)
     res = cal.residuals_px.reshape(-1, 2)
     a1.plot(res[:, 0], res[:, 1], ".", ms=2)
     a1.set_aspect("equal")
@@ -186,7 +184,6 @@ def write_report(cal: CameraCalibration, out_dir: Path | str, source: str) -> Pa
     a2.set_ylabel("RMS reprojection error, px")
     fig.tight_layout()
     fig.savefig(out / "residuals.png", dpi=100)
-    plt.close(fig)
     lines = [f"# Camera calibration: {source}", "", *[f"- {s}" for s in cal.summary_lines()],
              "", "Intrinsics in px of the calibration frames (± one sigma, OpenCV "
              "calibrateCameraExtended); `camera.yaml` holds them in full-sensor px.", "",

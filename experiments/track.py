@@ -416,10 +416,7 @@ def score(table: pd.DataFrame, truth: GroundTruth, binning: int) -> dict[str, fl
 
 def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -> None:
     """The Parquet table, the latency profile, the plots and ``report.md``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     out, t = outcome.out_dir, outcome.table
     t.to_parquet(out / "frames.parquet", index=False)
@@ -429,7 +426,8 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
         Empirical.from_measurements(
             total, source=f"{name} + {outcome.observer}, {len(t)} frames of {source.name}"
         ).save(out / "latency_profile.json")
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig = Figure(figsize=(7, 3.5))
+    ax = fig.subplots()
     for col in ("tilt_deg", "yaw_deg", "spin_deg"):
         if len(t):
             ax.plot(t["capture_time_s"], t[col], label=col.replace("_deg", ""))
@@ -439,8 +437,8 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     ax.set_title("attitude (ZYZ spin, tilt, yaw)")
     fig.tight_layout()
     fig.savefig(out / "attitude.png", dpi=100)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig = Figure(figsize=(7, 3.5))
+    ax = fig.subplots()
     for col in ("read_time_s", "tracker_time_s", "solver_time_s"):
         if len(t):
             ax.plot(t["capture_time_s"], t[col] * 1e3, label=col.replace("_time_s", ""))
@@ -450,7 +448,6 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     ax.set_title("per-stage compute time")
     fig.tight_layout()
     fig.savefig(out / "latency.png", dpi=100)
-    plt.close(fig)
     lines = [f"# Tracking run: {source.name}", "",
              f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}; attitude: "
              f"{outcome.observer}.", "",

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
@@ -82,7 +81,8 @@ def plot_front(df: pd.DataFrame, seed: pd.Series) -> Figure:
     """Mean RMS error against effort and against compute per frame, 95 % intervals on the
     error; feasible designs coloured by compute, infeasible grey, the front outlined, the seed's
     design a red star."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig = Figure(figsize=(11, 4.5))
+    axes = fig.subplots(1, 2)
     ran = df[~df["pruned"]]
     for ax, xcol, xlabel in ((axes[0], "rms_torque_Nm", "control effort: RMS torque (N·m)"),
                              (axes[1], "compute_ms", "compute per frame (ms)")):
@@ -205,7 +205,6 @@ def write_report(
     df.to_csv(out_dir / "designs.csv", index=False)
     fig = plot_front(df, seed_row)
     fig.savefig(out_dir / "pareto.png", dpi=120)
-    plt.close(fig)
     rec = recommended(df)
     result: dict = {"n_designs": len(df), "n_pruned": int(df["pruned"].sum()),
                     "n_feasible": int(df["feasible"].sum()),
