@@ -69,24 +69,17 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
     if p.shape == (4,) and q.shape == (4,):  # one product: plain floats, as in ``normalize``
-        pw, px, py, pz = p.tolist()
-        qw, qx, qy, qz = q.tolist()
-        return np.array([
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ])
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
+        return np.array(_hamilton(*p.tolist(), *q.tolist()))
+    return np.stack(_hamilton(*np.moveaxis(p, -1, 0), *np.moveaxis(q, -1, 0)), axis=-1)
+
+
+def _hamilton(pw, px, py, pz, qw, qx, qy, qz) -> tuple:
+    """Components (w, x, y, z) of ``p ⊗ q`` from the components of p and q (floats or arrays)."""
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
     )
 
 

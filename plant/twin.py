@@ -60,7 +60,7 @@ def quat_exp(phi: ca.SX) -> ca.SX:
 
 def dexpinv(phi: ca.SX, omega: ca.SX) -> ca.SX:
     """Rate of the rotation vector phi of q = q0 ⊗ exp(phi) for the body rate omega (the Bortz
-    equation, as ``plant.rigid_body.dexpinv``)."""
+    equation, as ``plant.rigid_body._dexpinv``)."""
     theta2 = ca.dot(phi, phi)
     theta = ca.sqrt(theta2)
     c = ca.if_else(
