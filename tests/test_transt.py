@@ -362,6 +362,50 @@ def test_loss_against_hand_computation() -> None:
     assert p2["l1"] == pytest.approx(0.0, abs=1e-6) and p2["giou"] == pytest.approx(0, abs=1e-6)
 
 
+def test_loss_of_a_target_absent_search_is_background_only() -> None:
+    """A search without its target: every cell labelled background (hand-computed weighted
+    cross-entropy), no box term, and no gradient into its boxes."""
+    torch.manual_seed(1)
+    logits = torch.randn(2, 64, 2)
+    target = torch.tensor([[0.5, 0.5, 0.3, 0.2], [0.3, 0.6, 0.1, 0.15]])
+    boxes = (torch.rand(2, 64, 4) * 0.5 + 0.25).requires_grad_(True)
+    present = torch.tensor([True, False])
+    total, parts = TransTLoss()(logits, boxes, target, present)
+    pos = positive_cells(target, 8) & present[:, None]
+    lab = (~pos).long()
+    logp = torch.log_softmax(logits, -1)
+    w = torch.where(lab == 0, 1.0, 0.0625)
+    nll = -(logp.gather(-1, lab[..., None])[..., 0] * w).sum() / w.sum()
+    assert parts["cls"] == pytest.approx(float(nll), rel=1e-5)
+    assert not pos[1].any()
+    total.backward()
+    assert float(boxes.grad[1].abs().max()) == 0.0 and float(boxes.grad[0].abs().max()) > 0.0
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_hide_target_removes_the_marker(seed: int) -> None:
+    """On a drawn search crop (textured grey rotor, a red disc inside the label box), the
+    removal leaves no pixel of the disc's colour and keeps the crop away from the box."""
+    from observer.transt.data import hide_target
+
+    rng = np.random.default_rng(100 + seed)
+    side = 64
+    crop = (rng.uniform(90, 140, (side, side, 1)) * np.ones(3)).astype(np.uint8)
+    centre = rng.uniform(20, 44, 2)
+    r = rng.uniform(4, 7)
+    yy, xx = np.mgrid[0:side, 0:side]
+    disc = np.hypot(xx + 0.5 - centre[0], yy + 0.5 - centre[1]) <= r
+    crop[disc] = (220, 20, 25)
+    box = np.array([*centre, 2 * r, 2 * r], np.float32) / side
+    before = crop.copy()
+    hide_target(crop, box, np.random.default_rng(seed))
+    red = (crop[..., 0] > 180) & (crop[..., 1] < 60) & (crop[..., 2] < 60)
+    assert not red.any()
+    # the removed region is the box grown at most 2.2 times: outside it nothing changes
+    outside = (np.abs(xx + 0.5 - centre[0]) > 2.3 * r) | (np.abs(yy + 0.5 - centre[1]) > 2.3 * r)
+    assert np.array_equal(crop[outside], before[outside])
+
+
 def test_giou_known_values() -> None:
     a = torch.tensor([[0.0, 0.0, 2.0, 2.0]])
     b = torch.tensor([[1.0, 1.0, 3.0, 3.0]])

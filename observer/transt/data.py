@@ -530,6 +530,44 @@ def _dihedral_box(box: NDArray[np.float32], k: int) -> NDArray[np.float32]:
     return b
 
 
+def hide_target(
+    search: NDArray[np.uint8], box: NDArray[np.float32], rng: np.random.Generator
+) -> None:
+    """In place: remove the target from a uint8 search crop (H, W, 3) whose target box is
+    ``box`` (cx, cy, w, h crop fractions), so that the crop is a target-absent example.
+
+    The region removed is the box grown 1.4-2.2 times (the disc's blur smear and its
+    anti-aliased rim included). It is filled, with probabilities 0.4 / 0.4 / 0.2, by inpainting
+    from its surroundings (the rotor seen without the marker), by an occluder of a training
+    colour family or black (a hand, a tool, a shadow over the whole marker), or by a patch of the
+    same crop taken away from the target (another part of the rotor)."""
+    side = search.shape[0]
+    cx, cy, w, h = (np.asarray(box, float) * side).tolist()
+    grow = rng.uniform(1.4, 2.2)
+    hw, hh = max(w, 2.0) * grow / 2, max(h, 2.0) * grow / 2
+    c0, r0 = max(int(cx - hw), 0), max(int(cy - hh), 0)
+    c1, r1 = min(int(math.ceil(cx + hw)), side), min(int(math.ceil(cy + hh)), side)
+    if c1 <= c0 or r1 <= r0:
+        return
+    u = rng.uniform()
+    if u < 0.4:
+        mask = np.zeros(search.shape[:2], np.uint8)
+        mask[r0:r1, c0:c1] = 255
+        search[...] = cv2.inpaint(search, mask, 5, cv2.INPAINT_TELEA)
+    elif u < 0.8:
+        family = ("black", *TRAIN_OCCLUDERS)[int(rng.integers(len(TRAIN_OCCLUDERS) + 1))]
+        colour = (0, 0, 0) if family == "black" else occluder_rgb(rng, family)
+        search[r0:r1, c0:c1] = colour
+    else:
+        ph, pw = r1 - r0, c1 - c0
+        for _ in range(20):  # a source patch that does not overlap the removed region
+            sr, sc = int(rng.integers(0, side - ph + 1)), int(rng.integers(0, side - pw + 1))
+            if sr + ph <= r0 or sr >= r1 or sc + pw <= c0 or sc >= c1:
+                search[r0:r1, c0:c1] = search[sr:sr + ph, sc:sc + pw]
+                return
+        search[r0:r1, c0:c1] = np.median(search.reshape(-1, 3), axis=0).astype(np.uint8)
+
+
 class CropPairs:
     """A cache written by ``generate_cache``, read memory-mapped.
 
@@ -560,12 +598,19 @@ class CropPairs:
         return len(self.box)
 
     def batch(
-        self, indices: NDArray[np.int64], rng: np.random.Generator | None = None
+        self,
+        indices: NDArray[np.int64],
+        rng: np.random.Generator | None = None,
+        absent_prob: float = 0.0,
     ) -> dict[str, NDArray]:
+        """Pairs ``indices``; with ``rng``, the dihedral augmentation and, in a fraction
+        ``absent_prob`` of the pairs, the target removed from the search crop
+        (``hide_target``; ``present`` False: every cell is background, no box label)."""
         idx = np.sort(np.asarray(indices))
         t = np.asarray(self.template[idx])
-        s = np.asarray(self.search[idx])
+        s = np.array(self.search[idx])
         box, centre = self.box[idx].copy(), self.centre[idx].copy()
+        present = np.ones(len(idx), dtype=bool)
         if rng is not None:
             ks = rng.integers(0, 8, size=len(idx))
             for i, k in enumerate(ks):
@@ -573,6 +618,10 @@ class CropPairs:
                 s[i] = _dihedral(s[i], int(k))
                 box[i] = _dihedral_box(box[i], int(k))
                 centre[i] = _dihedral_box(centre[i], int(k))
+            if absent_prob > 0:
+                present = rng.uniform(size=len(idx)) >= absent_prob
+                for i in np.flatnonzero(~present):
+                    hide_target(s[i], box[i], rng)
         return {
             "template": normalise(t),
             "search": normalise(s),
@@ -580,6 +629,7 @@ class CropPairs:
             "centre": centre,
             "scale": self.scale[idx],
             "diameter": self.diameter[idx],
+            "present": present,
         }
 
 

@@ -9,7 +9,8 @@ the cell holding the box centre is the one positive, our choice); all others are
   0.0625 (TransT's ``eos_coef``), class 0 = target, class 1 = background;
 * regression, over the positives only: L1 between predicted and true (cx, cy, w, h) (crop
   fractions) and the generalised IoU loss 1 - GIoU, both summed and divided by the number of
-  positives in the batch;
+  positives in the batch; a target-absent search (``present`` False, a training
+  augmentation, our choice) has no positives: all its cells are background;
 * total: L = 8.334 L_cls + 5 L_1 + 2 L_GIoU (TransT's weights; seed 000 §3.1 writes the same
   three-term sum with its lambdas).
 """
@@ -75,7 +76,7 @@ class TransTLoss(nn.Module):
         self.register_buffer("class_weight", torch.tensor([1.0, background_weight]))
 
     def forward(
-        self, logits: Tensor, boxes: Tensor, target: Tensor
+        self, logits: Tensor, boxes: Tensor, target: Tensor, present: Tensor | None = None
     ) -> tuple[Tensor, dict[str, float]]:
         """Total loss and its parts.
 
@@ -84,10 +85,14 @@ class TransTLoss(nn.Module):
         logits : (B, L, 2) class logits per cell (class 0 = target).
         boxes : (B, L, 4) predicted (cx, cy, w, h), crop fractions.
         target : (B, 4) true box (cx, cy, w, h), crop fractions.
+        present : (B,) bool, False where the search holds no target (every cell is background
+            and the pair has no box term); default all True.
         """
         b, n_cells, _ = logits.shape
         fs = int(round(n_cells**0.5))
         pos = positive_cells(target, fs)
+        if present is not None:
+            pos = pos & present[:, None]
         labels = torch.where(pos, 0, 1)
         l_cls = F.cross_entropy(logits.reshape(-1, 2), labels.reshape(-1), self.class_weight)
         n_pos = pos.sum().clamp(min=1).to(boxes.dtype)

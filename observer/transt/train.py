@@ -68,6 +68,8 @@ from observer.transt.weights import load_weights, save_weights
 #: Seeds of the validation tracking sequences (never used for training data).
 VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
 VALIDATION_SEQUENCE_FRAMES = 150
+#: Seed of the target removal in the validation pairs' absent copies.
+VALIDATION_ABSENT_SEED = 1004
 
 
 def lr_factor(step: int, total: int, warmup: int = 30, floor: float = 0.1) -> float:
@@ -86,16 +88,23 @@ def evaluate_pairs(
 
     Errors are distances between the predicted box centre and the true red centre
     (``Frame.marker_px[0]``) in full-sensor px, also in marker diameters. ``*_nowin`` decodes
-    without the window (plain argmax of the target probability).
+    without the window (plain argmax of the target probability). ``val_*_score_*`` are the
+    highest target probability of each search (the tracker's confidence), on the pairs as they
+    are and with the target removed from every search (``data.hide_target``, fixed seeds).
     """
     net.eval()
     fs = net.config.search_feature_size
     win = torch.from_numpy(hanning_window(fs))
-    errs, errs_nw, dias, ious = [], [], [], []
+    errs, errs_nw, dias, ious, seen, absent = [], [], [], [], [], []
     for start in range(0, len(pairs), batch):
-        b = pairs.batch(np.arange(start, min(start + batch, len(pairs))))
+        idx = np.arange(start, min(start + batch, len(pairs)))
+        b = pairs.batch(idx)
         logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
         prob = logits.softmax(-1)[..., 0]
+        seen.append(prob.max(dim=1).values.numpy())
+        h = pairs.batch(idx, np.random.default_rng([VALIDATION_ABSENT_SEED, start]), 1.0)
+        h_logits, _ = net(torch.from_numpy(h["template"]), torch.from_numpy(h["search"]))
+        absent.append(h_logits.softmax(-1)[..., 0].max(dim=1).values.numpy())
         for use_win, out in ((True, errs), (False, errs_nw)):
             score = prob * (1 - window_influence) + win * window_influence if use_win else prob
             best = score.argmax(dim=1)
@@ -115,6 +124,9 @@ def evaluate_pairs(
         "val_within_20px": float(np.mean(e < 20.0)),
         "val_centre_err_median_px_nowin": float(np.median(e_nw)),
         "val_iou_mean": float(np.mean(np.concatenate(ious))),
+        "val_present_score_median": float(np.median(np.concatenate(seen))),
+        "val_absent_score_median": float(np.median(np.concatenate(absent))),
+        "val_absent_score_p90": float(np.percentile(np.concatenate(absent), 90)),
     }
 
 
@@ -205,7 +217,10 @@ def _stage_lines(meta: dict) -> list[str]:
     y = float(meta.get("yellow_fraction", 0.0) or 0.0)
     target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
     return [
-        f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target}).",
+        f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target})"
+        + (f"; the target removed from {meta['absent_prob']:.0%} of the searches "
+           "(`data.hide_target`: inpainted, covered or replaced by another part of the crop), "
+           "labelled all background." if meta.get("absent_prob") else "."),
         f"- {meta['steps']} steps of batch {meta['batch']} (AdamW, lr {meta['lr']}, weight decay "
         f"{meta['weight_decay']}, warm-up + cosine to 10 %), TransT's loss weights "
         "(8.334, 5, 2); final training loss (mean of the last 50 steps) "
@@ -344,6 +359,11 @@ def _parser() -> argparse.ArgumentParser:
         help="domain-randomised training and validation caches (PairSpec.randomise)",
     )
     ap.add_argument(
+        "--absent-prob", type=float, default=0.0,
+        help="fraction of training searches with the target removed (data.hide_target), "
+        "labelled all background",
+    )
+    ap.add_argument(
         "--export-from", default=None,
         help="skip training: evaluate this checkpoint (last.pt or best.pt of --out) and "
         "export it to --export",
@@ -438,9 +458,10 @@ def _train_step(
     net.train()
     for g in opt.param_groups:
         g["lr"] = a.lr * lr_factor(step, a.steps, a.warmup)
-    b = train.batch(rng.choice(len(train), a.batch, replace=False), rng)
+    b = train.batch(rng.choice(len(train), a.batch, replace=False), rng, a.absent_prob)
     logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
-    loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]))
+    loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]),
+                          torch.from_numpy(b["present"]))
     opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
@@ -476,7 +497,9 @@ def _train(
                 f"step {step}: val median centre error "
                 f"{rec['val_centre_err_median_px']:.1f} sensor px "
                 f"({rec['val_centre_err_median_diam']:.3f} diameters), "
-                f"within 20 px {rec['val_within_20px']:.3f}, IoU {rec['val_iou_mean']:.3f}"
+                f"within 20 px {rec['val_within_20px']:.3f}, IoU {rec['val_iou_mean']:.3f}, "
+                f"score present {rec['val_present_score_median']:.2f} / target removed "
+                f"{rec['val_absent_score_median']:.2f}"
             )
         hist.write(json.dumps(rec) + "\n")
         hist.flush()
@@ -547,6 +570,7 @@ def main(argv: list[str] | None = None) -> None:
             "machine": _machine(),
             "metrics": metrics,
             "randomise": a.randomise,
+            "absent_prob": a.absent_prob,
             "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
         }
         export = Path(a.export)
