@@ -20,7 +20,7 @@ import pytest
 from experiments.sequences import HARD_FRAMES, SequenceSpec, development_seeds, render_sequence
 from experiments.tracking_bench import PRECISION_PX, precision_at, reacquisition_frames, run_tracker
 from observer.gk.hsv_gate import RED
-from observer.gk.subpixel import SubpixelConfig
+from observer.gk.subpixel import SubpixelConfig, circle_of_radius, refine_marker_centre
 from observer.gk.trust import TrustConfig, colour_blobs, marker_range, measure_marker
 from observer.trackers import make_pair_tracker
 
@@ -65,6 +65,52 @@ def test_measure_marker_fits_the_disc_and_refuses_a_wrong_size_or_a_sliver():
     cv2.rectangle(hidden, (0, 0), (int(centre[0] + 0.6 * r), 119), (210, 150, 120), -1)
     m = measure_marker(hidden, (*(centre - 1.5 * r), 3 * r, 3 * r), colour, r, CFG, sub)
     assert m.centre_img is None
+
+
+@pytest.mark.parametrize("cover", [0.25, 0.45])
+def test_a_marker_merged_with_a_same_coloured_finger_is_measured_on_its_arc(cover):
+    """A red-brown finger (a capsule 2.6 radii wide, inside the marker's colour range) over
+    part of the disc: the free fit finds the union, the known-radius fit the disc's own centre
+    (drawn truth) within 0.3 px; once the finger hides the whole disc nothing is measured."""
+    centre, r = np.array([70.4, 55.6]), 9.0
+    img = _disc_image(centre, r, (220, 20, 15))
+    colour = marker_range(img, (*(centre - r), 2 * r, 2 * r), RED, CFG)
+    finger_rgb = (200, 40, 25)
+    assert colour.mask(cv2.cvtColor(np.uint8([[finger_rgb]]), cv2.COLOR_RGB2HSV))[0, 0] > 0
+
+    def with_finger(reach: float) -> np.ndarray:
+        out = img.copy()
+        tip = centre + np.array([0.0, r * (1.0 + 1.3 - 2.0 * reach)])  # cap edge at the reach
+        far = tip + np.array([0.0, 400.0])
+        cv2.line(out, tuple(int(round(v * 16)) for v in tip),
+                 tuple(int(round(v * 16)) for v in far), finger_rgb, int(round(2.6 * r)),
+                 cv2.LINE_AA, 4)
+        return out
+
+    roi = (*(centre - 2.5 * r), 5 * r, 5 * r)
+    sub = SubpixelConfig()
+    img_f = with_finger(cover)
+    free = refine_marker_centre(img_f, colour, roi, sub)
+    assert not free.valid or abs(free.radius_image_px / r - 1) > CFG.radius_tolerance
+    m = measure_marker(img_f, roi, colour, r, CFG, sub)
+    assert m.centre_img is not None and np.hypot(*(m.centre_img - centre)) < 0.3
+    hidden = measure_marker(with_finger(1.2), roi, colour, r, CFG, sub)
+    assert hidden.centre_img is None
+
+
+def test_circle_of_radius_finds_the_arc_among_outliers():
+    """Consensus on a known radius: 60 % of a circle's points plus a straight edge and
+    scattered points; the centre (truth) within 0.05 px and the inliers exactly the arc."""
+    rng = np.random.default_rng(3)
+    c, R = np.array([12.3, -4.1]), 7.5
+    ang = rng.uniform(0.0, 1.2 * np.pi, 60)
+    arc = c + R * np.column_stack([np.cos(ang), np.sin(ang)]) + rng.normal(0, 0.05, (60, 2))
+    line = np.column_stack([np.linspace(0, 20, 30), np.full(30, -15.0)])
+    noise = rng.uniform(-20, 20, (15, 2))
+    pts = np.vstack([arc, line, noise])
+    centre, inl = circle_of_radius(pts, R, 0.5)
+    assert np.hypot(*(centre - c)) < 0.05 * R
+    assert inl[:60].all() and not inl[60:90].any()
 
 
 def test_colour_blobs_find_marker_sized_blobs_only():

@@ -107,6 +107,10 @@ class SubpixelConfig(BaseModel):
     max_rms_fraction: float = Field(
         0.2, gt=0.0, description="Largest RMS residual / radius for a valid fit."
     )
+    consensus_tol_fraction: float = Field(
+        0.1, gt=0.0, description="Inlier band of the known-radius consensus, fraction of the "
+        "radius (the marker's edge points lie within about 0.5 image px of its circle)."
+    )
 
 
 @dataclass(frozen=True)
@@ -194,6 +198,36 @@ def fit_circle_geometric(
             break
     diff = p - c
     return c, R, np.hypot(diff[:, 0], diff[:, 1]) - R
+
+
+def circle_of_radius(
+    points: ArrayLike, radius: float, tol: float, n_pairs: int = 256, seed: int = 0
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The circle of known ``radius`` through most of ``points`` (n, 2): random sample
+    consensus (Fischler & Bolles, CACM 24 (1981) 381-395) over pairs of points, each pair giving
+    the two centres at distance ``radius`` from both; a point is an inlier when its distance to
+    the centre is within ``tol`` of ``radius``. Deterministic (``seed``). Returns (centre (2,),
+    inlier mask (n,)); NaN centre and no inliers when no pair spans less than a diameter."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    if n < 2:
+        return np.full(2, np.nan), np.zeros(n, bool)
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, n_pairs)
+    j = rng.integers(0, n, n_pairs)
+    mid, half = 0.5 * (p[i] + p[j]), 0.5 * (p[j] - p[i])
+    d2 = (half * half).sum(axis=1)
+    ok = (d2 > 1e-12) & (d2 < radius * radius)
+    if not ok.any():
+        return np.full(2, np.nan), np.zeros(n, bool)
+    mid, half, d2 = mid[ok], half[ok], d2[ok]
+    normal = np.column_stack([-half[:, 1], half[:, 0]]) / np.sqrt(d2)[:, None]
+    h = np.sqrt(radius * radius - d2)[:, None]
+    centres = np.concatenate([mid + h * normal, mid - h * normal])
+    dist = np.hypot(p[None, :, 0] - centres[:, None, 0], p[None, :, 1] - centres[:, None, 1])
+    inliers = np.abs(dist - radius) <= tol
+    best = int(np.argmax(inliers.sum(axis=1)))
+    return centres[best], inliers[best]
 
 
 def contour_curvature(points: ArrayLike, span: int, closed: bool = True) -> NDArray[np.float64]:
@@ -342,6 +376,7 @@ def refine_marker_centre(
     colour: Colour | HSVRange,
     roi_image_px: ArrayLike,
     config: SubpixelConfig | None = None,
+    radius_px: float | None = None,
 ) -> SubpixelResult:
     """Sub-pixel centre of the marker of ``colour`` inside ``roi_image_px`` (seed 004 §4).
 
@@ -355,6 +390,13 @@ def refine_marker_centre(
         Region (x, y, w, h) in image px of this frame that contains the whole marker (a tracker's
         box enlarged by a margin); it is padded by ``config.pad_px`` and clipped to the frame.
     config : SubpixelConfig, optional
+    radius_px : float, optional
+        The marker's known radius, image px. Given, steps 3-4 change: instead of the burr
+        test and the algebraic start, the edge points on a circle of this radius are found by
+        consensus (``circle_of_radius``, tolerance ``consensus_tol_fraction`` of the radius),
+        and the geometric fit runs on them. This recovers a marker whose colour region is
+        merged with a same-coloured occluder (its outline is then the visible arc plus the
+        occluder's), where the free fit finds the union.
 
     Returns
     -------
@@ -393,16 +435,24 @@ def refine_marker_centre(
         return edge
     hh, ww = region.shape
 
-    # 3. burr removal (seed 004 eq. 25)
-    kept = _remove_burrs(edge, r_area, cfg)
-    if isinstance(kept, SubpixelResult):
-        return kept
-    pts, n_burrs = kept
-
-    # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
-    c_alg, R_alg = fit_circle_algebraic(pts)
-    if not np.all(np.isfinite(c_alg)):
-        return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
+    if radius_px is not None:
+        # 3-4 with the known radius: consensus on the circle, then the geometric fit
+        c_alg, on_circle = circle_of_radius(edge, radius_px,
+                                            cfg.consensus_tol_fraction * radius_px)
+        pts, n_burrs, R_alg = edge[on_circle], int((~on_circle).sum()), float(radius_px)
+        if len(pts) < cfg.min_points:
+            return SubpixelResult.invalid("too few edge points on a circle of the marker's "
+                                          "radius", len(pts))
+    else:
+        # 3. burr removal (seed 004 eq. 25)
+        kept = _remove_burrs(edge, r_area, cfg)
+        if isinstance(kept, SubpixelResult):
+            return kept
+        pts, n_burrs = kept
+        # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
+        c_alg, R_alg = fit_circle_algebraic(pts)
+        if not np.all(np.isfinite(c_alg)):
+            return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
     c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
     rms = float(np.sqrt(np.mean(res * res)))
     cover = _arc_coverage(pts, c)

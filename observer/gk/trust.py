@@ -12,9 +12,12 @@ system knows:
   ``saturation_fraction`` of the marker's); skin, highlights and most occluders fall outside it;
 * **shape** (the circle fit, seed 004 §4): the fit on that colour must be valid (its RMS
   residual and arc coverage within ``SubpixelConfig``'s limits) with a radius within
-  ``radius_tolerance`` of the marker's radius at start (times the scale's change). Without a
-  valid fit nothing is measured: a blob centroid would be wrong for a marker merged with a
-  same-coloured occluder or mostly hidden;
+  ``radius_tolerance`` of the marker's radius at start (times the scale's change). When the
+  free fit fails, the fit is repeated with the marker's radius known (the edge points on a
+  circle of that radius found by consensus): a marker merged with a same-coloured occluder
+  (a red-brown finger) is still measured on its visible arc, with the same validity and
+  radius checks. Without a valid fit nothing is measured: a blob centroid would be wrong for
+  a marker merged with a same-coloured occluder or mostly hidden;
 * **innovation** (the Kalman filter, seed 000 §3.2.1): the observation must lie within
   ``gate_marker_radii`` marker radii of the prediction;
 * **the network's score map**: a box whose target probability is below ``min_score`` is not
@@ -146,13 +149,17 @@ def measure_marker(image_rgb: NDArray[np.uint8], roi_img: ArrayLike, colour: HSV
     valid and its radius within tolerance of ``radius_img``, else None with the reason. A blob
     centroid is never used: a marker merged with a same-coloured occluder, or mostly hidden,
     would give a wrong centre."""
-    fit = refine_marker_centre(image_rgb, colour, roi_img, subpixel)
-    if not fit.valid:
-        return Measurement(None, f"circle fit invalid: {fit.reason}")
-    ratio = fit.radius_image_px / radius_img
-    if abs(ratio - 1.0) > config.radius_tolerance:
-        return Measurement(None, f"circle radius {ratio:.2f} x the marker's")
-    return Measurement(fit.centre_image_px)
+    reasons = []
+    for known, label in ((None, "circle"), (radius_img, "known-radius circle")):
+        fit = refine_marker_centre(image_rgb, colour, roi_img, subpixel, radius_px=known)
+        if not fit.valid:
+            reasons.append(f"{label} fit invalid: {fit.reason}")
+            continue
+        ratio = fit.radius_image_px / radius_img
+        if abs(ratio - 1.0) <= config.radius_tolerance:
+            return Measurement(fit.centre_image_px)
+        reasons.append(f"{label} radius {ratio:.2f} x the marker's")
+    return Measurement(None, "; ".join(reasons))
 
 
 def colour_blobs(image_rgb: NDArray[np.uint8], colour: HSVRange, radius_img: float,
