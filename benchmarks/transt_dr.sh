@@ -1,27 +1,43 @@
 #!/bin/sh
-# The domain-randomised TransT fine-tuning (docs/transt.md "Domain randomisation"): progress,
-# stop, export and evaluation, from the repository root.
+# The domain-randomised TransT fine-tuning (docs/transt.md "Domain randomisation"), two stages
+# from the repository root: DR (randomised scenes, from the shipped weights), then ABSENT (the
+# same data with 20 % of the searches target-absent, from the DR stage's export).
 #
-#   sh benchmarks/transt_dr.sh progress   # last log line, last validation record, checkpoints
-#   sh benchmarks/transt_dr.sh stop       # stop the run (checkpoints are written atomically)
-#   sh benchmarks/transt_dr.sh export     # best checkpoint -> shipped weights, SHA-256, card
-#   sh benchmarks/transt_dr.sh evaluate   # tests of the network and trust rule, benchmark
+#   sh benchmarks/transt_dr.sh start dr       # train a stage (resumes from its last.pt)
+#   sh benchmarks/transt_dr.sh export dr      # DR best checkpoint -> runs/transt_train_dr/transt_small_dr.pt
+#   sh benchmarks/transt_dr.sh start absent   # needs the DR export
+#   sh benchmarks/transt_dr.sh export absent  # best checkpoint -> shipped weights, SHA-256, card
+#   sh benchmarks/transt_dr.sh progress dr|absent
+#   sh benchmarks/transt_dr.sh stop dr|absent
+#   sh benchmarks/transt_dr.sh evaluate       # tests of the network and trust rule, benchmark
 #
-# PYTHON defaults to the project's virtual environment; OUT to runs/transt_train_dr; CKPT
-# (export) to $OUT/best.pt (use $OUT/last.pt for the last one).
+# PYTHON defaults to the project's virtual environment; CKPT (export) to the stage's best.pt.
 set -eu
 PYTHON=${PYTHON:-.venv/bin/python}
-OUT=${OUT:-runs/transt_train_dr}
-CKPT=${CKPT:-$OUT/best.pt}
 export PYTHONPATH=${PYTHONPATH:-.} OMP_WAIT_POLICY=PASSIVE
-# The training command (also what the model card records); export reuses it with --export-from.
-TRAIN="-m observer.transt.train --randomise --init-from observer/transt/weights/transt_small.pt \
- --yellow-fraction 0.5 --train-seed 11 --val-seed 12 --train-pairs 16000 --val-pairs 512 \
- --steps 2000 --lr 2e-4 --warmup 50 --threads 1 --render-workers 1 --out $OUT \
- --cache $(dirname "$OUT")/transt_cache"
+DATA="--randomise --yellow-fraction 0.5 --train-seed 11 --val-seed 12 --train-pairs 16000 \
+ --val-pairs 512 --threads 1 --render-workers 1 --cache runs/transt_cache"
+DR_WEIGHTS=runs/transt_train_dr/transt_small_dr.pt
+case "${2:-}" in
+dr)
+    OUT=runs/transt_train_dr
+    EXPORT=$DR_WEIGHTS
+    # the training commands (also what the model card records); export reuses them
+    TRAIN="-m observer.transt.train $DATA --init-from observer/transt/weights/transt_small.pt \
+ --steps 2000 --lr 2e-4 --warmup 50 --out $OUT" ;;
+absent)
+    OUT=runs/transt_train_absent
+    EXPORT=observer/transt/weights/transt_small.pt
+    TRAIN="-m observer.transt.train $DATA --init-from $DR_WEIGHTS --absent-prob 0.2 \
+ --steps 600 --lr 1e-4 --warmup 20 --out $OUT" ;;
+*)
+    OUT="" ;;
+esac
+CKPT=${CKPT:-$OUT/best.pt}
 
 case "${1:-}" in
 start)  # resumes from $OUT/last.pt if present
+    mkdir -p "$OUT"
     nohup "$PYTHON" $TRAIN > "$OUT.log" 2>&1 &
     echo $! > "$OUT.pid"
     echo "started pid $(cat "$OUT.pid"), log $OUT.log" ;;
@@ -30,11 +46,11 @@ progress)
     grep val_centre "$OUT/history.jsonl" | tail -n 1 || true
     ls -l "$OUT"/*.pt 2>/dev/null || echo "no checkpoint yet" ;;
 stop)
-    kill "$(cat "$OUT.pid")" && echo "stopped; resume with: sh $0 start" ;;
+    kill "$(cat "$OUT.pid")" && echo "stopped; resume with: sh $0 start $2" ;;
 export)
     # evaluates the checkpoint (validation pairs, sequences, held-out families), writes the
-    # weights, their .sha256 and MODEL_CARD.md; run it once (it continues the shipped weights)
-    "$PYTHON" $TRAIN --export-from "$CKPT" --export observer/transt/weights/transt_small.pt
+    # weights, their .sha256 and MODEL_CARD.md; run it once per stage
+    "$PYTHON" $TRAIN --export-from "$CKPT" --export "$EXPORT"
     # the ONNX Runtime backend is exported from the weights at load: check it builds and runs
     "$PYTHON" -c "from observer.transt.tracker import TransTTracker as T; t = T.small(); \
 print('backend', t.backend)" ;;
@@ -42,5 +58,5 @@ evaluate)
     "$PYTHON" -m pytest tests/test_transt.py tests/test_gk_trust.py tests/test_trackers.py -q
     "$PYTHON" benchmarks/bench_tracking.py --cases all ;;
 *)
-    sed -n 2,13p "$0"; exit 2 ;;
+    sed -n 2,14p "$0"; exit 2 ;;
 esac
