@@ -13,7 +13,13 @@ from controller.reference import pure_tilt
 from experiments.codesign.analysis import analyse
 from experiments.codesign.evaluate import mc_feasible, monte_carlo
 from experiments.codesign.report import designs_table, recommended, write_report
-from experiments.codesign.search import open_study, run_search, storage_url, trial_records
+from experiments.codesign.search import (
+    evaluate_designs,
+    open_study,
+    run_search,
+    storage_url,
+    trial_records,
+)
 from experiments.codesign.space import Design, seed_design
 from experiments.codesign.spec import CodesignSpec
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
@@ -150,24 +156,98 @@ def test_the_study_resumes_from_sqlite_and_reruns_an_interrupted_design(tmp_path
     assert done[-1].params == {"crossover_rad_s": orphan_x}  # the interrupted design, again
 
 
+def _linear_growth_rate_per_s(spec: CodesignSpec, design: Design) -> float:
+    """The growth rate of the design's linear sampled loop measured in the time domain: the
+    closed loop's state iterated from an arbitrary start, the slope of log |x| against time
+    over its last 400 updates (independent of the analysis' eigenvalues)."""
+    import control as ct
+
+    from controller.pid import PIDConfig, PIDController
+    from latency.margins import attitude_plant, sampled_loop
+
+    a = analyse(spec, design)  # its update period and loop delay only
+    pid = PIDController(PIDConfig(crossover_rad_s=design.crossover_rad_s,
+                                  zero_ratio=design.zero_ratio,
+                                  integral_ratio=design.integral_ratio), spec.plant)
+    C = pid.discrete_transfer_function(a.update_period_s, axis=1)
+    plant = attitude_plant(float(pid.J[1]), spec.plant.rotor.viscous_Nms_per_rad)
+    A = np.asarray(ct.feedback(sampled_loop(plant, C, delay_s=a.delay_s), 1).A)
+    x, log_norm = np.ones(A.shape[0]), np.zeros(800)
+    for k in range(800):
+        x = A @ x
+        log_norm[k] = np.log(np.linalg.norm(x))
+        x /= np.linalg.norm(x)
+    t = np.arange(800) * a.update_period_s
+    return float(np.polyfit(t[400:], np.cumsum(log_norm)[400:], 1)[0])
+
+
+@pytest.mark.parametrize("crossover", [8.0, 17.0, 24.0])
+def test_the_growth_rate_is_the_linear_loops_measured_growth(crossover):
+    spec = _tiny()
+    d = Design(frame_rate_hz=36.0, tracker="kcf_gk", observer="solver", crossover_rad_s=crossover)
+    a = analyse(spec, d)
+    assert a.growth_rate_per_s == pytest.approx(_linear_growth_rate_per_s(spec, d), rel=1e-2)
+    assert a.stable == (a.growth_rate_per_s < 0.0)
+
+
+def test_only_designs_growing_beyond_the_band_skip_the_monte_carlo(tmp_path):
+    """KCF on the whole sensor: at 12 rad/s stable with 14° of margin, at 17 rad/s unstable
+    but growing at 0.56/s, at 24 rad/s growing at 4.2/s. All three fail the 30° requirement
+    and are infeasible; only the last grows faster than the default band (2/s) and is pruned:
+    the other two get their Monte Carlo."""
+    spec = _tiny(constraints={})
+    designs = [Design(frame_rate_hz=36.0, tracker="kcf_gk", observer="solver",
+                      crossover_rad_s=x) for x in (12.0, 17.0, 24.0)]
+    growth = [_linear_growth_rate_per_s(spec, d) for d in designs]
+    limit = spec.search.prune_growth_rate_per_s
+    assert growth[0] < 0.0 < growth[1] < limit < growth[2]
+    records = evaluate_designs(spec, designs, tmp_path)
+    assert [r["pruned"] for r in records] == [False, False, True]
+    assert [r["mc"] is None for r in records] == [False, False, True]
+    assert not any(r["feasible"] for r in records)  # the analysis constraints still apply
+    never = _tiny(search={"prune_growth_rate_per_s": None})
+    assert not any(analyse(never, d).prunable(never) for d in designs)
+
+
+def _crossover_where(spec: CodesignSpec, tracker: str, growth_per_s: float) -> float:
+    """The PID crossover (rad/s, 4 to 40) at which the design's analysed growth rate reaches
+    ``growth_per_s`` (bisection to 1e-3 rad/s; the growth rises with the crossover past the
+    stability boundary)."""
+    def g(x: float) -> float:
+        d = Design(frame_rate_hz=36.0, tracker=tracker, observer="solver", crossover_rad_s=x)
+        return analyse(spec, d).growth_rate_per_s
+
+    lo, hi = 4.0, 40.0
+    assert g(lo) < growth_per_s < g(hi)
+    while hi - lo > 1e-3:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(mid) < growth_per_s else (lo, mid)
+    return hi
+
+
 @pytest.mark.slow
 def test_pruning_by_analysis_never_removes_a_design_monte_carlo_accepts(tmp_path):
-    """On a grid of crossovers and tracker latencies, every design the analysis prunes (at the
-    stability limit: phase margin and headroom >= 0) fails the Monte-Carlo constraints.
-
-    The plant has no Coulomb friction, as the analysis' plant ``1/(J s² + b s)``: with the
-    default 3 mN·m the friction damps small oscillations, and designs just past the linear
-    boundary stay in control in the simulation (docs/codesign.md, "Pruning"). The grid's
-    crossovers skip the boundary itself (KCF at 16 rad/s holds a 2° limit cycle that neither
-    loses control nor loses frames; docs/codesign.md)."""
-    spec = _tiny(duration_s=3.0, trackers=["kcf_gk", "gk_transt", "csrt_gk"],
-                 plant={"rotor": {"coulomb_Nm": 0.0}},
+    """On the default plant (3 mN·m Coulomb friction), a grid of PID crossovers every 1 rad/s
+    from 4 to 24 rad/s for KCF, GK-TransT and CSRT latencies (whole sensor, least squares),
+    with each tracker's stability boundary and pruning boundary added just beyond them: every
+    design the analysis prunes fails the Monte-Carlo constraints (3 s runs of a 5° step and a
+    random reference, two seeds)."""
+    trackers = ("kcf_gk", "gk_transt", "csrt_gk")
+    spec = _tiny(duration_s=3.0, seeds=[0, 1], trackers=list(trackers), constraints={},
                  references=[{"kind": "tilt_step", "tilt_deg": 5.0},
                              {"kind": "random", "args": {"max_rate_rad_s": 1.0}}])
-    grid = [Design(frame_rate_hz=36.0, tracker=tr, observer="solver", crossover_rad_s=x)
-            for tr in ("kcf_gk", "gk_transt", "csrt_gk") for x in (4.0, 8.0, 12.0, 24.0)]
-    pruned = [d for d in grid if not analyse(spec, d).meets(spec)]
-    assert 0 < len(pruned) < len(grid)  # the grid straddles the boundary
+    limit = spec.search.prune_growth_rate_per_s
+    grid = []
+    for tr in trackers:
+        edges = [_crossover_where(spec, tr, g) for g in (0.0, limit)]
+        grid += [Design(frame_rate_hz=36.0, tracker=tr, observer="solver", crossover_rad_s=x)
+                 for x in sorted({*np.arange(4.0, 24.5, 1.0), *edges})]
+    analyses = [analyse(spec, d) for d in grid]
+    pruned = [d for d, a in zip(grid, analyses, strict=True) if a.prunable(spec)]
+    unstable_kept = [d for d, a in zip(grid, analyses, strict=True)
+                     if not a.stable and not a.prunable(spec)]
+    assert pruned and unstable_kept  # the grid straddles both boundaries
+    assert all(not a.meets(spec) for a in analyses if not a.stable)
     for d, mc in zip(pruned, monte_carlo(spec, pruned, tmp_path), strict=True):
         assert not mc_feasible(spec, mc), (d.label(), mc)
 

@@ -44,6 +44,7 @@ def designs_table(records: list[dict]) -> pd.DataFrame:
         row = {"trial": r.get("trial", -1), "design": d.label(), "pruned": r["pruned"],
                "feasible": bool(r["feasible"]), "stable": a["stable"],
                "phase_margin_deg": a["phase_margin_deg"], "headroom_ms": 1e3 * a["headroom_s"],
+               "growth_rate_per_s": a.get("growth_rate_per_s", np.nan),
                "loop_delay_ms": 1e3 * a["delay_s"],
                "update_period_ms": 1e3 * a["update_period_s"]}
         mc = r["mc"] or {}

@@ -7,9 +7,12 @@ control effort (mean RMS torque, N·m) and the compute per processed frame (s). 
 Monte Carlo (``experiments.codesign.evaluate``).
 
 The study runs by ask-and-tell in batches of ``search.batch_size`` designs: each design is
-analysed first, and one failing the analysis constraints is *pruned* (told as pruned, with its
-analysis kept; no Monte Carlo); the others' runs go to the batched engine together. NSGA-II or
-TPE read the constraints each trial sets (``Trial.set_constraint``; <= 0 is feasible).
+analysed first, and one whose linear loop is unstable beyond ``search.prune_growth_rate_per_s``
+(``Analysis.prunable``) is *pruned* (told as pruned, with its analysis kept; no Monte Carlo);
+the others' runs go to the batched engine together, those failing the analysis constraints
+included (they are infeasible whatever their Monte Carlo, but pruning them could remove a
+design the Monte Carlo accepts). NSGA-II or TPE read the constraints each trial sets
+(``Trial.set_constraint``; <= 0 is feasible).
 
 The study is stored in SQLite in the output folder by default, so that a rerun resumes it: it
 stops once ``search.n_trials`` trials are finished (complete or pruned). A rerun treats trials
@@ -95,12 +98,12 @@ def constraint_values(spec: CodesignSpec, a: Analysis, mc: dict | None) -> list[
 def evaluate_designs(
     spec: CodesignSpec, designs: list[Design], out_dir: Path, prune: bool = True
 ) -> list[dict]:
-    """Analysis, then Monte Carlo for the designs that pass it (all of them when not
-    ``prune``). Returns per design a record: ``design`` (dict), ``analysis`` (dict),
-    ``pruned``, ``mc`` (dict or None), ``objectives`` (list or None), ``constraints`` and
-    ``feasible``."""
+    """Analysis, then Monte Carlo for the designs it does not prune (``Analysis.prunable``;
+    all of them when not ``prune``). Returns per design a record: ``design`` (dict),
+    ``analysis`` (dict), ``pruned``, ``mc`` (dict or None), ``objectives`` (list or None),
+    ``constraints`` and ``feasible``."""
     analyses = [analyse(spec, d) for d in designs]
-    keep = [i for i, a in enumerate(analyses) if a.meets(spec) or not prune]
+    keep = [i for i, a in enumerate(analyses) if not (prune and a.prunable(spec))]
     mcs = monte_carlo(spec, [designs[i] for i in keep], out_dir)
     mc_of = dict(zip(keep, mcs, strict=True))
     out = []
