@@ -118,6 +118,129 @@ def test_a_following_region_keeps_steady_motion_and_loses_a_jump_that_outruns_it
 
 
 # --------------------------------------------------------------------------------------------
+# The region of interest on rendered frames (image mode)
+# --------------------------------------------------------------------------------------------
+
+
+class _Recorded:
+    """A stand-in that passes calls through and keeps what went through: the renderer's
+    frames, or the images the pair tracker was given."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.seen = inner, []
+
+    def render(self, *args, **kwargs):
+        frame = self.inner.render(*args, **kwargs)
+        self.seen.append(frame)
+        return frame
+
+    def start(self, image, *args):
+        self.seen.append(image)
+        return self.inner.start(image, *args)
+
+    def step(self, image):
+        self.seen.append(image)
+        return self.inner.step(image)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+def _image_front(roi: RegionOfInterest):
+    from latency.frontends import ImageFrontEnd
+    from observer.trackers import make_pair_tracker
+    from plant.render_analytic import AnalyticRenderer
+
+    renderer = _Recorded(AnalyticRenderer(P, seed=0))
+    tracker = _Recorded(make_pair_tracker("kcf_gk", P))
+    return ImageFrontEnd(P, renderer, tracker, roi=roi), renderer, tracker
+
+
+def _lost_in_loop(cap) -> bool:
+    """The loop's verdict on a frame: the front end's, or a centre more than the loop's
+    loss threshold (20 px, seed 000 §4.2) from the truth."""
+    from latency.loop import LoopConfig
+
+    err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
+    threshold = LoopConfig.model_fields["loss_threshold_px"].default
+    return bool(cap.lost or not np.all(err <= threshold))
+
+
+def _boxes_inside(boxes: np.ndarray, centre: np.ndarray, roi: RegionOfInterest) -> np.ndarray:
+    """Per marker: its projected disc (box x, y, w, h, sensor px) lies wholly in the region
+    centred on ``centre``."""
+    half = 0.5 * np.array([roi.cols, roi.rows])
+    return np.all((boxes[:, :2] >= centre - half) & (boxes[:, :2] + boxes[:, 2:] <= centre + half),
+                  axis=1)
+
+
+def _boxes_outside(boxes: np.ndarray, centre: np.ndarray, roi: RegionOfInterest) -> np.ndarray:
+    """Per marker: its projected disc lies wholly outside the region centred on ``centre``."""
+    half = 0.5 * np.array([roi.cols, roi.rows])
+    return np.any((boxes[:, :2] > centre + half) | (boxes[:, :2] + boxes[:, 2:] < centre - half),
+                  axis=1)
+
+
+def test_a_fixed_region_on_rendered_frames_is_all_the_tracker_sees_and_loses_markers_left_out():
+    """A 320-row region at the sensor centre, markers moved along v by about 27 px per frame
+    to 13° of tilt and back: the tracker's image is the rendered frame inside the region and
+    blank outside it; a frame whose projected discs lie wholly inside the region is measured,
+    one with a disc wholly outside it is lost."""
+    from plant.camera import image_to_sensor
+
+    roi = RegionOfInterest(rows=320, cols=1024)
+    front, renderer, tracker = _image_front(roi)
+    tilts = [*np.arange(0.0, 13.5, 1.0), 0.0]
+    caps = [front.capture(pure_tilt(np.radians(t), np.pi / 2), np.zeros(3), 0.0) for t in tilts]
+    inside = [_boxes_inside(f.boxes_px, CENTRE, roi).all() for f in renderer.seen]
+    outside = [_boxes_outside(f.boxes_px, CENTRE, roi).any() for f in renderer.seen]
+    assert sum(inside) >= 4 and sum(outside) >= 3  # both cases occur
+    for cap, i, o in zip(caps, inside, outside, strict=True):
+        if i:
+            assert not _lost_in_loop(cap)
+        if o:
+            assert _lost_in_loop(cap)
+    # The pixels the tracker saw: binned pixels whose centre is in the region, nothing else.
+    frame, image = renderer.seen[5], tracker.seen[5]
+    h, w = frame.image.shape[:2]
+    u = image_to_sensor(np.arange(w), frame.binning)
+    v = image_to_sensor(np.arange(h), frame.binning)
+    read = ((np.abs(v - CENTRE[1]) <= roi.rows / 2)[:, None]
+            & (np.abs(u - CENTRE[0]) <= roi.cols / 2)[None, :])
+    assert 0 < read.sum() < read.size
+    np.testing.assert_array_equal(image[read], frame.image[read])
+    assert not image[~read].any()
+
+
+def test_a_following_region_on_rendered_frames_keeps_a_steady_ramp_and_loses_a_jump():
+    """The same ramp with the region following the prediction: every frame measured, though
+    a region fixed at the centre would lose the markers; then a jump back to rest of more
+    than half the region in one frame: the region, placed on the constant-velocity
+    prediction of the true centres, holds neither disc, so the markers are lost, and the
+    region stays put until the markers come back into it."""
+    roi = RegionOfInterest(rows=320, cols=1024, follow=True)
+    front, renderer, _ = _image_front(roi)
+    ramp = np.arange(0.0, 10.5, 1.0)
+
+    def capture(tilt: float):
+        return front.capture(pure_tilt(np.radians(tilt), np.pi / 2), np.zeros(3), 0.0)
+
+    assert not any(_lost_in_loop(capture(t)) for t in ramp)
+    truth = np.array([f.marker_px for f in renderer.seen])
+    assert any(_boxes_outside(f.boxes_px, CENTRE, roi).any() for f in renderer.seen)
+    predicted = (2 * truth[-1] - truth[-2]).mean(axis=0)  # where the region goes next
+    jump = capture(0.0)
+    assert _boxes_outside(renderer.seen[-1].boxes_px, predicted, roi).all()
+    assert _lost_in_loop(jump)
+    np.testing.assert_allclose(front.last_roi_centre_px, predicted, atol=2.0)
+    assert _lost_in_loop(capture(0.0))  # still away from the region, which stays put
+    np.testing.assert_allclose(front.last_roi_centre_px, predicted, atol=2.0)
+    back = capture(ramp[-1] + 1.0)  # into the region again
+    assert _boxes_inside(renderer.seen[-1].boxes_px, front.last_roi_centre_px, roi).all()
+    assert not _lost_in_loop(back)
+
+
+# --------------------------------------------------------------------------------------------
 # Search, pruning and resume on small specs
 # --------------------------------------------------------------------------------------------
 
@@ -453,6 +576,25 @@ def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
         for s in runs:
             assert (s.mode, s.tracker, s.measurement.roi) == ("image", scenario_tracker, None)
             assert PAIR_TRACKER_OF[s.tracker] == name  # the loop builds this pair tracker
+
+
+def test_the_image_check_runs_the_designs_camera_mode_region_and_timing():
+    """A 512 × 1024 region following the markers: the image runs read it (the loop's image
+    front end gets it) at the mode's rate, (512 + 16 blank rows) line times per frame."""
+    from experiments.codesign.report import image_scenarios
+    from experiments.scenario import Scenario, build_loop
+
+    spec = _tiny(image_check={"seeds": [0]})
+    design = Design(rows=512, cols=1024, follow=True, tracker="kcf_gk", observer="solver")
+    (s,) = image_scenarios(spec, design)
+    readout = (512 + 16) * 13.45e-6
+    assert s.measurement.roi == RegionOfInterest(rows=512, cols=1024, follow=True)
+    assert s.pipeline.readout_s == pytest.approx(readout)
+    assert s.plant.camera.frame_rate_hz == pytest.approx(1.0 / readout)
+    assert build_loop(s).front_end.roi == s.measurement.roi
+    with pytest.raises(ValueError, match="ORB front end reads the whole sensor"):
+        Scenario.model_validate({"mode": "image", "observer": {"kind": "orb_aekf"},
+                                 "measurement": {"roi": {"rows": 512, "cols": 1024}}})
 
 
 @pytest.mark.slow
