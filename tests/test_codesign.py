@@ -332,6 +332,25 @@ def test_only_designs_growing_beyond_the_band_skip_the_monte_carlo(tmp_path):
     assert not any(analyse(never, d).prunable(never) for d in designs)
 
 
+def test_the_sampler_sees_only_designs_meeting_the_analysis_but_all_unpruned_run(tmp_path):
+    """KCF at 4 rad/s (48° of margin) and at 12 rad/s (14°, under the 30° requirement, stable):
+    both run their Monte Carlo; optuna holds the first as complete and the second as pruned,
+    so that the sampler's populations meet the requirements; the records keep both results."""
+    spec = _tiny(constraints={})
+    study = open_study(spec, storage_url(spec, tmp_path))
+    for x in (4.0, 12.0):
+        study.enqueue_trial({"crossover_rad_s": x})
+    run_search(spec, tmp_path, progress=False)
+    states = {t.params["crossover_rad_s"]: t.state.name
+              for t in open_study(spec, storage_url(spec, tmp_path)).trials}
+    assert states == {4.0: "COMPLETE", 12.0: "PRUNED"}
+    records = {r["design"]["crossover_rad_s"]: r for r in trial_records(study)}
+    for x in (4.0, 12.0):
+        assert not records[x]["pruned"] and records[x]["mc"] is not None
+        assert len(records[x]["objectives"]) == 3
+    assert records[4.0]["feasible"] and not records[12.0]["feasible"]
+
+
 def _crossover_where(spec: CodesignSpec, tracker: str, growth_per_s: float) -> float:
     """The PID crossover (rad/s, 4 to 40) at which the design's analysed growth rate reaches
     ``growth_per_s`` (bisection to 1e-3 rad/s; the growth rises with the crossover past the
