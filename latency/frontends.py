@@ -5,6 +5,8 @@
 * ``ImageFrontEnd`` (image-in-the-loop mode): a rendered frame (with motion blur over the
   exposure) and a pair tracker (``observer.tracking.PairTracker``: e.g. GK-TransT, or OpenCV's
   KCF inside the GK assistance of seed 000 §3.2) for both centres. Its compute time is measured.
+  With a region of interest the tracker sees only the region's pixels, placed as the
+  measurement model places it.
 * ``OrbFrontEnd`` (image-in-the-loop, rotor without markers): a rendered frame of the textured
   rotor and the ORB matches of ``observer.orb``; its ``Capture.orb`` carries the
   ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
