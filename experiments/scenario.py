@@ -275,7 +275,11 @@ class Scenario(_Model):
     )
     plant: PlantParams = PlantParams()
     pipeline: PipelineConfig = PipelineConfig()
-    measurement: MeasurementConfig = MeasurementConfig()
+    measurement: MeasurementConfig = Field(
+        MeasurementConfig(),
+        description="The measurement model's noise and loss (mode: measurement); its region "
+        "of interest ``roi`` is also read in image mode (latency.frontends.ImageFrontEnd).",
+    )
     observer: ObserverSpec = ObserverSpec()
     texture: TextureParams | None = Field(
         None,
@@ -382,6 +386,15 @@ class Scenario(_Model):
             raise ValueError(
                 f"tracker {self.tracker!r} needs mode: image with a marker observer (aekf, ekf, "
                 f"solver, pixel_kalman); got mode {self.mode!r}, observer {self.observer.kind!r}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _roi_fits(self) -> Scenario:
+        if self.measurement.roi is not None and self.observer.is_orb:
+            raise ValueError(
+                f"measurement.roi: the ORB front end reads the whole sensor; remove roi for "
+                f"observer.kind {self.observer.kind!r}"
             )
         return self
 
@@ -548,7 +561,8 @@ def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> C
             front = MeasurementFrontEnd(p, s.measurement, rng)
         else:
             front = ImageFrontEnd(
-                p, _renderer(s), make_pair_tracker(PAIR_TRACKER_OF[s.tracker], p, clock=clock)
+                p, _renderer(s), make_pair_tracker(PAIR_TRACKER_OF[s.tracker], p, clock=clock),
+                roi=s.measurement.roi,
             )
         if o.kind in ("aekf", "ekf"):
             cfg = o.aekf.model_copy(update={"adaptive": o.kind == "aekf"})

@@ -5,6 +5,8 @@
 * ``ImageFrontEnd`` (image-in-the-loop mode): a rendered frame (with motion blur over the
   exposure) and a pair tracker (``observer.tracking.PairTracker``: e.g. GK-TransT, or OpenCV's
   KCF inside the GK assistance of seed 000 §3.2) for both centres. Its compute time is measured.
+  With a region of interest the tracker sees only the region's pixels, placed as the
+  measurement model places it.
 * ``OrbFrontEnd`` (image-in-the-loop, rotor without markers): a rendered frame of the textured
   rotor and the ORB matches of ``observer.orb``; its ``Capture.orb`` carries the
   ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
@@ -28,7 +30,7 @@ from observer.orb import OrbConfig, OrbMeasurement, OrbReference
 from observer.trackers import make_pair_tracker
 from observer.tracking import PairTracker
 from plant import attitude
-from plant.camera import marker_pixels
+from plant.camera import marker_pixels, sensor_to_image
 from plant.camera_mode import RegionOfInterest
 from plant.params import PlantParams
 from plant.texture import TextureParams
@@ -132,6 +134,49 @@ class MeasurementConfig(BaseModel):
     )
 
 
+#: ``Capture.reason`` of a frame whose markers were not in the region of interest read out.
+ROI_LOSS = "marker outside the region of interest"
+
+
+class MarkerPrediction:
+    """The trackers' constant-velocity prediction of the two marker centres, sensor px: the
+    last measurement advanced by the last inter-frame motion per processed frame (the GK
+    Kalman prediction's role, seed 000 §3.2.1), or the last measurement alone without
+    ``use_motion``. It places the search window and a following region of interest."""
+
+    def __init__(self, use_motion: bool = True) -> None:
+        self.use_motion = use_motion
+        self.reset()
+
+    def reset(self) -> None:
+        """No measurement yet."""
+        self._last: NDArray[np.float64] | None = None
+        self._motion = np.zeros((2, 2))
+        self._frames_since = 0  # processed frames since the last measurement
+
+    def frame(self) -> None:
+        """A frame is processed (measured or not)."""
+        self._frames_since += 1
+
+    def measured(self, z: NDArray[np.float64]) -> None:
+        """The frame just counted measured the centres ``z`` (2, 2)."""
+        if self._last is not None:
+            self._motion = (z - self._last) / self._frames_since
+        self._last, self._frames_since = np.array(z, dtype=float), 0
+
+    @property
+    def predicted_px(self) -> NDArray[np.float64] | None:
+        """(2, 2) predicted centres for the next frame, sensor px; None before the first
+        measurement."""
+        if self._last is None:
+            return None
+        return self._last + (self._motion if self.use_motion else 0.0)
+
+
+def _sensor_px(params: PlantParams) -> tuple[int, int]:
+    return params.camera.sensor_width_px, params.camera.sensor_height_px
+
+
 class MeasurementFrontEnd:
     """True marker pixels plus noise, dropout, outliers and motion-induced tracking loss
     (measurement-model mode; see ``MeasurementConfig``)."""
@@ -140,35 +185,21 @@ class MeasurementFrontEnd:
         self, params: PlantParams, config: MeasurementConfig, rng: np.random.Generator
     ) -> None:
         self.params, self.config, self.rng = params, config, rng
+        self._prediction = MarkerPrediction(config.predictive_search)
         self.reset()
 
     def reset(self) -> None:
         """Forget the tracker's state (last position, motion, loss count)."""
-        self._last: NDArray[np.float64] | None = None
-        self._motion = np.zeros((2, 2))
+        self._prediction.reset()
         self._lost_frames = 0
-        self._frames_since = 0  # processed frames since the last measurement
 
     def tilt_hint(self, tilt_rad: float) -> None:
         """No geometric check: ignored."""
 
     def roi_centre_px(self, roi: RegionOfInterest) -> NDArray[np.float64]:
-        """Centre (u, v) of the region of interest for the next frame, sensor px: the sensor
-        centre, or the mean predicted marker position (``roi.follow``, once there is a
-        measurement); shifted so that the region lies on the sensor."""
-        cam = self.params.camera
-        size = np.array([cam.sensor_width_px, cam.sensor_height_px], dtype=float)
-        centre = (size - 1.0) / 2.0
-        if roi.follow and self._last is not None:
-            predicted = self._last + (self._motion if self.config.predictive_search else 0.0)
-            centre = predicted.mean(axis=0)
-        half = 0.5 * np.minimum([roi.cols, roi.rows], size)
-        return np.clip(centre, half - 0.5, size - 0.5 - half)
-
-    def _inside_roi(self, truth: NDArray[np.float64], roi: RegionOfInterest) -> bool:
-        """Both markers' centres inside the region of interest."""
-        offset = np.abs(truth - self.roi_centre_px(roi))
-        return bool(np.all(offset <= 0.5 * np.array([roi.cols, roi.rows])))
+        """Centre (u, v) of the region of interest for the next frame, sensor px
+        (``RegionOfInterest.centre_px`` on the predicted markers)."""
+        return roi.centre_px(_sensor_px(self.params), self._prediction.predicted_px)
 
     def _blur_travel_px(self, q: NDArray[np.float64], omega: NDArray[np.float64]) -> float:
         half = 0.5 * self.params.camera.exposure_s
@@ -186,17 +217,17 @@ class MeasurementFrontEnd:
         nothing = np.full((2, 2), np.nan)
         if self.rng.random() < c.dropout_prob:
             return Capture(nothing, truth, True, "dropout (measurement model)")
-        self._frames_since += 1
-        if c.roi is not None and not self._inside_roi(truth, c.roi):
+        predicted = self._prediction.predicted_px
+        self._prediction.frame()
+        if c.roi is not None and not c.roi.contains(truth, self.roi_centre_px(c.roi)):
             self._lost_frames += 1
-            return Capture(nothing, truth, True, "marker outside the region of interest")
+            return Capture(nothing, truth, True, ROI_LOSS)
         if (
             c.search_radius_px is not None
-            and self._last is not None
+            and predicted is not None
             and self._lost_frames < c.reacquire_after_frames  # else: re-detected this frame
         ):
-            centre = self._last + (self._motion if c.predictive_search else 0.0)
-            if np.max(np.linalg.norm(truth - centre, axis=1)) > c.search_radius_px:
+            if np.max(np.linalg.norm(truth - predicted, axis=1)) > c.search_radius_px:
                 self._lost_frames += 1
                 return Capture(nothing, truth, True, "marker left the search window")
         if c.blur_limit_px is not None and self._blur_travel_px(q, omega) > c.blur_limit_px:
@@ -205,9 +236,8 @@ class MeasurementFrontEnd:
         if self.rng.random() < c.outlier_prob:
             angle = self.rng.uniform(0, 2 * np.pi)
             z[self.rng.integers(2)] += c.outlier_px * np.array([np.cos(angle), np.sin(angle)])
-        if self._last is not None:
-            self._motion = (z - self._last) / self._frames_since  # per processed frame
-        self._last, self._lost_frames, self._frames_since = z, 0, 0
+        self._prediction.measured(z)
+        self._lost_frames = 0
         return Capture(z, truth)
 
 
@@ -221,6 +251,16 @@ class ImageFrontEnd:
         (``AnalyticRenderer`` or ``MujocoRenderer``).
     locator : PairTracker, optional
         Default: OpenCV KCF inside the GK assistance (``make_pair_tracker("kcf_gk")``).
+    roi : RegionOfInterest, optional
+        The region read out (None: the whole sensor). The camera delivers only those rows and
+        columns: the frame is blanked (zero) outside the region, placed as the measurement
+        model places it (``RegionOfInterest.centre_px``: the sensor centre, or with ``follow``
+        the constant-velocity prediction of this front end's own measurements,
+        ``MarkerPrediction``), so the tracker sees only the region, in the sensor's
+        coordinates. A marker the tracker loses there, or reports outside the region (a
+        centre no pixel of this frame can have measured), is lost for the frame
+        (``ROI_LOSS``). The prediction takes only centres the tracker measured in the image,
+        so a following region stays put while the tracker coasts or has lost the markers.
 
     The tracker starts on the true boxes of the first frame, as a user's first-frame annotation
     would, and that frame's measurement is the annotation (the boxes' centres), as in the
@@ -229,28 +269,66 @@ class ImageFrontEnd:
     estimate) feeds the GK geometry.
     """
 
-    def __init__(self, params: PlantParams, renderer, locator: PairTracker | None = None):
+    def __init__(self, params: PlantParams, renderer, locator: PairTracker | None = None,
+                 roi: RegionOfInterest | None = None) -> None:
         self.params = params
         self.renderer = renderer
         self.locator = locator or make_pair_tracker("kcf_gk", params)
+        self.roi = roi
+        self._prediction = MarkerPrediction()
+        #: Centre (u, v) of the region of the last frame captured, sensor px (None: whole sensor).
+        self.last_roi_centre_px: NDArray[np.float64] | None = None
 
     def reset(self) -> None:
         self.locator.reset()
+        self._prediction.reset()
+        self.last_roi_centre_px = None
 
     def tilt_hint(self, tilt_rad: float) -> None:
         """The latest estimated tilt β, rad, for the GK geometric check."""
         self.locator.tilt_hint_rad = tilt_rad
 
+    def _read_out(self, frame) -> NDArray[np.uint8]:
+        """The frame's image as the camera delivers it: blanked outside the region of
+        interest (binned pixels whose centre lies outside it), placed for this frame."""
+        if self.roi is None:
+            return frame.image
+        centre = self.roi.centre_px(_sensor_px(self.params), self._prediction.predicted_px)
+        self.last_roi_centre_px = centre
+        half = 0.5 * np.array([self.roi.cols, self.roi.rows])
+        lo = np.ceil(sensor_to_image(centre - half, frame.binning)).astype(int)
+        hi = np.floor(sensor_to_image(centre + half, frame.binning)).astype(int)
+        image = np.zeros_like(frame.image)
+        window = (slice(max(lo[1], 0), hi[1] + 1), slice(max(lo[0], 0), hi[0] + 1))
+        image[window] = frame.image[window]
+        return image
+
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
+        image = self._read_out(frame)
+        self._prediction.frame()
         if not self.locator.started:
-            self.locator.start(frame.image, frame.boxes_px, frame.binning)
             boxes = np.asarray(frame.boxes_px, dtype=float)
-            return Capture(boxes[:, :2] + 0.5 * boxes[:, 2:], frame.marker_px)
-        loc = self.locator.step(frame.image)
+            centres = boxes[:, :2] + 0.5 * boxes[:, 2:]
+            if self._outside_roi(centres):  # nothing to annotate yet
+                return Capture(np.full((2, 2), np.nan), frame.marker_px, True, ROI_LOSS)
+            self.locator.start(image, frame.boxes_px, frame.binning)
+            self._prediction.measured(centres)
+            return Capture(centres, frame.marker_px)
+        loc = self.locator.step(image)
+        if self._outside_roi(loc.marker_px):
+            return Capture(np.full((2, 2), np.nan), frame.marker_px, True, ROI_LOSS,
+                           loc.compute_time_s)
+        if not loc.lost and loc.red_measured and loc.yellow_measured:
+            self._prediction.measured(loc.marker_px)  # not a coasting tracker's prediction
         return Capture(loc.marker_px, frame.marker_px, loc.lost, loc.reason, loc.compute_time_s)
+
+    def _outside_roi(self, centres_px: NDArray[np.float64]) -> bool:
+        """Finite centres (2, 2), sensor px, not all inside this frame's region of interest."""
+        return (self.roi is not None and bool(np.all(np.isfinite(centres_px)))
+                and not self.roi.contains(centres_px, self.last_roi_centre_px))
 
 
 class OrbFrontEnd:

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from plant.params import CameraParams
@@ -90,6 +92,26 @@ class RegionOfInterest(_Strict):
     rows: int = Field(ge=16, description="Rows read out, sensor px.")
     cols: int = Field(ge=16, description="Columns read out, sensor px.")
     follow: bool = Field(False, description="Re-centre on the predicted markers each frame.")
+
+    def centre_px(
+        self, sensor_px: tuple[int, int], predicted_px: ArrayLike | None = None
+    ) -> NDArray[np.float64]:
+        """Centre (u, v) of the region for the next frame, sensor px: the sensor's centre, or
+        with ``follow`` the mean of the predicted marker centres ``predicted_px`` (2, 2) when
+        there is a prediction; shifted so that the region lies on the ``sensor_px``
+        (width, height) sensor."""
+        size = np.asarray(sensor_px, dtype=float)
+        centre = (size - 1.0) / 2.0
+        if self.follow and predicted_px is not None:
+            centre = np.asarray(predicted_px, dtype=float).mean(axis=0)
+        half = 0.5 * np.minimum([self.cols, self.rows], size)
+        return np.clip(centre, half - 0.5, size - 0.5 - half)
+
+    def contains(self, points_px: ArrayLike, centre_px: ArrayLike) -> bool:
+        """All ``points_px`` (n, 2; u, v sensor px) lie in the region centred on
+        ``centre_px`` (a NaN point does not)."""
+        offset = np.abs(np.asarray(points_px, dtype=float) - np.asarray(centre_px, dtype=float))
+        return bool(np.all(offset <= 0.5 * np.array([self.cols, self.rows])))
 
 
 class CameraMode(_Strict):

@@ -13,7 +13,13 @@ from controller.reference import pure_tilt
 from experiments.codesign.analysis import analyse
 from experiments.codesign.evaluate import mc_feasible, monte_carlo
 from experiments.codesign.report import designs_table, recommended, write_report
-from experiments.codesign.search import open_study, run_search, storage_url, trial_records
+from experiments.codesign.search import (
+    evaluate_designs,
+    open_study,
+    run_search,
+    storage_url,
+    trial_records,
+)
 from experiments.codesign.space import Design, seed_design
 from experiments.codesign.spec import CodesignSpec
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
@@ -112,6 +118,129 @@ def test_a_following_region_keeps_steady_motion_and_loses_a_jump_that_outruns_it
 
 
 # --------------------------------------------------------------------------------------------
+# The region of interest on rendered frames (image mode)
+# --------------------------------------------------------------------------------------------
+
+
+class _Recorded:
+    """A stand-in that passes calls through and keeps what went through: the renderer's
+    frames, or the images the pair tracker was given."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.seen = inner, []
+
+    def render(self, *args, **kwargs):
+        frame = self.inner.render(*args, **kwargs)
+        self.seen.append(frame)
+        return frame
+
+    def start(self, image, *args):
+        self.seen.append(image)
+        return self.inner.start(image, *args)
+
+    def step(self, image):
+        self.seen.append(image)
+        return self.inner.step(image)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+def _image_front(roi: RegionOfInterest):
+    from latency.frontends import ImageFrontEnd
+    from observer.trackers import make_pair_tracker
+    from plant.render_analytic import AnalyticRenderer
+
+    renderer = _Recorded(AnalyticRenderer(P, seed=0))
+    tracker = _Recorded(make_pair_tracker("kcf_gk", P))
+    return ImageFrontEnd(P, renderer, tracker, roi=roi), renderer, tracker
+
+
+def _lost_in_loop(cap) -> bool:
+    """The loop's verdict on a frame: the front end's, or a centre more than the loop's
+    loss threshold (20 px, seed 000 §4.2) from the truth."""
+    from latency.loop import LoopConfig
+
+    err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
+    threshold = LoopConfig.model_fields["loss_threshold_px"].default
+    return bool(cap.lost or not np.all(err <= threshold))
+
+
+def _boxes_inside(boxes: np.ndarray, centre: np.ndarray, roi: RegionOfInterest) -> np.ndarray:
+    """Per marker: its projected disc (box x, y, w, h, sensor px) lies wholly in the region
+    centred on ``centre``."""
+    half = 0.5 * np.array([roi.cols, roi.rows])
+    return np.all((boxes[:, :2] >= centre - half) & (boxes[:, :2] + boxes[:, 2:] <= centre + half),
+                  axis=1)
+
+
+def _boxes_outside(boxes: np.ndarray, centre: np.ndarray, roi: RegionOfInterest) -> np.ndarray:
+    """Per marker: its projected disc lies wholly outside the region centred on ``centre``."""
+    half = 0.5 * np.array([roi.cols, roi.rows])
+    return np.any((boxes[:, :2] > centre + half) | (boxes[:, :2] + boxes[:, 2:] < centre - half),
+                  axis=1)
+
+
+def test_a_fixed_region_on_rendered_frames_is_all_the_tracker_sees_and_loses_markers_left_out():
+    """A 320-row region at the sensor centre, markers moved along v by about 27 px per frame
+    to 13° of tilt and back: the tracker's image is the rendered frame inside the region and
+    blank outside it; a frame whose projected discs lie wholly inside the region is measured,
+    one with a disc wholly outside it is lost."""
+    from plant.camera import image_to_sensor
+
+    roi = RegionOfInterest(rows=320, cols=1024)
+    front, renderer, tracker = _image_front(roi)
+    tilts = [*np.arange(0.0, 13.5, 1.0), 0.0]
+    caps = [front.capture(pure_tilt(np.radians(t), np.pi / 2), np.zeros(3), 0.0) for t in tilts]
+    inside = [_boxes_inside(f.boxes_px, CENTRE, roi).all() for f in renderer.seen]
+    outside = [_boxes_outside(f.boxes_px, CENTRE, roi).any() for f in renderer.seen]
+    assert sum(inside) >= 4 and sum(outside) >= 3  # both cases occur
+    for cap, i, o in zip(caps, inside, outside, strict=True):
+        if i:
+            assert not _lost_in_loop(cap)
+        if o:
+            assert _lost_in_loop(cap)
+    # The pixels the tracker saw: binned pixels whose centre is in the region, nothing else.
+    frame, image = renderer.seen[5], tracker.seen[5]
+    h, w = frame.image.shape[:2]
+    u = image_to_sensor(np.arange(w), frame.binning)
+    v = image_to_sensor(np.arange(h), frame.binning)
+    read = ((np.abs(v - CENTRE[1]) <= roi.rows / 2)[:, None]
+            & (np.abs(u - CENTRE[0]) <= roi.cols / 2)[None, :])
+    assert 0 < read.sum() < read.size
+    np.testing.assert_array_equal(image[read], frame.image[read])
+    assert not image[~read].any()
+
+
+def test_a_following_region_on_rendered_frames_keeps_a_steady_ramp_and_loses_a_jump():
+    """The same ramp with the region following the prediction: every frame measured, though
+    a region fixed at the centre would lose the markers; then a jump back to rest of more
+    than half the region in one frame: the region, placed on the constant-velocity
+    prediction of the true centres, holds neither disc, so the markers are lost, and the
+    region stays put until the markers come back into it."""
+    roi = RegionOfInterest(rows=320, cols=1024, follow=True)
+    front, renderer, _ = _image_front(roi)
+    ramp = np.arange(0.0, 10.5, 1.0)
+
+    def capture(tilt: float):
+        return front.capture(pure_tilt(np.radians(tilt), np.pi / 2), np.zeros(3), 0.0)
+
+    assert not any(_lost_in_loop(capture(t)) for t in ramp)
+    truth = np.array([f.marker_px for f in renderer.seen])
+    assert any(_boxes_outside(f.boxes_px, CENTRE, roi).any() for f in renderer.seen)
+    predicted = (2 * truth[-1] - truth[-2]).mean(axis=0)  # where the region goes next
+    jump = capture(0.0)
+    assert _boxes_outside(renderer.seen[-1].boxes_px, predicted, roi).all()
+    assert _lost_in_loop(jump)
+    np.testing.assert_allclose(front.last_roi_centre_px, predicted, atol=2.0)
+    assert _lost_in_loop(capture(0.0))  # still away from the region, which stays put
+    np.testing.assert_allclose(front.last_roi_centre_px, predicted, atol=2.0)
+    back = capture(ramp[-1] + 1.0)  # into the region again
+    assert _boxes_inside(renderer.seen[-1].boxes_px, front.last_roi_centre_px, roi).all()
+    assert not _lost_in_loop(back)
+
+
+# --------------------------------------------------------------------------------------------
 # Search, pruning and resume on small specs
 # --------------------------------------------------------------------------------------------
 
@@ -150,24 +279,117 @@ def test_the_study_resumes_from_sqlite_and_reruns_an_interrupted_design(tmp_path
     assert done[-1].params == {"crossover_rad_s": orphan_x}  # the interrupted design, again
 
 
+def _linear_growth_rate_per_s(spec: CodesignSpec, design: Design) -> float:
+    """The growth rate of the design's linear sampled loop measured in the time domain: the
+    closed loop's state iterated from an arbitrary start, the slope of log |x| against time
+    over its last 400 updates (independent of the analysis' eigenvalues)."""
+    import control as ct
+
+    from controller.pid import PIDConfig, PIDController
+    from latency.margins import attitude_plant, sampled_loop
+
+    a = analyse(spec, design)  # its update period and loop delay only
+    pid = PIDController(PIDConfig(crossover_rad_s=design.crossover_rad_s,
+                                  zero_ratio=design.zero_ratio,
+                                  integral_ratio=design.integral_ratio), spec.plant)
+    C = pid.discrete_transfer_function(a.update_period_s, axis=1)
+    plant = attitude_plant(float(pid.J[1]), spec.plant.rotor.viscous_Nms_per_rad)
+    A = np.asarray(ct.feedback(sampled_loop(plant, C, delay_s=a.delay_s), 1).A)
+    x, log_norm = np.ones(A.shape[0]), np.zeros(800)
+    for k in range(800):
+        x = A @ x
+        log_norm[k] = np.log(np.linalg.norm(x))
+        x /= np.linalg.norm(x)
+    t = np.arange(800) * a.update_period_s
+    return float(np.polyfit(t[400:], np.cumsum(log_norm)[400:], 1)[0])
+
+
+@pytest.mark.parametrize("crossover", [8.0, 17.0, 24.0])
+def test_the_growth_rate_is_the_linear_loops_measured_growth(crossover):
+    spec = _tiny()
+    d = Design(frame_rate_hz=36.0, tracker="kcf_gk", observer="solver", crossover_rad_s=crossover)
+    a = analyse(spec, d)
+    assert a.growth_rate_per_s == pytest.approx(_linear_growth_rate_per_s(spec, d), rel=1e-2)
+    assert a.stable == (a.growth_rate_per_s < 0.0)
+
+
+def test_only_designs_growing_beyond_the_band_skip_the_monte_carlo(tmp_path):
+    """KCF on the whole sensor: at 12 rad/s stable with 14° of margin, at 17 rad/s unstable
+    but growing at 0.56/s, at 24 rad/s growing at 4.2/s. All three fail the 30° requirement
+    and are infeasible; only the last grows faster than the default band (2/s) and is pruned:
+    the other two get their Monte Carlo."""
+    spec = _tiny(constraints={})
+    designs = [Design(frame_rate_hz=36.0, tracker="kcf_gk", observer="solver",
+                      crossover_rad_s=x) for x in (12.0, 17.0, 24.0)]
+    growth = [_linear_growth_rate_per_s(spec, d) for d in designs]
+    limit = spec.search.prune_growth_rate_per_s
+    assert growth[0] < 0.0 < growth[1] < limit < growth[2]
+    records = evaluate_designs(spec, designs, tmp_path)
+    assert [r["pruned"] for r in records] == [False, False, True]
+    assert [r["mc"] is None for r in records] == [False, False, True]
+    assert not any(r["feasible"] for r in records)  # the analysis constraints still apply
+    never = _tiny(search={"prune_growth_rate_per_s": None})
+    assert not any(analyse(never, d).prunable(never) for d in designs)
+
+
+def test_the_sampler_sees_only_designs_meeting_the_analysis_but_all_unpruned_run(tmp_path):
+    """KCF at 4 rad/s (48° of margin) and at 12 rad/s (14°, under the 30° requirement, stable):
+    both run their Monte Carlo; optuna holds the first as complete and the second as pruned,
+    so that the sampler's populations meet the requirements; the records keep both results."""
+    spec = _tiny(constraints={})
+    study = open_study(spec, storage_url(spec, tmp_path))
+    for x in (4.0, 12.0):
+        study.enqueue_trial({"crossover_rad_s": x})
+    run_search(spec, tmp_path, progress=False)
+    states = {t.params["crossover_rad_s"]: t.state.name
+              for t in open_study(spec, storage_url(spec, tmp_path)).trials}
+    assert states == {4.0: "COMPLETE", 12.0: "PRUNED"}
+    records = {r["design"]["crossover_rad_s"]: r for r in trial_records(study)}
+    for x in (4.0, 12.0):
+        assert not records[x]["pruned"] and records[x]["mc"] is not None
+        assert len(records[x]["objectives"]) == 3
+    assert records[4.0]["feasible"] and not records[12.0]["feasible"]
+
+
+def _crossover_where(spec: CodesignSpec, tracker: str, growth_per_s: float) -> float:
+    """The PID crossover (rad/s, 4 to 40) at which the design's analysed growth rate reaches
+    ``growth_per_s`` (bisection to 1e-3 rad/s; the growth rises with the crossover past the
+    stability boundary)."""
+    def g(x: float) -> float:
+        d = Design(frame_rate_hz=36.0, tracker=tracker, observer="solver", crossover_rad_s=x)
+        return analyse(spec, d).growth_rate_per_s
+
+    lo, hi = 4.0, 40.0
+    assert g(lo) < growth_per_s < g(hi)
+    while hi - lo > 1e-3:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(mid) < growth_per_s else (lo, mid)
+    return hi
+
+
 @pytest.mark.slow
 def test_pruning_by_analysis_never_removes_a_design_monte_carlo_accepts(tmp_path):
-    """On a grid of crossovers and tracker latencies, every design the analysis prunes (at the
-    stability limit: phase margin and headroom >= 0) fails the Monte-Carlo constraints.
-
-    The plant has no Coulomb friction, as the analysis' plant ``1/(J s² + b s)``: with the
-    default 3 mN·m the friction damps small oscillations, and designs just past the linear
-    boundary stay in control in the simulation (docs/codesign.md, "Pruning"). The grid's
-    crossovers skip the boundary itself (KCF at 16 rad/s holds a 2° limit cycle that neither
-    loses control nor loses frames; docs/codesign.md)."""
-    spec = _tiny(duration_s=3.0, trackers=["kcf_gk", "gk_transt", "csrt_gk"],
-                 plant={"rotor": {"coulomb_Nm": 0.0}},
+    """On the default plant (3 mN·m Coulomb friction), a grid of PID crossovers every 1 rad/s
+    from 4 to 24 rad/s for KCF, GK-TransT and CSRT latencies (whole sensor, least squares),
+    with each tracker's stability boundary and pruning boundary added just beyond them: every
+    design the analysis prunes fails the Monte-Carlo constraints (3 s runs of a 5° step and a
+    random reference, two seeds)."""
+    trackers = ("kcf_gk", "gk_transt", "csrt_gk")
+    spec = _tiny(duration_s=3.0, seeds=[0, 1], trackers=list(trackers), constraints={},
                  references=[{"kind": "tilt_step", "tilt_deg": 5.0},
                              {"kind": "random", "args": {"max_rate_rad_s": 1.0}}])
-    grid = [Design(frame_rate_hz=36.0, tracker=tr, observer="solver", crossover_rad_s=x)
-            for tr in ("kcf_gk", "gk_transt", "csrt_gk") for x in (4.0, 8.0, 12.0, 24.0)]
-    pruned = [d for d in grid if not analyse(spec, d).meets(spec)]
-    assert 0 < len(pruned) < len(grid)  # the grid straddles the boundary
+    limit = spec.search.prune_growth_rate_per_s
+    grid = []
+    for tr in trackers:
+        edges = [_crossover_where(spec, tr, g) for g in (0.0, limit)]
+        grid += [Design(frame_rate_hz=36.0, tracker=tr, observer="solver", crossover_rad_s=x)
+                 for x in sorted({*np.arange(4.0, 24.5, 1.0), *edges})]
+    analyses = [analyse(spec, d) for d in grid]
+    pruned = [d for d, a in zip(grid, analyses, strict=True) if a.prunable(spec)]
+    unstable_kept = [d for d, a in zip(grid, analyses, strict=True)
+                     if not a.stable and not a.prunable(spec)]
+    assert pruned and unstable_kept  # the grid straddles both boundaries
+    assert all(not a.meets(spec) for a in analyses if not a.stable)
     for d, mc in zip(pruned, monte_carlo(spec, pruned, tmp_path), strict=True):
         assert not mc_feasible(spec, mc), (d.label(), mc)
 
@@ -373,6 +595,25 @@ def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
         for s in runs:
             assert (s.mode, s.tracker, s.measurement.roi) == ("image", scenario_tracker, None)
             assert PAIR_TRACKER_OF[s.tracker] == name  # the loop builds this pair tracker
+
+
+def test_the_image_check_runs_the_designs_camera_mode_region_and_timing():
+    """A 512 × 1024 region following the markers: the image runs read it (the loop's image
+    front end gets it) at the mode's rate, (512 + 16 blank rows) line times per frame."""
+    from experiments.codesign.report import image_scenarios
+    from experiments.scenario import Scenario, build_loop
+
+    spec = _tiny(image_check={"seeds": [0]})
+    design = Design(rows=512, cols=1024, follow=True, tracker="kcf_gk", observer="solver")
+    (s,) = image_scenarios(spec, design)
+    readout = (512 + 16) * 13.45e-6
+    assert s.measurement.roi == RegionOfInterest(rows=512, cols=1024, follow=True)
+    assert s.pipeline.readout_s == pytest.approx(readout)
+    assert s.plant.camera.frame_rate_hz == pytest.approx(1.0 / readout)
+    assert build_loop(s).front_end.roi == s.measurement.roi
+    with pytest.raises(ValueError, match="ORB front end reads the whole sensor"):
+        Scenario.model_validate({"mode": "image", "observer": {"kind": "orb_aekf"},
+                                 "measurement": {"roi": {"rows": 512, "cols": 1024}}})
 
 
 @pytest.mark.slow

@@ -33,7 +33,7 @@ from experiments.codesign.space import Design, compute_per_frame_s, plant_of, tr
 from experiments.codesign.spec import CodesignSpec
 from experiments.tuning.filter import kalman_transfer_function
 from latency.margins import attitude_plant, first_unstable_delay
-from latency.margins.sampled import sampled_margins, sampled_stable
+from latency.margins.sampled import sampled_margins, sampled_spectral_radius, sampled_stable
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig
 
@@ -61,6 +61,9 @@ class Analysis:
         ``HEADROOM_LIMIT_S``).
     crossover_rad_s : critical gain crossover, rad/s.
     update_period_s, delay_s : the processed-frame period and the loop delay, s.
+    growth_rate_per_s : ``ln(ρ) / T`` of the closed loop's spectral radius ``ρ`` at the update
+        period ``T``, 1/s: how fast its slowest-decaying mode grows (> 0, unstable) or decays
+        (< 0) in the linear model.
     """
 
     stable: bool
@@ -69,12 +72,23 @@ class Analysis:
     crossover_rad_s: float
     update_period_s: float
     delay_s: float
+    growth_rate_per_s: float
 
     def meets(self, spec: CodesignSpec) -> bool:
-        """The analysis constraints of ``spec`` hold."""
+        """The analysis constraints of ``spec`` hold (design requirements: a design that fails
+        them is infeasible, whatever its Monte Carlo)."""
         c = spec.constraints
         return (self.stable and self.phase_margin_deg >= c.min_phase_margin_deg
                 and self.headroom_s * 1e3 >= c.min_delay_headroom_ms)
+
+    def prunable(self, spec: CodesignSpec) -> bool:
+        """The design may skip its Monte Carlo: its linear loop grows at least as fast as
+        ``search.prune_growth_rate_per_s``. Narrower than failing ``meets``: a loop that is
+        stable with a small margin, or unstable but growing slowly, stays in control in the
+        simulation (Coulomb friction damps a small oscillation, saturation bounds it), so
+        only the Monte Carlo can tell whether it loses control."""
+        limit = spec.search.prune_growth_rate_per_s
+        return limit is not None and self.growth_rate_per_s >= limit
 
 
 def _controller_law(spec: CodesignSpec, design: Design):
@@ -132,6 +146,7 @@ def analyse(spec: CodesignSpec, design: Design) -> Analysis:
     # The exact sampled loop (as ``as_run_margins``); its own constant-delay scan is skipped,
     # the headroom below scans the delay through the pipeline instead.
     m = sampled_margins(plant, C, delay_s=t0.delay_s, observer=F, max_extra_delay_s=0.0)
+    rho = sampled_spectral_radius(plant, C, delay_s=t0.delay_s, observer=F)
     first = first_unstable_delay(stable_at, latency_s, step_s=HEADROOM_STEP_S,
                                  limit_s=latency_s + HEADROOM_LIMIT_S, tol_s=HEADROOM_TOL_S)
     headroom = 0.0 if not m.stable else min(first - latency_s, HEADROOM_LIMIT_S)
@@ -142,4 +157,5 @@ def analyse(spec: CodesignSpec, design: Design) -> Analysis:
         crossover_rad_s=float(m.crossover_rad_s),
         update_period_s=t0.update_period_s,
         delay_s=t0.delay_s,
+        growth_rate_per_s=math.log(rho) / t0.update_period_s,
     )

@@ -10,8 +10,9 @@ design beside the seed's, and the image-in-the-loop check of the recommended des
 * **Image-in-the-loop check**: the recommended design re-run on the event loop with rendered
   frames and its tracker's real implementation (``TrackerModel.image_tracker``), a few seeds;
   the report states whether its mean error, lost-frame fraction and loss-of-control fraction
-  lie inside the Monte-Carlo 95 % intervals. The renderer reads the whole sensor, so a
-  region of interest's losses are not part of this check.
+  lie inside the Monte-Carlo 95 % intervals. The frames are those of the design's camera
+  mode: its timing, and only its region of interest (following the prediction when the
+  design's does), so the region's losses are checked on rendered frames too.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ def designs_table(records: list[dict]) -> pd.DataFrame:
         row = {"trial": r.get("trial", -1), "design": d.label(), "pruned": r["pruned"],
                "feasible": bool(r["feasible"]), "stable": a["stable"],
                "phase_margin_deg": a["phase_margin_deg"], "headroom_ms": 1e3 * a["headroom_s"],
+               "growth_rate_per_s": a.get("growth_rate_per_s", np.nan),
                "loop_delay_ms": 1e3 * a["delay_s"],
                "update_period_ms": 1e3 * a["update_period_s"]}
         mc = r["mc"] or {}
@@ -113,7 +115,9 @@ def plot_front(df: pd.DataFrame, seed: pd.Series) -> Figure:
 def image_scenarios(spec: CodesignSpec, design: Design) -> list[Scenario]:
     """The image-in-the-loop runs of ``design``: its Monte-Carlo scenarios for
     ``spec.image_check.seeds`` in image mode, rendered frames, the tracker's scenario tracker
-    (``TrackerModel.image_tracker``; ``ValueError`` when it has none), the whole sensor read."""
+    (``TrackerModel.image_tracker``; ``ValueError`` when it has none), the design's camera
+    mode (frame timing, and the region of interest read out and followed as in the Monte
+    Carlo, ``latency.frontends.ImageFrontEnd``)."""
     ic = spec.image_check
     tracker = tracker_of(spec, design).image_tracker
     if tracker is None:
@@ -124,7 +128,6 @@ def image_scenarios(spec: CodesignSpec, design: Design) -> list[Scenario]:
             d = scenario_dict(spec, design, seed, i)
             d.update(mode="image", renderer=ic.renderer, tracker=tracker,
                      duration_s=min(ic.duration_s, spec.duration_s))
-            d["measurement"]["roi"] = None
             scenarios.append(Scenario.model_validate(d))
     return scenarios
 
@@ -266,6 +269,6 @@ def _check_text(spec: CodesignSpec, check: dict) -> str:
         f"({yes[check['inside_error']]} the Monte-Carlo interval), lost frames "
         f"{_fmt(check, 'lost_frame_fraction')} ({yes[check['inside_lost_frames']]}), loss of "
         f"control {_fmt(check, 'p_loss_of_control')} "
-        f"({yes[check['inside_loss_of_control']]}). The renderer reads the whole sensor: a "
-        "region of interest's losses are not part of this check."
+        f"({yes[check['inside_loss_of_control']]}). The frames are the design's camera "
+        "mode's, its region of interest only."
     )

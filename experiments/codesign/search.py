@@ -7,9 +7,15 @@ control effort (mean RMS torque, N·m) and the compute per processed frame (s). 
 Monte Carlo (``experiments.codesign.evaluate``).
 
 The study runs by ask-and-tell in batches of ``search.batch_size`` designs: each design is
-analysed first, and one failing the analysis constraints is *pruned* (told as pruned, with its
-analysis kept; no Monte Carlo); the others' runs go to the batched engine together. NSGA-II or
-TPE read the constraints each trial sets (``Trial.set_constraint``; <= 0 is feasible).
+analysed first, and one whose linear loop is unstable beyond ``search.prune_growth_rate_per_s``
+(``Analysis.prunable``) is *pruned*: no Monte Carlo, its analysis kept. The others' runs go to
+the batched engine together, those failing the analysis constraints included (they are
+infeasible whatever their Monte Carlo, but skipping it could skip a design the Monte Carlo
+accepts). The sampler sees only the designs that meet the analysis constraints as complete
+trials; the rest are told to optuna as pruned (their records keep their Monte Carlo), so that
+NSGA-II's populations hold only designs meeting the requirements (docs/codesign.md, "Pruning",
+measures the search both ways). NSGA-II or TPE read the constraints each
+trial sets (``Trial.set_constraint``; <= 0 is feasible).
 
 The study is stored in SQLite in the output folder by default, so that a rerun resumes it: it
 stops once ``search.n_trials`` trials are finished (complete or pruned). A rerun treats trials
@@ -95,19 +101,20 @@ def constraint_values(spec: CodesignSpec, a: Analysis, mc: dict | None) -> list[
 def evaluate_designs(
     spec: CodesignSpec, designs: list[Design], out_dir: Path, prune: bool = True
 ) -> list[dict]:
-    """Analysis, then Monte Carlo for the designs that pass it (all of them when not
-    ``prune``). Returns per design a record: ``design`` (dict), ``analysis`` (dict),
-    ``pruned``, ``mc`` (dict or None), ``objectives`` (list or None), ``constraints`` and
-    ``feasible``."""
+    """Analysis, then Monte Carlo for the designs it does not prune (``Analysis.prunable``;
+    all of them when not ``prune``). Returns per design a record: ``design`` (dict),
+    ``analysis`` (dict), ``pruned`` (no Monte Carlo), ``meets_analysis``, ``mc`` (dict or
+    None), ``objectives`` (list or None), ``constraints`` and ``feasible``."""
     analyses = [analyse(spec, d) for d in designs]
-    keep = [i for i, a in enumerate(analyses) if a.meets(spec) or not prune]
+    keep = [i for i, a in enumerate(analyses) if not (prune and a.prunable(spec))]
     mcs = monte_carlo(spec, [designs[i] for i in keep], out_dir)
     mc_of = dict(zip(keep, mcs, strict=True))
     out = []
     for i, (d, a) in enumerate(zip(designs, analyses, strict=True)):
         mc = mc_of.get(i)
         rec = {"design": d.model_dump(mode="json"), "analysis": a.__dict__, "pruned": mc is None,
-               "mc": mc, "objectives": None, "constraints": constraint_values(spec, a, mc)}
+               "meets_analysis": a.meets(spec), "mc": mc, "objectives": None,
+               "constraints": constraint_values(spec, a, mc)}
         if mc is not None:
             rec["objectives"] = [mc["rms_error_deg"], mc["rms_torque_Nm"],
                                  compute_per_frame_s(spec, d)]
@@ -143,11 +150,11 @@ def search_worker(spec_json: str, out: str, url: str, worker: int = 0,
             trials = [study.ask() for _ in range(min(spec.search.batch_size, left))]
             designs = [suggest(t, spec) for t in trials]
             for t, rec in zip(trials, evaluate_designs(spec, designs, out_dir), strict=True):
-                for k in ("design", "analysis", "mc", "constraints", "feasible"):
+                for k in ("design", "analysis", "mc", "objectives", "constraints", "feasible"):
                     t.set_user_attr(k, rec[k])
                 for name, value in zip(CONSTRAINTS, rec["constraints"], strict=True):
                     t.set_constraint(name, value)
-                if rec["pruned"]:
+                if rec["pruned"] or not rec["meets_analysis"]:
                     study.tell(t, state=TrialState.PRUNED)
                 else:
                     study.tell(t, rec["objectives"])
@@ -218,11 +225,12 @@ def trial_records(study: optuna.Study) -> list[dict]:
 
     out = []
     for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
-        rec = {k: t.user_attrs.get(k) for k in ("design", "analysis", "mc", "constraints",
-                                                 "feasible")}
+        rec = {k: t.user_attrs.get(k) for k in ("design", "analysis", "mc", "objectives",
+                                                 "constraints", "feasible")}
         rec["trial"] = t.number
-        rec["pruned"] = t.state == TrialState.PRUNED
-        rec["objectives"] = list(t.values) if t.values else None
+        rec["pruned"] = rec["mc"] is None
+        if t.values:  # a complete trial: the objectives optuna holds
+            rec["objectives"] = list(t.values)
         out.append(rec)
     return out
 

@@ -183,6 +183,11 @@ class SearchSettings(_Model):
         12, ge=1, description="Designs asked at a time; their runs share one batched call."
     )
     seed: int = Field(0, ge=0, description="Sampler seed.")
+    prune_growth_rate_per_s: float | None = Field(
+        2.0, gt=0.0, description="Designs whose linear loop is unstable with a growth rate "
+        "(``Analysis.growth_rate_per_s``, 1/s) of at least this get no Monte Carlo (pruned); "
+        "None: none. The default is above every growth rate the Monte Carlo accepted on the "
+        "grid of docs/codesign.md, 'Pruning' (1.5/s).")
     storage: str | None = Field(None, description="None: sqlite:///<out>/codesign.db.")
     study_name: str | None = Field(None, description="None: the spec's name.")
 

@@ -70,7 +70,13 @@ from latency.margins.nyquist import nyquist_count
 from latency.margins.pade import loop_pade, pade_margins
 from latency.margins.plots import bode_data, nyquist_data, plot_bode, plot_nyquist
 from latency.margins.result import Margins
-from latency.margins.sampled import sampled_loop, sampled_margins, sampled_plant, sampled_stable
+from latency.margins.sampled import (
+    sampled_loop,
+    sampled_margins,
+    sampled_plant,
+    sampled_spectral_radius,
+    sampled_stable,
+)
 
 __all__ = [
     "LoopModel",
@@ -94,5 +100,6 @@ __all__ = [
     "sampled_loop",
     "sampled_margins",
     "sampled_plant",
+    "sampled_spectral_radius",
     "sampled_stable",
 ]

@@ -121,13 +121,23 @@ def _spectral_radius_closed(L: ct.StateSpace) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(np.atleast_2d(cl.A)))))
 
 
+def sampled_spectral_radius(
+    plant: ct.LTI, controller: ct.LTI, *, delay_s: float = 0.0, observer: ct.LTI | None = None
+) -> float:
+    """Spectral radius of the closed loop of :func:`sampled_loop` (the largest closed-loop
+    eigenvalue magnitude): below 1 the loop is stable; its slowest mode (the fastest growing
+    one, above 1) scales by this factor per sample."""
+    L = sampled_loop(plant, controller, delay_s=delay_s, observer=observer)
+    return _spectral_radius_closed(L)
+
+
 def sampled_stable(
     plant: ct.LTI, controller: ct.LTI, *, delay_s: float = 0.0, observer: ct.LTI | None = None
 ) -> bool:
     """Closed-loop stability of :func:`sampled_loop` (spectral radius below 1), without the
     margins: the cheap test for scanning a delay."""
-    L = sampled_loop(plant, controller, delay_s=delay_s, observer=observer)
-    return _spectral_radius_closed(L) < 1.0 - 1e-10
+    return sampled_spectral_radius(plant, controller, delay_s=delay_s,
+                                   observer=observer) < 1.0 - 1e-10
 
 
 def sampled_margins(
