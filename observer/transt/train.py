@@ -212,8 +212,15 @@ def _randomisation_lines() -> list[str]:
     ]
 
 
-def _stage_lines(meta: dict) -> list[str]:
-    """Model-card lines describing one training run."""
+def _same_caches(a: dict, b: dict) -> bool:
+    """Two runs read the same pair caches (a later stage reusing its predecessor's)."""
+    keys = ("train_seed", "train_pairs", "val_seed", "yellow_fraction", "randomise")
+    return all(a.get(k) == b.get(k) for k in keys)
+
+
+def _stage_lines(meta: dict, reused_caches: bool = False) -> list[str]:
+    """Model-card lines describing one training run (``reused_caches``: its caches were
+    rendered for the stage before, so their time is not counted again)."""
     y = float(meta.get("yellow_fraction", 0.0) or 0.0)
     target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
     return [
@@ -226,8 +233,9 @@ def _stage_lines(meta: dict) -> list[str]:
         "(8.334, 5, 2); final training loss (mean of the last 50 steps) "
         f"{meta['final_loss']:.3f}.",
         f"- Wall time: {meta['wall_s'] / 60:.1f} min of training on {meta['threads']} CPU "
-        f"threads ({meta['machine']}, shared with other jobs), plus "
-        f"{meta['cache_s'] / 60:.1f} min rendering its caches.",
+        f"threads ({meta['machine']}, shared with other jobs)"
+        + ("; the previous stage's caches." if reused_caches else
+           f", plus {meta['cache_s'] / 60:.1f} min rendering its caches."),
         f"- Command: `{meta['command']}`",
     ]
 
@@ -280,11 +288,13 @@ def write_model_card(path: Path, meta: dict) -> None:
         "## Training",
         "",
     ]
+    reused = [i > 0 and _same_caches(st, stages[i - 1]) for i, st in enumerate(stages)]
     for i, st in enumerate(stages, start=1):
         if len(stages) > 1:
             lines += [f"Stage {i}{f' (continued from stage {i - 1})' if i > 1 else ''}:", ""]
-        lines += _stage_lines(st) + [""]
-    total_min = sum(st["wall_s"] + st["cache_s"] for st in stages) / 60
+        lines += _stage_lines(st, reused[i - 1]) + [""]
+    total_min = sum(st["wall_s"] + (0.0 if r else st["cache_s"])
+                    for st, r in zip(stages, reused, strict=True)) / 60
     lines += [f"Total: {sum(st['steps'] for st in stages)} steps, {total_min:.1f} min "
               "including cache rendering.", ""]
     lines += [
@@ -315,8 +325,11 @@ def write_model_card(path: Path, meta: dict) -> None:
         "",
         "(renders the caches into `runs/transt_cache/` if missing, trains into `--out` "
         "(default `runs/transt_train/`), resumable, and exports the weights with their SHA-256 "
-        "and this card. Stage 1 exported to the weights folder and that file was kept as "
-        "`runs/transt_train/transt_small_red.pt` for stage 2's `--init-from`. CPU timings vary "
+        "and this card. Each stage's `--init-from` is the file the stage before exported: "
+        "stage 1's export was kept as `runs/transt_train/transt_small_red.pt` for stage 2; "
+        "stage 3 read stage 2's export from the weights folder and exported to "
+        "`runs/transt_train_dr/transt_small_dr.pt` for stage 4 (`benchmarks/transt_dr.sh` "
+        "runs stages 3 and 4 in this order). CPU timings vary "
         "with the machine's load; the numbers depend on the thread count only through "
         "floating-point summation order.)",
         "",

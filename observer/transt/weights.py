@@ -23,7 +23,8 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 SMALL_WEIGHTS = WEIGHTS_DIR / "transt_small.pt"
 
 #: The commands that regenerate the training data, train (stage 1: red targets; stage 2:
-#: continued with half the scenes on the yellow marker) and export ``transt_small.pt`` with its
+#: continued with half the scenes on the yellow marker; stages 3 and 4: domain-randomised
+#: scenes, then target-absent searches too) and export ``transt_small.pt`` with its
 #: ``.sha256``; see ``weights/MODEL_CARD.md`` for what they produced here.
 REBUILD_COMMAND = (
     "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.train --steps 1000 "
@@ -31,7 +32,9 @@ REBUILD_COMMAND = (
     "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.train "
     "--init-from runs/transt_train/transt_small_red.pt --yellow-fraction 0.5 --train-seed 3 "
     "--train-pairs 6000 --steps 300 --lr 2e-4 --warmup 20 --out runs/transt_train_mixed "
-    "--export observer/transt/weights/transt_small.pt"
+    "--export observer/transt/weights/transt_small.pt && "
+    "sh benchmarks/transt_dr.sh train dr && sh benchmarks/transt_dr.sh export dr && "
+    "sh benchmarks/transt_dr.sh train absent && sh benchmarks/transt_dr.sh export absent"
 )
 
 
