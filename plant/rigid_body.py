@@ -42,10 +42,19 @@ from numpy.typing import NDArray
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
 
-#: RKMK4 steps per physics step: our choice, measured. On the ±0.3 A test sequence at 30 rad/s
-#: spin, one step of 1 ms is 5.2e-6 rad off a tight ``solve_ivp`` reference after 1 s, two are
-#: 1.6e-7 rad (tests/test_dynamics.py checks < 1e-6 rad).
-PHYSICS_SUBSTEPS = 2
+#: The fewest RKMK4 sub-steps per physics step (``RigidBody.step``): one, more where the rule of
+#: ``SUBSTEP_ANGLE_RAD`` asks for them.
+PHYSICS_SUBSTEPS = 1
+#: Largest rotation of the rotor per RKMK4 sub-step, rad: our choice, measured. A row of step h
+#: takes ``ceil(h omega_hat / SUBSTEP_ANGLE_RAD)`` sub-steps, at least ``PHYSICS_SUBSTEPS``, with
+#: ``omega_hat = |omega| + h |omega_dot|`` its rate bound over the step (from the first stage,
+#: which every sub-step count shares). Why the angle: K(q) I is a function of the attitude whose
+#: windows (C1, cut off at phi_c) sweep past at the rotor's rate, so RK4's error is set by the
+#: angle turned per sub-step, not by the time. 0.016 rad gives one sub-step of 1 ms up to
+#: 16 rad/s (the study's references run at <= 6 rad/s), two up to 32 rad/s; measured on the
+#: ±0.3 A and ±1 A test sequences from 6 to 235 rad/s against the same step with many
+#: sub-steps, the error after 0.25 s stays at or below 1.3e-7 rad at every rate (docs/plant.md).
+SUBSTEP_ANGLE_RAD = 0.016
 #: Time constant of the tilt stop's critically damped contact, s: our choice, two default physics
 #: steps (stiff enough to hold 0.5 N·m within 0.01°, well inside RK4's stability limit).
 STOP_TIMECONST_S = 0.002
@@ -165,22 +174,31 @@ def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
 
 
 @njit(cache=True)
-def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
-               scal):
-    """Advance every row b of the batch by h[b] s: ``substeps`` RKMK4 steps (module
-    docstring), currents and disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
+def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets,
+                       gain, scal, max_angle=SUBSTEP_ANGLE_RAD):
+    """``_step_rows``, also returning the number of acceleration evaluations of each row (B,)
+    (four per RKMK4 sub-step)."""
     B = q.shape[0]
     q_out = np.empty((B, 4))
     w_out = np.empty((B, 3))
+    evaluations = np.empty(B, dtype=np.int64)
     for b in range(B):
         qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
         wb = (omega[b, 0], omega[b, 1], omega[b, 2])
         cur = currents[b]
         d = (dist[b, 0], dist[b, 1], dist[b, 2])
-        hs = h[b] / substeps
-        for _ in range(substeps):
+        # The first stage is the same for any number of sub-steps: its rate and acceleration
+        # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
+        k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+        rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+                + h[b] * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
+        n_sub = max(substeps, int(np.ceil(h[b] * rate / max_angle)))
+        hs = h[b] / n_sub
+        for s in range(n_sub):
             # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
-            k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            if s > 0:
+                k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain,
+                                    scal)
             k1p = wb
             phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
             ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
@@ -209,6 +227,19 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
             qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
         q_out[b, 0], q_out[b, 1], q_out[b, 2], q_out[b, 3] = qb
         w_out[b, 0], w_out[b, 1], w_out[b, 2] = wb
+        evaluations[b] = 4 * n_sub
+    return q_out, w_out, evaluations
+
+
+@njit(cache=True)
+def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
+               scal, max_angle=SUBSTEP_ANGLE_RAD):
+    """Advance every row b of the batch by h[b] s: RKMK4 sub-steps (module docstring), at least
+    ``substeps`` of them and more where a sub-step would turn the rotor by more than
+    ``max_angle`` rad (``SUBSTEP_ANGLE_RAD``; ``np.inf``: exactly ``substeps``), currents and
+    disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
+    q_out, w_out, _ = _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com,
+                                         m_g, coils, magnets, gain, scal, max_angle)
     return q_out, w_out
 
 
@@ -249,8 +280,12 @@ class RigidBody:
     the first call in a process loads it from numba's on-disk cache (or compiles it once).
     """
 
-    def __init__(self, params: PlantParams) -> None:
+    def __init__(self, params: PlantParams, min_substeps: int = PHYSICS_SUBSTEPS,
+                 substep_angle_rad: float = SUBSTEP_ANGLE_RAD) -> None:
         self.params = p = params
+        #: The fewest RKMK4 sub-steps per step, and the largest rotation per sub-step, rad
+        #: (``np.inf``: exactly ``min_substeps`` sub-steps); the defaults are the plant's rule.
+        self.min_substeps, self.substep_angle_rad = int(min_substeps), float(substep_angle_rad)
         r, motor = p.rotor, p.motor
         self.J = p.rotor.inertia_about_centre_kgm2
         self.J_inv = np.linalg.inv(self.J)
@@ -303,10 +338,25 @@ class RigidBody:
         disturbance: NDArray[np.float64] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Advance by ``h`` (s; a scalar or one per rotor, (B,)) with the ``currents`` (B, 16),
-        A, and the body-frame ``disturbance`` (B, 3), N·m, held: ``PHYSICS_SUBSTEPS`` RKMK4
-        steps. Returns the new ``(q, omega)``; ``q`` is renormalised."""
+        A, and the body-frame ``disturbance`` (B, 3), N·m, held: RKMK4 sub-steps, as many per
+        row as ``substep_angle_rad`` asks (one for a slow rotor). Returns the new
+        ``(q, omega)``; ``q`` is renormalised."""
+        q_new, w_new, _ = self.step_counted(q, omega, currents, h, disturbance)
+        return q_new, w_new
+
+    def step_counted(
+        self,
+        q: NDArray[np.float64],
+        omega: NDArray[np.float64],
+        currents: NDArray[np.float64],
+        h: float | NDArray[np.float64],
+        disturbance: NDArray[np.float64] | None = None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+        """``step``, also returning how many times each row evaluated the acceleration (B,):
+        four per RKMK4 sub-step."""
         q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
         hb = np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],)))
         d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
             np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
-        return _step_rows(q, omega, currents, hb, d, PHYSICS_SUBSTEPS, *self.consts)
+        return _step_rows_counted(q, omega, currents, hb, d, self.min_substeps, *self.consts,
+                                  self.substep_angle_rad)
