@@ -82,64 +82,120 @@ def _cross3(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+#: Below this angle (rad) the exponential map and the Bortz coefficient use their Taylor series
+#: (the sub-steps' rotations are smaller; the first term left out is below 1e-17 there, and
+#: the series needs no sine, cosine or tangent).
+_SERIES_RAD = 0.05
+
+
 @njit(cache=True, inline="always")
 def _quat_exp(p0, p1, p2):
     """The unit quaternion of the rotation vector (p0, p1, p2), rad (the exponential map)."""
-    theta = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    half = 0.5 * theta
-    # sin(theta/2)/theta, with its series below 1e-4 rad (error < 1e-17)
-    s = np.sin(half) / theta if theta > 1e-4 else 0.5 - theta * theta / 48.0
-    return (np.cos(half), s * p0, s * p1, s * p2)
+    t2 = p0 * p0 + p1 * p1 + p2 * p2
+    if t2 < _SERIES_RAD * _SERIES_RAD:
+        # cos(theta/2) and sin(theta/2)/theta to theta^8 and theta^6
+        c = 1.0 - t2 / 8.0 * (1.0 - t2 / 48.0 * (1.0 - t2 / 120.0 * (1.0 - t2 / 224.0)))
+        s = 0.5 - t2 / 48.0 * (1.0 - t2 / 80.0 * (1.0 - t2 / 168.0))
+    else:
+        theta = np.sqrt(t2)
+        c, s = np.cos(0.5 * theta), np.sin(0.5 * theta) / theta
+    return (c, s * p0, s * p1, s * p2)
 
 
 @njit(cache=True, inline="always")
 def _dexpinv(phi, w):
     """phi_dot of q = q0 ⊗ exp(phi) for the body rate w (the Bortz equation)."""
     theta2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    theta = np.sqrt(theta2)
-    # (1 - (theta/2) cot(theta/2)) / theta^2, with its series 1/12 + theta^2/720 when small
-    if theta > 1e-3:
-        c = (1.0 - 0.5 * theta / np.tan(0.5 * theta)) / theta2
+    # (1 - (theta/2) cot(theta/2)) / theta^2, with its series to theta^6 when small
+    if theta2 < _SERIES_RAD * _SERIES_RAD:
+        c = 1.0 / 12.0 + theta2 / 720.0 * (1.0 + theta2 / 42.0 * (1.0 + theta2 / 40.0))
     else:
-        c = 1.0 / 12.0 + theta2 / 720.0
+        theta = np.sqrt(theta2)
+        c = (1.0 - 0.5 * theta / np.tan(0.5 * theta)) / theta2
     pxw = _cross3(phi, w)
     ppw = _cross3(phi, pxw)
     return (w[0] + 0.5 * pxw[0] + c * ppw[0], w[1] + 0.5 * pxw[1] + c * ppw[1],
             w[2] + 0.5 * pxw[2] + c * ppw[2])
 
 
-@njit(cache=True)
-def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
-    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
-    (3-tuple) with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple), N·m:
-    the equations of the module docstring."""
+@njit(cache=True, inline="always")
+def _rotation(q):
+    """The rotation matrix R(q) (rotor to stator) of the quaternion q (4-tuple), as a 9-tuple
+    (R00, R01, R02, R10, ..., R22)."""
     qw, qx, qy, qz = q
-    R00 = 1 - 2 * (qy * qy + qz * qz)
-    R01 = 2 * (qx * qy - qw * qz)
-    R02 = 2 * (qx * qz + qw * qy)
-    R10 = 2 * (qx * qy + qw * qz)
-    R11 = 1 - 2 * (qx * qx + qz * qz)
-    R12 = 2 * (qy * qz - qw * qx)
-    R20 = 2 * (qx * qz - qw * qy)
-    R21 = 2 * (qy * qz + qw * qx)
-    R22 = 1 - 2 * (qx * qx + qy * qy)
+    return (1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy),
+            2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+            2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
+
+
+@njit(cache=True)
+def _window_pairs(R, cur, coils, magnets, gain, cos_wide, start, coil, v):
+    """The coil-magnet pairs whose window can be open, for the rotor at R (9-tuple) with the
+    coil currents ``cur`` (16,), A: for each magnet j, the coils i with a current and
+    ``c_i . R m_j > cos_wide``, listed in ``coil[start[j]:start[j + 1]]`` in increasing i, with
+    ``v = g_j I_i c_i`` (N·m, the window's scale folded into ``gain``) for each. With
+    ``cos_wide = cos(phi_c + M)`` the list holds every pair that can open while the rotor turns
+    by at most M rad from R (a rotation by M moves each axis by at most M)."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    n = 0
+    for j in range(magnets.shape[0]):
+        start[j] = n
+        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
+        r0 = R00 * m0 + R01 * m1 + R02 * m2
+        r1 = R10 * m0 + R11 * m1 + R12 * m2
+        r2 = R20 * m0 + R21 * m1 + R22 * m2
+        for i in range(coils.shape[0]):
+            if cur[i] != 0.0 and coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
+                s = gain[j] * cur[i]
+                coil[n] = i
+                v[n, 0], v[n, 1], v[n, 2] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
+                n += 1
+    start[magnets.shape[0]] = n
+
+
+@njit(cache=True)
+def _rotor_tuples(J, J_inv, com, m_g, scal):
+    """The rotor's constants of ``RigidBody.consts`` as tuples of floats: J and J^-1 row by row
+    (9 each), the centre of mass offset, m g and the scalars of ``_SCALARS``. The compiled
+    functions pass them by value (arrays would cost a reference count per call)."""
+    return ((J[0, 0], J[0, 1], J[0, 2], J[1, 0], J[1, 1], J[1, 2], J[2, 0], J[2, 1], J[2, 2]),
+            (J_inv[0, 0], J_inv[0, 1], J_inv[0, 2], J_inv[1, 0], J_inv[1, 1], J_inv[1, 2],
+             J_inv[2, 0], J_inv[2, 1], J_inv[2, 2]),
+            (com[0], com[1], com[2]), (m_g[0], m_g[1], m_g[2]),
+            (scal[0], scal[1], scal[2], scal[3], scal[4], scal[5], scal[6], scal[7]))
+
+
+@njit(cache=True)
+def _acceleration(q, w, d, pairs, rotor, coils, magnets):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
+    (3-tuple) with the body torque d (3-tuple), N·m, and the coil currents in ``pairs`` (the
+    ``_window_pairs`` lists (start, coil, v) of an attitude within their margin of q): the
+    equations of the module docstring. ``rotor`` holds the constants (``_rotor_tuples``)."""
+    J, J_inv, com, m_g, scal = rotor
+    R = _rotation(q)
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    start, coil, v = pairs
     # K(q) I = sum_j a_j x r_j with r_j the magnet axis in the stator frame and
-    # a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j) (plant.torque.TorqueMap)
+    # a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j) (plant.torque.TorqueMap); only the
+    # listed pairs can be inside their window, and a magnet without any adds nothing
     cut = scal[3]
     T0 = T1 = T2 = 0.0
     for j in range(magnets.shape[0]):
+        if start[j] == start[j + 1]:
+            continue
         m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
         r0 = R00 * m0 + R01 * m1 + R02 * m2
         r1 = R10 * m0 + R11 * m1 + R12 * m2
         r2 = R20 * m0 + R21 * m1 + R22 * m2
         a0 = a1 = a2 = 0.0
-        for i in range(coils.shape[0]):
+        for k in range(start[j], start[j + 1]):
+            i = coil[k]
             x = coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 - cut
             if x > 0.0:
-                g = x * x * gain[j] * cur[i]
-                a0 += g * coils[i, 0]
-                a1 += g * coils[i, 1]
-                a2 += g * coils[i, 2]
+                x2 = x * x
+                a0 += x2 * v[k, 0]
+                a1 += x2 * v[k, 1]
+                a2 += x2 * v[k, 2]
         T0 += a1 * r2 - a2 * r1
         T1 += a2 * r0 - a0 * r2
         T2 += a0 * r1 - a1 * r0
@@ -159,18 +215,38 @@ def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
           R02 * T0 + R12 * T1 + R22 * T2)
     gb = (R00 * m_g[0] + R10 * m_g[1] + R20 * m_g[2], R01 * m_g[0] + R11 * m_g[1] + R21 * m_g[2],
           R02 * m_g[0] + R12 * m_g[1] + R22 * m_g[2])
-    grav = _cross3((com[0], com[1], com[2]), gb)
-    Jw = (J[0, 0] * w[0] + J[0, 1] * w[1] + J[0, 2] * w[2],
-          J[1, 0] * w[0] + J[1, 1] * w[1] + J[1, 2] * w[2],
-          J[2, 0] * w[0] + J[2, 1] * w[1] + J[2, 2] * w[2])
+    grav = _cross3(com, gb)
+    Jw = (J[0] * w[0] + J[1] * w[1] + J[2] * w[2],
+          J[3] * w[0] + J[4] * w[1] + J[5] * w[2],
+          J[6] * w[0] + J[7] * w[1] + J[8] * w[2])
     gyro = _cross3(w, Jw)
     coulomb = scal[1] / np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + scal[2] * scal[2])
     t0 = tb[0] + grav[0] - scal[0] * w[0] - gyro[0] - coulomb * w[0] + d[0]
     t1 = tb[1] + grav[1] - scal[0] * w[1] - gyro[1] - coulomb * w[1] + d[1]
     t2 = tb[2] + grav[2] - scal[0] * w[2] - gyro[2] - coulomb * w[2] + d[2]
-    return (J_inv[0, 0] * t0 + J_inv[0, 1] * t1 + J_inv[0, 2] * t2,
-            J_inv[1, 0] * t0 + J_inv[1, 1] * t1 + J_inv[1, 2] * t2,
-            J_inv[2, 0] * t0 + J_inv[2, 1] * t1 + J_inv[2, 2] * t2)
+    return (J_inv[0] * t0 + J_inv[1] * t1 + J_inv[2] * t2,
+            J_inv[3] * t0 + J_inv[4] * t1 + J_inv[5] * t2,
+            J_inv[6] * t0 + J_inv[7] * t1 + J_inv[8] * t2)
+
+
+@njit(cache=True)
+def _pair_lists(n_magnets, n_coils):
+    """Empty ``_window_pairs`` lists (start, coil, v) for every pair of a rotor."""
+    n = n_magnets * n_coils
+    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty(n, dtype=np.int64),
+            np.empty((n, 3)))
+
+
+@njit(cache=True, inline="always")
+def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain):
+    """The acceleration at the stage attitude qb ⊗ exp(phi) and rate ws (``_acceleration``):
+    with the step's pair lists while the rotor has turned by at most ``turned + |phi|`` <=
+    ``margin`` rad from the attitude they were made at, else with lists made at the stage."""
+    qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+    if turned + np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]) > margin:
+        pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+        _window_pairs(_rotation(qs), cur, coils, magnets, gain, rotor[4][3], *pairs)
+    return _acceleration(qs, ws, d, pairs, rotor, coils, magnets)
 
 
 @njit(cache=True)
@@ -182,38 +258,50 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
     q_out = np.empty((B, 4))
     w_out = np.empty((B, 3))
     evaluations = np.empty(B, dtype=np.int64)
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
+    cutoff = np.arccos(scal[3])  # rad, the windows' cut-off angle phi_c
     for b in range(B):
         qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
         wb = (omega[b, 0], omega[b, 1], omega[b, 2])
         cur = currents[b]
         d = (dist[b, 0], dist[b, 1], dist[b, 2])
+        # The pairs that can open during the step, listed once at its start: the margin
+        # covers the turn at the starting rate with room to spare; a stage that turns
+        # further is evaluated with lists of its own (``_stage``), so the result never
+        # depends on the margin.
+        margin = 1.5 * h[b] * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2]) + 0.005
+        wide = cutoff + margin
+        _window_pairs(_rotation(qb), cur, coils, magnets, gain,
+                      np.cos(wide) if wide < np.pi else -2.0, *pairs)
         # The first stage is the same for any number of sub-steps: its rate and acceleration
         # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
-        k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+        k1w = _acceleration(qb, wb, d, pairs, rotor, coils, magnets)
         rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
                 + h[b] * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
         n_sub = max(substeps, int(np.ceil(h[b] * rate / max_angle)))
         hs = h[b] / n_sub
+        turned = 0.0  # rad, a bound on the rotation from the step's start to qb
         for s in range(n_sub):
             # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
             if s > 0:
-                k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain,
-                                    scal)
+                k1w = _stage(qb, (0.0, 0.0, 0.0), turned, margin, wb, cur, d, pairs, rotor,
+                             coils, magnets, gain)
             k1p = wb
             phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
             ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k2w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k2w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k2p = _dexpinv(phi, ws)
             phi = (0.5 * hs * k2p[0], 0.5 * hs * k2p[1], 0.5 * hs * k2p[2])
             ws = (wb[0] + 0.5 * hs * k2w[0], wb[1] + 0.5 * hs * k2w[1], wb[2] + 0.5 * hs * k2w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k3w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k3w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k3p = _dexpinv(phi, ws)
             phi = (hs * k3p[0], hs * k3p[1], hs * k3p[2])
             ws = (wb[0] + hs * k3w[0], wb[1] + hs * k3w[1], wb[2] + hs * k3w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k4w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k4w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k4p = _dexpinv(phi, ws)
             c = hs / 6.0
             phi = (c * (k1p[0] + 2.0 * k2p[0] + 2.0 * k3p[0] + k4p[0]),
@@ -222,6 +310,7 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
             wb = (wb[0] + c * (k1w[0] + 2.0 * k2w[0] + 2.0 * k3w[0] + k4w[0]),
                   wb[1] + c * (k1w[1] + 2.0 * k2w[1] + 2.0 * k3w[1] + k4w[1]),
                   wb[2] + c * (k1w[2] + 2.0 * k2w[2] + 2.0 * k3w[2] + k4w[2]))
+            turned += np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
             qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
             n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
             qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
@@ -247,11 +336,14 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
 def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magnets, gain, scal):
     """``_acceleration`` for every row of a batch: omega_dot (B, 3), rad/s²."""
     out = np.empty((q.shape[0], 3))
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     for b in range(q.shape[0]):
-        out[b] = _acceleration((q[b, 0], q[b, 1], q[b, 2], q[b, 3]),
-                               (omega[b, 0], omega[b, 1], omega[b, 2]), currents[b],
-                               (dist[b, 0], dist[b, 1], dist[b, 2]),
-                               J, J_inv, com, m_g, coils, magnets, gain, scal)
+        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
+        _window_pairs(_rotation(qb), currents[b], coils, magnets, gain, scal[3], *pairs)
+        out[b] = _acceleration(qb, (omega[b, 0], omega[b, 1], omega[b, 2]),
+                               (dist[b, 0], dist[b, 1], dist[b, 2]), pairs, rotor, coils,
+                               magnets)
     return out
 
 
@@ -354,9 +446,15 @@ class RigidBody:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
         """``step``, also returning how many times each row evaluated the acceleration (B,):
         four per RKMK4 sub-step."""
-        q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
-        hb = np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],)))
-        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+        # Written out for the one-rotor calls of the event loop, where this preparation costs
+        # as much as the step: no-ops for C-contiguous float arrays, a scalar h filled.
+        q = np.ascontiguousarray(q, dtype=float)
+        omega = np.ascontiguousarray(omega, dtype=float)
+        currents = np.ascontiguousarray(currents, dtype=float)
+        B = q.shape[0]
+        hb = (np.full(B, h, dtype=float) if np.ndim(h) == 0
+              else np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (B,))))
+        d = np.zeros((B, 3)) if disturbance is None else np.array(  # a writable copy: one
             np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
         return _step_rows_counted(q, omega, currents, hb, d, self.min_substeps, *self.consts,
                                   self.substep_angle_rad)

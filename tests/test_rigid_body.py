@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 from plant import attitude as A
 from plant.dynamics import MujocoPlant
 from plant.params import PlantParams
-from plant.rigid_body import RigidBody, tilt_stop_contact
+from plant.rigid_body import RigidBody, stop_gains, tilt_stop_contact
 from plant.torque import TorqueMap
 from plant.twin import TWIN_SUBSTEPS, CasadiTwin
 from tests.test_dynamics import balanced_currents
@@ -16,25 +16,40 @@ from tests.test_dynamics import balanced_currents
 ARCSEC_RAD = np.deg2rad(1.0 / 3600.0)
 
 
-def reference(p: PlantParams, q0, w0, U):
-    """The equations of ``plant.dynamics`` integrated by scipy's DOP853 at tight tolerances,
-    K(q) evaluated continuously by ``plant.torque.TorqueMap`` (independent of
-    ``plant.rigid_body``), the quaternion's components integrated as a vector ODE. One solve
-    per run of equal currents; returns the attitudes (N+1, 4) at the physics steps."""
-    r, tm, h = p.rotor, TorqueMap(p.motor), p.physics_dt_s
+def reference_acceleration(p: PlantParams, tm: TorqueMap, q, w, current, torque_body=None):
+    """omega_dot (3,), rad/s², of the equations of ``plant.dynamics`` written out in numpy:
+    K(q) by ``plant.torque.TorqueMap`` (independent of ``plant.rigid_body``), the tilt stop's
+    spring-damper on beta = acos(R_zz) about u = Z x s / |Z x s| with the gains of
+    ``stop_gains``, and a body torque (N·m)."""
+    r = p.rotor
     d = np.asarray(r.com_offset_m)
     J = np.diag(r.inertia_com_kgm2) + r.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
-    J_inv = np.linalg.inv(J)
     mg = r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2])
+    R = A.to_matrix(q)
+    T = tm.from_matrix(R) @ current
+    k, c, beta_max = stop_gains(p)
+    s = R[:, 2]  # the shaft in the stator frame
+    beta = np.arccos(np.clip(s[2], -1.0, 1.0))
+    if beta > beta_max:
+        u = np.cross([0.0, 0.0, 1.0], s)
+        u /= np.linalg.norm(u)
+        T = T - max(0.0, k * (beta - beta_max) + c * (R @ w) @ u) * u
+    tau = R.T @ T + np.cross(d, R.T @ mg) - r.viscous_Nms_per_rad * w - np.cross(w, J @ w)
+    tau -= r.coulomb_Nm * w / np.sqrt(w @ w + r.coulomb_smoothing_rad_s**2)
+    return np.linalg.solve(J, tau + (0.0 if torque_body is None else torque_body))
+
+
+def reference(p: PlantParams, q0, w0, U):
+    """The equations of ``plant.dynamics`` integrated by scipy's DOP853 at tight tolerances,
+    K(q) evaluated continuously (``reference_acceleration``), the quaternion's components
+    integrated as a vector ODE. One solve per run of equal currents; returns the attitudes
+    (N+1, 4) at the physics steps."""
+    tm, h = TorqueMap(p.motor), p.physics_dt_s
 
     def rhs(_t, x, current):
         q, w = x[:4] / np.linalg.norm(x[:4]), x[4:]
-        R = A.to_matrix(q)
-        tau = R.T @ (tm(q) @ current) + np.cross(d, R.T @ mg) - r.viscous_Nms_per_rad * w
-        tau -= np.cross(w, J @ w) + r.coulomb_Nm * w / np.sqrt(
-            w @ w + r.coulomb_smoothing_rad_s**2
-        )
-        return np.r_[0.5 * A.multiply(x[:4], np.r_[0.0, w]), J_inv @ tau]
+        return np.r_[0.5 * A.multiply(x[:4], np.r_[0.0, w]),
+                     reference_acceleration(p, tm, q, w, current)]
 
     change = np.r_[0, np.flatnonzero(np.any(np.diff(U, axis=0) != 0, axis=1)) + 1, len(U)]
     x = np.r_[q0, w0]
@@ -152,6 +167,56 @@ def test_fast_rows_take_the_substeps_their_rotation_needs():
     for i in range(6):
         qi, wi, ni = body.step_counted(q[i : i + 1], w[i : i + 1], cur[i : i + 1], h[i])
         assert ni[0] == n[i] and np.array_equal(qi[0], q1[i]) and np.array_equal(wi[0], w1[i])
+
+
+def _reference_step(p: PlantParams, tm: TorqueMap, q, w, current, h, n, torque_body):
+    """n RKMK4 sub-steps of h/n (the method of ``plant.rigid_body``) written out in numpy on
+    ``reference_acceleration``."""
+    hs = h / n
+    for _ in range(n):
+        k_phi, k_w = [], []
+        for a in (0.0, 0.5, 0.5, 1.0):
+            phi = a * hs * k_phi[-1] if k_phi else np.zeros(3)
+            ws = w + a * hs * k_w[-1] if k_w else w
+            k_w.append(reference_acceleration(p, tm, A.multiply(q, A.from_rotvec(phi)), ws,
+                                              current, torque_body))
+            theta = np.linalg.norm(phi)  # the Bortz equation
+            c = 1.0 / 12.0 if theta < 1e-6 else (1.0 - theta / 2.0 / np.tan(theta / 2.0)) / theta**2
+            k_phi.append(ws + 0.5 * np.cross(phi, ws) + c * np.cross(phi, np.cross(phi, ws)))
+        phi = hs / 6.0 * (k_phi[0] + 2.0 * k_phi[1] + 2.0 * k_phi[2] + k_phi[3])
+        w = w + hs / 6.0 * (k_w[0] + 2.0 * k_w[1] + 2.0 * k_w[2] + k_w[3])
+        q = A.multiply(q, A.from_rotvec(phi))
+        q = q / np.linalg.norm(q)
+    return q, w
+
+
+def test_compiled_acceleration_and_step_are_the_straightforward_formula():
+    """The compiled kernel (window pairs listed once per step, series for the exponential map)
+    against the formula written out in numpy, on random rows: attitudes anywhere (the tilt stop
+    in contact on many), rates from 0 to 200 rad/s, currents up to the 2 A limit with some coils
+    off, body torques, one of 60 N·m that turns the rotor beyond the pair lists' margin within
+    the step. omega_dot to 1e-12 relative; one step with the kernel's own number of sub-steps
+    to 1e-12 rad and 1e-12 relative in omega."""
+    p = PlantParams()
+    tm, body = TorqueMap(p.motor), RigidBody(p)
+    rng = np.random.default_rng(4)
+    B = 24
+    q = np.stack([A.from_zyz(*rng.uniform(-np.pi, np.pi, 3)) for _ in range(B)])
+    w = rng.normal(size=(B, 3)) * rng.choice([0.0, 0.5, 5.0, 30.0, 200.0], size=(B, 1))
+    cur = rng.uniform(-2.0, 2.0, (B, 16)) * (rng.uniform(size=(B, 16)) > 0.2)
+    dist = rng.normal(size=(B, 3)) * 0.1
+    dist[0], w[0] = [60.0, 0.0, 0.0], 0.0
+    assert tilt_stop_contact(q, p).sum() > B // 2
+    acc = body.acceleration(q, w, cur, dist)
+    for b in range(B):
+        ref = reference_acceleration(p, tm, q[b], w[b], cur[b], dist[b])
+        assert np.abs(acc[b] - ref).max() < 1e-12 * np.abs(ref).max()
+    q1, w1, n = body.step_counted(q, w, cur, p.physics_dt_s, dist)
+    assert n[0] > 4  # the 60 N·m row: 27 rad/s after the step, two sub-steps
+    for b in range(B):
+        qr, wr = _reference_step(p, tm, q[b], w[b], cur[b], p.physics_dt_s, n[b] // 4, dist[b])
+        assert A.geodesic_angle(q1[b], qr) < 1e-12
+        assert np.abs(w1[b] - wr).max() < 1e-12 * max(np.abs(wr).max(), 1.0)
 
 
 def test_each_row_takes_its_own_step_length():
