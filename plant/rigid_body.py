@@ -128,16 +128,37 @@ def _rotation(q):
             2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
 
 
+@njit(cache=True, inline="always")
+def _magnet_torque(r0, r1, r2, cv, lo, hi, cut):
+    """The torque a x r, N·m (stator frame), of the magnet with axis r = (r0, r1, r2) in the
+    stator frame on the listed coils ``cv[lo:hi]`` (``_window_pairs``):
+    a = sum_i g_j I_i w(c_i . r) c_i, the window w = max(x, 0)^2 without a branch (a listed pair
+    near its cut-off opens and closes unpredictably)."""
+    a0 = a1 = a2 = 0.0
+    for k in range(lo, hi):
+        x = max(cv[k, 0] * r0 + cv[k, 1] * r1 + cv[k, 2] * r2 - cut, 0.0)
+        x2 = x * x
+        a0 += x2 * cv[k, 3]
+        a1 += x2 * cv[k, 4]
+        a2 += x2 * cv[k, 5]
+    return a1 * r2 - a2 * r1, a2 * r0 - a0 * r2, a0 * r1 - a1 * r0
+
+
 @njit(cache=True)
-def _window_pairs(R, cur, coils, magnets, gain, cos_wide, start, coil, v):
-    """The coil-magnet pairs whose window can be open, for the rotor at R (9-tuple) with the
-    coil currents ``cur`` (16,), A: for each magnet j, the coils i with a current and
-    ``c_i . R m_j > cos_wide``, listed in ``coil[start[j]:start[j + 1]]`` in increasing i, with
-    ``v = g_j I_i c_i`` (N·m, the window's scale folded into ``gain``) for each. With
-    ``cos_wide = cos(phi_c + M)`` the list holds every pair that can open while the rotor turns
-    by at most M rad from R (a rotation by M moves each axis by at most M)."""
+def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv):
+    """List the coil-magnet pairs whose window can be open for the rotor at R (9-tuple) with
+    the coil currents ``cur`` (16,), A, and return K(q) I there (3-tuple, N·m, stator frame).
+
+    For each magnet j, the coils i with a current and ``c_i . R m_j > cos_wide`` go to
+    ``cv[start[j]:start[j + 1]]`` in increasing i, as (c_i, g_j I_i c_i) (the window's scale
+    folded into ``gain``). With ``cos_wide = cos(phi_c + M)`` the list holds every pair that can
+    open while the rotor turns by at most M rad from R (a rotation by M moves each axis by at
+    most M); ``cut = cos(phi_c)``. K(q) I = sum_j a_j x r_j with r_j the magnet axis in the
+    stator frame and a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j)
+    (``plant.torque.TorqueMap``)."""
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
     n = 0
+    T0 = T1 = T2 = 0.0
     for j in range(magnets.shape[0]):
         start[j] = n
         m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
@@ -147,10 +168,31 @@ def _window_pairs(R, cur, coils, magnets, gain, cos_wide, start, coil, v):
         for i in range(coils.shape[0]):
             if cur[i] != 0.0 and coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
                 s = gain[j] * cur[i]
-                coil[n] = i
-                v[n, 0], v[n, 1], v[n, 2] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
+                cv[n, 0], cv[n, 1], cv[n, 2] = coils[i, 0], coils[i, 1], coils[i, 2]
+                cv[n, 3], cv[n, 4], cv[n, 5] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
                 n += 1
+        if n > start[j]:
+            t = _magnet_torque(r0, r1, r2, cv, start[j], n, cut)
+            T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
     start[magnets.shape[0]] = n
+    return T0, T1, T2
+
+
+@njit(cache=True, inline="always")
+def _coil_torque(R, start, cv, magnets, cut):
+    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) from the pair lists of
+    ``_window_pairs`` made at an attitude within their margin of R: only the listed pairs can
+    be inside their window, and a magnet without any adds nothing."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    T0 = T1 = T2 = 0.0
+    for j in range(magnets.shape[0]):
+        if start[j] == start[j + 1]:
+            continue
+        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
+        t = _magnet_torque(R00 * m0 + R01 * m1 + R02 * m2, R10 * m0 + R11 * m1 + R12 * m2,
+                           R20 * m0 + R21 * m1 + R22 * m2, cv, start[j], start[j + 1], cut)
+        T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
+    return T0, T1, T2
 
 
 @njit(cache=True)
@@ -165,40 +207,15 @@ def _rotor_tuples(J, J_inv, com, m_g, scal):
             (scal[0], scal[1], scal[2], scal[3], scal[4], scal[5], scal[6], scal[7]))
 
 
-@njit(cache=True)
-def _acceleration(q, w, d, pairs, rotor, coils, magnets):
-    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
-    (3-tuple) with the body torque d (3-tuple), N·m, and the coil currents in ``pairs`` (the
-    ``_window_pairs`` lists (start, coil, v) of an attitude within their margin of q): the
-    equations of the module docstring. ``rotor`` holds the constants (``_rotor_tuples``)."""
+@njit(cache=True, inline="always")
+def _dynamics(R, T, w, d, rotor):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude R (9-tuple) and body rate w
+    (3-tuple) with the coils' torque T = K(q) I (3-tuple, N·m, stator frame) and the body
+    torque d (3-tuple), N·m: the equations of the module docstring. ``rotor`` holds the
+    constants (``_rotor_tuples``)."""
     J, J_inv, com, m_g, scal = rotor
-    R = _rotation(q)
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
-    start, coil, v = pairs
-    # K(q) I = sum_j a_j x r_j with r_j the magnet axis in the stator frame and
-    # a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j) (plant.torque.TorqueMap); only the
-    # listed pairs can be inside their window, and a magnet without any adds nothing
-    cut = scal[3]
-    T0 = T1 = T2 = 0.0
-    for j in range(magnets.shape[0]):
-        if start[j] == start[j + 1]:
-            continue
-        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
-        r0 = R00 * m0 + R01 * m1 + R02 * m2
-        r1 = R10 * m0 + R11 * m1 + R12 * m2
-        r2 = R20 * m0 + R21 * m1 + R22 * m2
-        a0 = a1 = a2 = 0.0
-        for k in range(start[j], start[j + 1]):
-            i = coil[k]
-            x = coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 - cut
-            if x > 0.0:
-                x2 = x * x
-                a0 += x2 * v[k, 0]
-                a1 += x2 * v[k, 1]
-                a2 += x2 * v[k, 2]
-        T0 += a1 * r2 - a2 * r1
-        T1 += a2 * r0 - a0 * r2
-        T2 += a0 * r1 - a1 * r0
+    T0, T1, T2 = T
     # The tilt stop: force -max(0, k (beta - beta_max) + c beta_dot) about u = Z x s / |Z x s|
     cos_b = min(max(R22, -1.0), 1.0)
     if cos_b < scal[7]:
@@ -230,11 +247,18 @@ def _acceleration(q, w, d, pairs, rotor, coils, magnets):
 
 
 @njit(cache=True)
+def _acceleration(q, w, d, pairs, rotor, magnets):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
+    (3-tuple) with the body torque d (3-tuple), N·m, the coil currents in ``pairs`` (the
+    ``_window_pairs`` lists (start, cv) of an attitude within their margin of q)."""
+    R = _rotation(q)
+    return _dynamics(R, _coil_torque(R, pairs[0], pairs[1], magnets, rotor[4][3]), w, d, rotor)
+
+
+@njit(cache=True)
 def _pair_lists(n_magnets, n_coils):
-    """Empty ``_window_pairs`` lists (start, coil, v) for every pair of a rotor."""
-    n = n_magnets * n_coils
-    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty(n, dtype=np.int64),
-            np.empty((n, 3)))
+    """Empty ``_window_pairs`` lists (start, cv) for every pair of a rotor."""
+    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty((n_magnets * n_coils, 6)))
 
 
 @njit(cache=True, inline="always")
@@ -244,9 +268,12 @@ def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, ga
     ``margin`` rad from the attitude they were made at, else with lists made at the stage."""
     qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
     if turned + np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]) > margin:
-        pairs = _pair_lists(magnets.shape[0], coils.shape[0])
-        _window_pairs(_rotation(qs), cur, coils, magnets, gain, rotor[4][3], *pairs)
-    return _acceleration(qs, ws, d, pairs, rotor, coils, magnets)
+        own = _pair_lists(magnets.shape[0], coils.shape[0])
+        R = _rotation(qs)
+        cut = rotor[4][3]
+        return _dynamics(R, _window_pairs(R, cur, coils, magnets, gain, cut, cut, *own), ws, d,
+                         rotor)
+    return _acceleration(qs, ws, d, pairs, rotor, magnets)
 
 
 @njit(cache=True)
@@ -272,11 +299,12 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
         # depends on the margin.
         margin = 1.5 * h[b] * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2]) + 0.005
         wide = cutoff + margin
-        _window_pairs(_rotation(qb), cur, coils, magnets, gain,
-                      np.cos(wide) if wide < np.pi else -2.0, *pairs)
+        R = _rotation(qb)
+        T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
+                          np.cos(wide) if wide < np.pi else -2.0, *pairs)
         # The first stage is the same for any number of sub-steps: its rate and acceleration
         # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
-        k1w = _acceleration(qb, wb, d, pairs, rotor, coils, magnets)
+        k1w = _dynamics(R, T, wb, d, rotor)
         rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
                 + h[b] * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
         n_sub = max(substeps, int(np.ceil(h[b] * rate / max_angle)))
@@ -334,16 +362,15 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
 
 @njit(cache=True)
 def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magnets, gain, scal):
-    """``_acceleration`` for every row of a batch: omega_dot (B, 3), rad/s²."""
+    """omega_dot (B, 3), rad/s², for every row of a batch (``_dynamics``)."""
     out = np.empty((q.shape[0], 3))
     pairs = _pair_lists(magnets.shape[0], coils.shape[0])
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     for b in range(q.shape[0]):
-        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
-        _window_pairs(_rotation(qb), currents[b], coils, magnets, gain, scal[3], *pairs)
-        out[b] = _acceleration(qb, (omega[b, 0], omega[b, 1], omega[b, 2]),
-                               (dist[b, 0], dist[b, 1], dist[b, 2]), pairs, rotor, coils,
-                               magnets)
+        R = _rotation((q[b, 0], q[b, 1], q[b, 2], q[b, 3]))
+        T = _window_pairs(R, currents[b], coils, magnets, gain, scal[3], scal[3], *pairs)
+        out[b] = _dynamics(R, T, (omega[b, 0], omega[b, 1], omega[b, 2]),
+                           (dist[b, 0], dist[b, 1], dist[b, 2]), rotor)
     return out
 
 
