@@ -427,6 +427,9 @@ class RigidBody:
         #: The fewest RKMK4 sub-steps per step, and the largest rotation per sub-step, rad
         #: (``np.inf``: exactly ``min_substeps`` sub-steps); the defaults are the plant's rule.
         self.min_substeps, self.substep_angle_rad = int(min_substeps), float(substep_angle_rad)
+        #: How many times each row of the last ``step`` evaluated the acceleration (B,): four
+        #: per RKMK4 sub-step.
+        self.evaluations = np.zeros(0, dtype=np.int64)
         r, motor = p.rotor, p.motor
         self.J = p.rotor.inertia_about_centre_kgm2
         self.J_inv = np.linalg.inv(self.J)
@@ -480,21 +483,8 @@ class RigidBody:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Advance by ``h`` (s; a scalar or one per rotor, (B,)) with the ``currents`` (B, 16),
         A, and the body-frame ``disturbance`` (B, 3), N·m, held: RKMK4 sub-steps, as many per
-        row as ``substep_angle_rad`` asks (one for a slow rotor). Returns the new
-        ``(q, omega)``; ``q`` is renormalised."""
-        q_new, w_new, _ = self.step_counted(q, omega, currents, h, disturbance)
-        return q_new, w_new
-
-    def step_counted(
-        self,
-        q: NDArray[np.float64],
-        omega: NDArray[np.float64],
-        currents: NDArray[np.float64],
-        h: float | NDArray[np.float64],
-        disturbance: NDArray[np.float64] | None = None,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-        """``step``, also returning how many times each row evaluated the acceleration (B,):
-        four per RKMK4 sub-step."""
+        row as ``substep_angle_rad`` asks (one for a slow rotor; ``evaluations`` counts them).
+        Returns the new ``(q, omega)``; ``q`` is renormalised."""
         # Written out for the one-rotor calls of the event loop, where this preparation costs
         # as much as the step: no-ops for C-contiguous float arrays, a scalar h filled.
         q = np.ascontiguousarray(q, dtype=float)
@@ -505,5 +495,6 @@ class RigidBody:
               else np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (B,))))
         d = np.zeros((B, 3)) if disturbance is None else np.array(  # a writable copy: one
             np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
-        return _step_rows_counted(q, omega, currents, hb, d, self.min_substeps, *self.consts,
-                                  self.substep_angle_rad)
+        q_new, w_new, self.evaluations = _step_rows_counted(
+            q, omega, currents, hb, d, self.min_substeps, *self.consts, self.substep_angle_rad)
+        return q_new, w_new
