@@ -10,7 +10,8 @@ Equations (body frame, about the fixed centre O), shared with the CasADi twin
 with J_O the inertia about O (parallel-axis from the centre-of-mass inertia and offset d) and
 T_stop the tilt stop's contact torque. A fourth-order Runge-Kutta-Munthe-Kaas step on the
 rotation group with every torque, K(q) I included, evaluated at each stage
-(``PHYSICS_SUBSTEPS`` of them per physics step) integrates them: ``plant.rigid_body``'s
+(one sub-step per physics step for a slow rotor, more for a fast one:
+``plant.rigid_body.SUBSTEP_ANGLE_RAD``) integrates them: ``plant.rigid_body``'s
 compiled step, the same code for this one rotor as for the batched engine's many. The coil
 currents follow their commands through an optional first-order lag (L/R), exact at the step
 start, and are held over the step. MuJoCo holds the model of the scene, the state, the clock

@@ -18,6 +18,13 @@ evaluated at each stage's attitude and rate, so the method keeps its fourth orde
 (holding K(q) over the step, as a zero-order hold of the torque, is only first order). The
 coil currents are held over the step; the disturbance torque too.
 
+Sub-steps: each row takes as many RKMK4 sub-steps as keep the rotor's turn per sub-step within
+``SUBSTEP_ANGLE_RAD`` (0.016 rad), judged from its rate and acceleration at the step's start:
+one per 1 ms step up to 16 rad/s, two up to 32 rad/s, fifteen at the 235 rad/s free-spin
+terminal speed. K(q) I is a function of the attitude whose windows sweep past at the rotor's
+rate, so the integration error follows the angle turned per sub-step (measured: at most
+1.3e-7 rad after 0.25 s from 6 to 235 rad/s on ±0.3 A and ±1 A sequences).
+
 Tilt stop: a one-sided spring-damper on the tilt beta (angle of the shaft, rotor +z, from the
 stator +Z), active beyond ``RotorParams.tilt_stop_deg``. Its generalised force on beta is
 ``-max(0, k (beta - beta_max) + c beta_dot)``; its torque acts about ``u = Z x s / |Z x s|`` (s the
@@ -28,9 +35,16 @@ about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0
 
 Code: one numba-compiled loop over the batch rows (``_step_rows``), each row with its own step
 length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
-(``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). numba
-caches the machine code on disk (``cache=True``): the first call in a fresh process loads it
-(about 0.4 s measured under load) or, without a cache, compiles it (4-8 s under load).
+(``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). The cost is
+the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. At the step's
+start one scan lists, for each magnet, the coils whose window can open while the rotor turns by
+a margin (``_MARGIN_TURNS`` h |omega| + ``_MARGIN_RAD``), with each coil's current and gain
+folded in; the stages then visit only those pairs (about 40), and a stage that has turned
+further than the margin lists its own, so the result does not depend on the margin (equal to
+the full sum to rounding, tests/test_rigid_body.py). The rotor's constants travel as tuples of
+floats, and the exponential map and the Bortz coefficient use their series below 0.05 rad.
+numba caches the machine code on disk (``cache=True``): the first call in a fresh process loads
+it (about 0.4 s measured under load) or, without a cache, compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
@@ -42,10 +56,26 @@ from numpy.typing import NDArray
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
 
-#: RKMK4 steps per physics step: our choice, measured. On the ±0.3 A test sequence at 30 rad/s
-#: spin, one step of 1 ms is 5.2e-6 rad off a tight ``solve_ivp`` reference after 1 s, two are
-#: 1.6e-7 rad (tests/test_dynamics.py checks < 1e-6 rad).
-PHYSICS_SUBSTEPS = 2
+#: The fewest RKMK4 sub-steps per physics step (``RigidBody.step``): one, more where the rule of
+#: ``SUBSTEP_ANGLE_RAD`` asks for them.
+PHYSICS_SUBSTEPS = 1
+#: Largest rotation of the rotor per RKMK4 sub-step, rad: our choice, measured. A row of step h
+#: takes ``ceil(h omega_hat / SUBSTEP_ANGLE_RAD)`` sub-steps, at least ``PHYSICS_SUBSTEPS``, with
+#: ``omega_hat = |omega| + h |omega_dot|`` its rate bound over the step (from the first stage,
+#: which every sub-step count shares). Why the angle: K(q) I is a function of the attitude whose
+#: windows (C1, cut off at phi_c) sweep past at the rotor's rate, so RK4's error is set by the
+#: angle turned per sub-step, not by the time. 0.016 rad gives one sub-step of 1 ms up to
+#: 16 rad/s (the study's references run at <= 6 rad/s), two up to 32 rad/s; measured on the
+#: ±0.3 A and ±1 A test sequences from 6 to 235 rad/s against the same step with many
+#: sub-steps, the error after 0.25 s stays at or below 1.3e-7 rad at every rate (docs/plant.md).
+SUBSTEP_ANGLE_RAD = 0.016
+#: The margin of the pair lists (``_window_pairs``), rad: ``_MARGIN_TURNS`` times the turn over
+#: the step at the starting rate plus ``_MARGIN_RAD`` for the acceleration (5 N·m turns the rotor
+#: at rest by 1.1e-3 rad in 1 ms). Our choice: each 0.005 rad of margin lists about 1.4 % more
+#: pairs (sin phi_c / (1 - cos phi_c) per rad at phi_c = 40°); a smaller one makes more stages
+#: list their own pairs. The results do not depend on it.
+_MARGIN_TURNS = 1.5
+_MARGIN_RAD = 0.005
 #: Time constant of the tilt stop's critically damped contact, s: our choice, two default physics
 #: steps (stiff enough to hold 0.5 N·m within 0.01°, well inside RK4's stability limit).
 STOP_TIMECONST_S = 0.002
@@ -73,67 +103,140 @@ def _cross3(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+#: Below this angle (rad) the exponential map and the Bortz coefficient use their Taylor series
+#: (the sub-steps' rotations are smaller; the first term left out is below 1e-17 there, and
+#: the series needs no sine, cosine or tangent).
+_SERIES_RAD = 0.05
+
+
 @njit(cache=True, inline="always")
 def _quat_exp(p0, p1, p2):
     """The unit quaternion of the rotation vector (p0, p1, p2), rad (the exponential map)."""
-    theta = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    half = 0.5 * theta
-    # sin(theta/2)/theta, with its series below 1e-4 rad (error < 1e-17)
-    s = np.sin(half) / theta if theta > 1e-4 else 0.5 - theta * theta / 48.0
-    return (np.cos(half), s * p0, s * p1, s * p2)
+    t2 = p0 * p0 + p1 * p1 + p2 * p2
+    if t2 < _SERIES_RAD * _SERIES_RAD:
+        # cos(theta/2) and sin(theta/2)/theta to theta^8 and theta^6
+        c = 1.0 - t2 / 8.0 * (1.0 - t2 / 48.0 * (1.0 - t2 / 120.0 * (1.0 - t2 / 224.0)))
+        s = 0.5 - t2 / 48.0 * (1.0 - t2 / 80.0 * (1.0 - t2 / 168.0))
+    else:
+        theta = np.sqrt(t2)
+        c, s = np.cos(0.5 * theta), np.sin(0.5 * theta) / theta
+    return (c, s * p0, s * p1, s * p2)
 
 
 @njit(cache=True, inline="always")
 def _dexpinv(phi, w):
     """phi_dot of q = q0 ⊗ exp(phi) for the body rate w (the Bortz equation)."""
     theta2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    theta = np.sqrt(theta2)
-    # (1 - (theta/2) cot(theta/2)) / theta^2, with its series 1/12 + theta^2/720 when small
-    if theta > 1e-3:
-        c = (1.0 - 0.5 * theta / np.tan(0.5 * theta)) / theta2
+    # (1 - (theta/2) cot(theta/2)) / theta^2, with its series to theta^6 when small
+    if theta2 < _SERIES_RAD * _SERIES_RAD:
+        c = 1.0 / 12.0 + theta2 / 720.0 * (1.0 + theta2 / 42.0 * (1.0 + theta2 / 40.0))
     else:
-        c = 1.0 / 12.0 + theta2 / 720.0
+        theta = np.sqrt(theta2)
+        c = (1.0 - 0.5 * theta / np.tan(0.5 * theta)) / theta2
     pxw = _cross3(phi, w)
     ppw = _cross3(phi, pxw)
     return (w[0] + 0.5 * pxw[0] + c * ppw[0], w[1] + 0.5 * pxw[1] + c * ppw[1],
             w[2] + 0.5 * pxw[2] + c * ppw[2])
 
 
-@njit(cache=True)
-def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
-    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
-    (3-tuple) with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple), N·m:
-    the equations of the module docstring."""
+@njit(cache=True, inline="always")
+def _rotation(q):
+    """The rotation matrix R(q) (rotor to stator) of the quaternion q (4-tuple), as a 9-tuple
+    (R00, R01, R02, R10, ..., R22)."""
     qw, qx, qy, qz = q
-    R00 = 1 - 2 * (qy * qy + qz * qz)
-    R01 = 2 * (qx * qy - qw * qz)
-    R02 = 2 * (qx * qz + qw * qy)
-    R10 = 2 * (qx * qy + qw * qz)
-    R11 = 1 - 2 * (qx * qx + qz * qz)
-    R12 = 2 * (qy * qz - qw * qx)
-    R20 = 2 * (qx * qz - qw * qy)
-    R21 = 2 * (qy * qz + qw * qx)
-    R22 = 1 - 2 * (qx * qx + qy * qy)
-    # K(q) I = sum_j a_j x r_j with r_j the magnet axis in the stator frame and
-    # a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j) (plant.torque.TorqueMap)
-    cut = scal[3]
+    return (1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy),
+            2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+            2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
+
+
+@njit(cache=True, inline="always")
+def _magnet_torque(r0, r1, r2, cv, lo, hi, cut):
+    """The torque a x r, N·m (stator frame), of the magnet with axis r = (r0, r1, r2) in the
+    stator frame on the listed coils ``cv[lo:hi]`` (``_window_pairs``):
+    a = sum_i g_j I_i w(c_i . r) c_i, the window w = max(x, 0)^2 without a branch (a listed pair
+    near its cut-off opens and closes unpredictably)."""
+    a0 = a1 = a2 = 0.0
+    for k in range(lo, hi):
+        x = max(cv[k, 0] * r0 + cv[k, 1] * r1 + cv[k, 2] * r2 - cut, 0.0)
+        x2 = x * x
+        a0 += x2 * cv[k, 3]
+        a1 += x2 * cv[k, 4]
+        a2 += x2 * cv[k, 5]
+    return a1 * r2 - a2 * r1, a2 * r0 - a0 * r2, a0 * r1 - a1 * r0
+
+
+@njit(cache=True)
+def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv):
+    """List the coil-magnet pairs whose window can be open for the rotor at R (9-tuple) with
+    the coil currents ``cur`` (16,), A, and return K(q) I there (3-tuple, N·m, stator frame).
+
+    For each magnet j, the coils i with a current and ``c_i . R m_j > cos_wide`` go to
+    ``cv[start[j]:start[j + 1]]`` in increasing i, as (c_i, g_j I_i c_i) (the window's scale
+    folded into ``gain``). With ``cos_wide = cos(phi_c + M)`` the list holds every pair that can
+    open while the rotor turns by at most M rad from R (a rotation by M moves each axis by at
+    most M); ``cut = cos(phi_c)``. K(q) I = sum_j a_j x r_j with r_j the magnet axis in the
+    stator frame and a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j)
+    (``plant.torque.TorqueMap``)."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    n = 0
     T0 = T1 = T2 = 0.0
     for j in range(magnets.shape[0]):
+        start[j] = n
         m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
         r0 = R00 * m0 + R01 * m1 + R02 * m2
         r1 = R10 * m0 + R11 * m1 + R12 * m2
         r2 = R20 * m0 + R21 * m1 + R22 * m2
-        a0 = a1 = a2 = 0.0
         for i in range(coils.shape[0]):
-            x = coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 - cut
-            if x > 0.0:
-                g = x * x * gain[j] * cur[i]
-                a0 += g * coils[i, 0]
-                a1 += g * coils[i, 1]
-                a2 += g * coils[i, 2]
-        T0 += a1 * r2 - a2 * r1
-        T1 += a2 * r0 - a0 * r2
-        T2 += a0 * r1 - a1 * r0
+            if cur[i] != 0.0 and coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
+                s = gain[j] * cur[i]
+                cv[n, 0], cv[n, 1], cv[n, 2] = coils[i, 0], coils[i, 1], coils[i, 2]
+                cv[n, 3], cv[n, 4], cv[n, 5] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
+                n += 1
+        if n > start[j]:
+            t = _magnet_torque(r0, r1, r2, cv, start[j], n, cut)
+            T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
+    start[magnets.shape[0]] = n
+    return T0, T1, T2
+
+
+@njit(cache=True, inline="always")
+def _coil_torque(R, start, cv, magnets, cut):
+    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) from the pair lists of
+    ``_window_pairs`` made at an attitude within their margin of R: only the listed pairs can
+    be inside their window, and a magnet without any adds nothing."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    T0 = T1 = T2 = 0.0
+    for j in range(magnets.shape[0]):
+        if start[j] == start[j + 1]:
+            continue
+        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
+        t = _magnet_torque(R00 * m0 + R01 * m1 + R02 * m2, R10 * m0 + R11 * m1 + R12 * m2,
+                           R20 * m0 + R21 * m1 + R22 * m2, cv, start[j], start[j + 1], cut)
+        T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
+    return T0, T1, T2
+
+
+@njit(cache=True)
+def _rotor_tuples(J, J_inv, com, m_g, scal):
+    """The rotor's constants of ``RigidBody.consts`` as tuples of floats: J and J^-1 row by row
+    (9 each), the centre of mass offset, m g and the scalars of ``_SCALARS``. The compiled
+    functions pass them by value (arrays would cost a reference count per call)."""
+    return ((J[0, 0], J[0, 1], J[0, 2], J[1, 0], J[1, 1], J[1, 2], J[2, 0], J[2, 1], J[2, 2]),
+            (J_inv[0, 0], J_inv[0, 1], J_inv[0, 2], J_inv[1, 0], J_inv[1, 1], J_inv[1, 2],
+             J_inv[2, 0], J_inv[2, 1], J_inv[2, 2]),
+            (com[0], com[1], com[2]), (m_g[0], m_g[1], m_g[2]),
+            (scal[0], scal[1], scal[2], scal[3], scal[4], scal[5], scal[6], scal[7]))
+
+
+@njit(cache=True, inline="always")
+def _dynamics(R, T, w, d, rotor):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude R (9-tuple) and body rate w
+    (3-tuple) with the coils' torque T = K(q) I (3-tuple, N·m, stator frame) and the body
+    torque d (3-tuple), N·m: the equations of the module docstring. ``rotor`` holds the
+    constants (``_rotor_tuples``)."""
+    J, J_inv, com, m_g, scal = rotor
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    T0, T1, T2 = T
     # The tilt stop: force -max(0, k (beta - beta_max) + c beta_dot) about u = Z x s / |Z x s|
     cos_b = min(max(R22, -1.0), 1.0)
     if cos_b < scal[7]:
@@ -150,52 +253,105 @@ def _acceleration(q, w, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal):
           R02 * T0 + R12 * T1 + R22 * T2)
     gb = (R00 * m_g[0] + R10 * m_g[1] + R20 * m_g[2], R01 * m_g[0] + R11 * m_g[1] + R21 * m_g[2],
           R02 * m_g[0] + R12 * m_g[1] + R22 * m_g[2])
-    grav = _cross3((com[0], com[1], com[2]), gb)
-    Jw = (J[0, 0] * w[0] + J[0, 1] * w[1] + J[0, 2] * w[2],
-          J[1, 0] * w[0] + J[1, 1] * w[1] + J[1, 2] * w[2],
-          J[2, 0] * w[0] + J[2, 1] * w[1] + J[2, 2] * w[2])
+    grav = _cross3(com, gb)
+    Jw = (J[0] * w[0] + J[1] * w[1] + J[2] * w[2],
+          J[3] * w[0] + J[4] * w[1] + J[5] * w[2],
+          J[6] * w[0] + J[7] * w[1] + J[8] * w[2])
     gyro = _cross3(w, Jw)
     coulomb = scal[1] / np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2] + scal[2] * scal[2])
     t0 = tb[0] + grav[0] - scal[0] * w[0] - gyro[0] - coulomb * w[0] + d[0]
     t1 = tb[1] + grav[1] - scal[0] * w[1] - gyro[1] - coulomb * w[1] + d[1]
     t2 = tb[2] + grav[2] - scal[0] * w[2] - gyro[2] - coulomb * w[2] + d[2]
-    return (J_inv[0, 0] * t0 + J_inv[0, 1] * t1 + J_inv[0, 2] * t2,
-            J_inv[1, 0] * t0 + J_inv[1, 1] * t1 + J_inv[1, 2] * t2,
-            J_inv[2, 0] * t0 + J_inv[2, 1] * t1 + J_inv[2, 2] * t2)
+    return (J_inv[0] * t0 + J_inv[1] * t1 + J_inv[2] * t2,
+            J_inv[3] * t0 + J_inv[4] * t1 + J_inv[5] * t2,
+            J_inv[6] * t0 + J_inv[7] * t1 + J_inv[8] * t2)
 
 
 @njit(cache=True)
-def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
-               scal):
-    """Advance every row b of the batch by h[b] s: ``substeps`` RKMK4 steps (module
-    docstring), currents and disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
+def _acceleration(q, w, d, pairs, rotor, magnets):
+    """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
+    (3-tuple) with the body torque d (3-tuple), N·m, the coil currents in ``pairs`` (the
+    ``_window_pairs`` lists (start, cv) of an attitude within their margin of q)."""
+    R = _rotation(q)
+    return _dynamics(R, _coil_torque(R, pairs[0], pairs[1], magnets, rotor[4][3]), w, d, rotor)
+
+
+@njit(cache=True)
+def _pair_lists(n_magnets, n_coils):
+    """Empty ``_window_pairs`` lists (start, cv) for every pair of a rotor."""
+    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty((n_magnets * n_coils, 6)))
+
+
+@njit(cache=True, inline="always")
+def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain):
+    """The acceleration at the stage attitude qb ⊗ exp(phi) and rate ws (``_acceleration``):
+    with the step's pair lists while the rotor has turned by at most ``turned + |phi|`` <=
+    ``margin`` rad from the attitude they were made at, else with lists made at the stage."""
+    qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+    if turned + np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]) > margin:
+        own = _pair_lists(magnets.shape[0], coils.shape[0])
+        R = _rotation(qs)
+        cut = rotor[4][3]
+        return _dynamics(R, _window_pairs(R, cur, coils, magnets, gain, cut, cut, *own), ws, d,
+                         rotor)
+    return _acceleration(qs, ws, d, pairs, rotor, magnets)
+
+
+@njit(cache=True)
+def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets,
+                       gain, scal, max_angle=SUBSTEP_ANGLE_RAD):
+    """``_step_rows``, also returning the number of acceleration evaluations of each row (B,)
+    (four per RKMK4 sub-step)."""
     B = q.shape[0]
     q_out = np.empty((B, 4))
     w_out = np.empty((B, 3))
+    evaluations = np.empty(B, dtype=np.int64)
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
+    cutoff = np.arccos(scal[3])  # rad, the windows' cut-off angle phi_c
     for b in range(B):
         qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
         wb = (omega[b, 0], omega[b, 1], omega[b, 2])
         cur = currents[b]
         d = (dist[b, 0], dist[b, 1], dist[b, 2])
-        hs = h[b] / substeps
-        for _ in range(substeps):
+        # The pairs that can open during the step, listed once at its start: the margin
+        # covers the turn at the starting rate with room to spare; a stage that turns
+        # further is evaluated with lists of its own (``_stage``), so the result never
+        # depends on the margin.
+        margin = (_MARGIN_TURNS * h[b] * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+                  + _MARGIN_RAD)
+        wide = cutoff + margin
+        R = _rotation(qb)
+        T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
+                          np.cos(wide) if wide < np.pi else -2.0, *pairs)
+        # The first stage is the same for any number of sub-steps: its rate and acceleration
+        # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
+        k1w = _dynamics(R, T, wb, d, rotor)
+        rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+                + h[b] * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
+        n_sub = max(substeps, int(np.ceil(h[b] * rate / max_angle)))
+        hs = h[b] / n_sub
+        turned = 0.0  # rad, a bound on the rotation from the step's start to qb
+        for s in range(n_sub):
             # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
-            k1w = _acceleration(qb, wb, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            if s > 0:
+                k1w = _stage(qb, (0.0, 0.0, 0.0), turned, margin, wb, cur, d, pairs, rotor,
+                             coils, magnets, gain)
             k1p = wb
             phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
             ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k2w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k2w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k2p = _dexpinv(phi, ws)
             phi = (0.5 * hs * k2p[0], 0.5 * hs * k2p[1], 0.5 * hs * k2p[2])
             ws = (wb[0] + 0.5 * hs * k2w[0], wb[1] + 0.5 * hs * k2w[1], wb[2] + 0.5 * hs * k2w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k3w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k3w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k3p = _dexpinv(phi, ws)
             phi = (hs * k3p[0], hs * k3p[1], hs * k3p[2])
             ws = (wb[0] + hs * k3w[0], wb[1] + hs * k3w[1], wb[2] + hs * k3w[2])
-            qs = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            k4w = _acceleration(qs, ws, cur, d, J, J_inv, com, m_g, coils, magnets, gain, scal)
+            k4w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
+                         gain)
             k4p = _dexpinv(phi, ws)
             c = hs / 6.0
             phi = (c * (k1p[0] + 2.0 * k2p[0] + 2.0 * k3p[0] + k4p[0]),
@@ -204,23 +360,39 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
             wb = (wb[0] + c * (k1w[0] + 2.0 * k2w[0] + 2.0 * k3w[0] + k4w[0]),
                   wb[1] + c * (k1w[1] + 2.0 * k2w[1] + 2.0 * k3w[1] + k4w[1]),
                   wb[2] + c * (k1w[2] + 2.0 * k2w[2] + 2.0 * k3w[2] + k4w[2]))
+            turned += np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
             qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
             n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
             qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
         q_out[b, 0], q_out[b, 1], q_out[b, 2], q_out[b, 3] = qb
         w_out[b, 0], w_out[b, 1], w_out[b, 2] = wb
+        evaluations[b] = 4 * n_sub
+    return q_out, w_out, evaluations
+
+
+@njit(cache=True)
+def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
+               scal, max_angle=SUBSTEP_ANGLE_RAD):
+    """Advance every row b of the batch by h[b] s: RKMK4 sub-steps (module docstring), at least
+    ``substeps`` of them and more where a sub-step would turn the rotor by more than
+    ``max_angle`` rad (``SUBSTEP_ANGLE_RAD``; ``np.inf``: exactly ``substeps``), currents and
+    disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
+    q_out, w_out, _ = _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com,
+                                         m_g, coils, magnets, gain, scal, max_angle)
     return q_out, w_out
 
 
 @njit(cache=True)
 def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magnets, gain, scal):
-    """``_acceleration`` for every row of a batch: omega_dot (B, 3), rad/s²."""
+    """omega_dot (B, 3), rad/s², for every row of a batch (``_dynamics``)."""
     out = np.empty((q.shape[0], 3))
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     for b in range(q.shape[0]):
-        out[b] = _acceleration((q[b, 0], q[b, 1], q[b, 2], q[b, 3]),
-                               (omega[b, 0], omega[b, 1], omega[b, 2]), currents[b],
-                               (dist[b, 0], dist[b, 1], dist[b, 2]),
-                               J, J_inv, com, m_g, coils, magnets, gain, scal)
+        R = _rotation((q[b, 0], q[b, 1], q[b, 2], q[b, 3]))
+        T = _window_pairs(R, currents[b], coils, magnets, gain, scal[3], scal[3], *pairs)
+        out[b] = _dynamics(R, T, (omega[b, 0], omega[b, 1], omega[b, 2]),
+                           (dist[b, 0], dist[b, 1], dist[b, 2]), rotor)
     return out
 
 
@@ -249,8 +421,15 @@ class RigidBody:
     the first call in a process loads it from numba's on-disk cache (or compiles it once).
     """
 
-    def __init__(self, params: PlantParams) -> None:
+    def __init__(self, params: PlantParams, min_substeps: int = PHYSICS_SUBSTEPS,
+                 substep_angle_rad: float = SUBSTEP_ANGLE_RAD) -> None:
         self.params = p = params
+        #: The fewest RKMK4 sub-steps per step, and the largest rotation per sub-step, rad
+        #: (``np.inf``: exactly ``min_substeps`` sub-steps); the defaults are the plant's rule.
+        self.min_substeps, self.substep_angle_rad = int(min_substeps), float(substep_angle_rad)
+        #: How many times each row of the last ``step`` evaluated the acceleration (B,): four
+        #: per RKMK4 sub-step.
+        self.evaluations = np.zeros(0, dtype=np.int64)
         r, motor = p.rotor, p.motor
         self.J = p.rotor.inertia_about_centre_kgm2
         self.J_inv = np.linalg.inv(self.J)
@@ -303,10 +482,19 @@ class RigidBody:
         disturbance: NDArray[np.float64] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Advance by ``h`` (s; a scalar or one per rotor, (B,)) with the ``currents`` (B, 16),
-        A, and the body-frame ``disturbance`` (B, 3), N·m, held: ``PHYSICS_SUBSTEPS`` RKMK4
-        steps. Returns the new ``(q, omega)``; ``q`` is renormalised."""
-        q, omega, currents = (np.ascontiguousarray(x, dtype=float) for x in (q, omega, currents))
-        hb = np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (q.shape[0],)))
-        d = np.zeros_like(omega) if disturbance is None else np.array(  # a writable copy: one
+        A, and the body-frame ``disturbance`` (B, 3), N·m, held: RKMK4 sub-steps, as many per
+        row as ``substep_angle_rad`` asks (one for a slow rotor; ``evaluations`` counts them).
+        Returns the new ``(q, omega)``; ``q`` is renormalised."""
+        # Written out for the one-rotor calls of the event loop, where this preparation costs
+        # as much as the step: no-ops for C-contiguous float arrays, a scalar h filled.
+        q = np.ascontiguousarray(q, dtype=float)
+        omega = np.ascontiguousarray(omega, dtype=float)
+        currents = np.ascontiguousarray(currents, dtype=float)
+        B = q.shape[0]
+        hb = (np.full(B, h, dtype=float) if np.ndim(h) == 0
+              else np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (B,))))
+        d = np.zeros((B, 3)) if disturbance is None else np.array(  # a writable copy: one
             np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
-        return _step_rows(q, omega, currents, hb, d, PHYSICS_SUBSTEPS, *self.consts)
+        q_new, w_new, self.evaluations = _step_rows_counted(
+            q, omega, currents, hb, d, self.min_substeps, *self.consts, self.substep_angle_rad)
+        return q_new, w_new

@@ -7,9 +7,12 @@ The same equations as ``plant.dynamics`` (see its docstring), written symbolical
 * ``K(q)`` is the torque map of ``plant.torque`` rebuilt from the same geometry;
 * ``f(x, u)`` is the continuous-time right-hand side, for multiple shooting;
 * ``step(x, u)`` is one physics step of ``params.physics_dt_s`` discretised as the plant does it
-  (``plant.rigid_body``): ``PHYSICS_SUBSTEPS`` fourth-order Runge-Kutta-Munthe-Kaas steps on the
+  (``plant.rigid_body``): ``TWIN_SUBSTEPS`` fourth-order Runge-Kutta-Munthe-Kaas steps on the
   rotation group, every torque evaluated at each stage, the currents held (an independent code
-  of the plant's compiled step, which tests/test_rigid_body.py checks it against).
+  of the plant's compiled step, which tests/test_rigid_body.py checks it against). A CasADi
+  graph has a fixed number of sub-steps: the twin takes two, the number the plant's rule
+  (``plant.rigid_body.SUBSTEP_ANGLE_RAD``) takes from 16 to 32 rad/s, and more accurate than
+  the plant's one sub-step below.
 
 ``f``, ``f_torque`` and ``step`` have no tilt stop (the MPC gets a tilt constraint instead); no
 function has the coil lag (they take the actual currents).
@@ -24,8 +27,10 @@ from numpy.typing import ArrayLike, NDArray
 from plant import attitude
 from plant.geometry import coil_axes, magnet_axes, magnet_polarity
 from plant.params import PlantParams
-from plant.rigid_body import PHYSICS_SUBSTEPS
 from plant.torque import N_COILS, window
+
+#: RKMK4 sub-steps of the twin's ``step`` per physics step (module docstring).
+TWIN_SUBSTEPS = 2
 
 
 def quat_to_matrix(q: ca.SX) -> ca.SX:
@@ -171,7 +176,7 @@ class CasadiTwin:
 
         # The plant's step: RKMK4 substeps on the group (plant.rigid_body), torques in the stages.
         acc = ca.Function("acc", [q, omega, u], [xdot[4:7]])
-        x_next = rkmk4(acc, q, omega, self.dt, PHYSICS_SUBSTEPS, u)
+        x_next = rkmk4(acc, q, omega, self.dt, TWIN_SUBSTEPS, u)
         self.step = ca.Function("step", [x, u], [x_next], ["x", "u"], ["x_next"])
 
     def simulate(

@@ -8,33 +8,48 @@ from scipy.integrate import solve_ivp
 from plant import attitude as A
 from plant.dynamics import MujocoPlant
 from plant.params import PlantParams
-from plant.rigid_body import RigidBody, tilt_stop_contact
+from plant.rigid_body import RigidBody, stop_gains, tilt_stop_contact
 from plant.torque import TorqueMap
-from plant.twin import CasadiTwin
+from plant.twin import TWIN_SUBSTEPS, CasadiTwin
 from tests.test_dynamics import balanced_currents
 
 ARCSEC_RAD = np.deg2rad(1.0 / 3600.0)
 
 
-def reference(p: PlantParams, q0, w0, U):
-    """The equations of ``plant.dynamics`` integrated by scipy's DOP853 at tight tolerances,
-    K(q) evaluated continuously by ``plant.torque.TorqueMap`` (independent of
-    ``plant.rigid_body``), the quaternion's components integrated as a vector ODE. One solve
-    per run of equal currents; returns the attitudes (N+1, 4) at the physics steps."""
-    r, tm, h = p.rotor, TorqueMap(p.motor), p.physics_dt_s
+def reference_acceleration(p: PlantParams, tm: TorqueMap, q, w, current, torque_body=None):
+    """omega_dot (3,), rad/s², of the equations of ``plant.dynamics`` written out in numpy:
+    K(q) by ``plant.torque.TorqueMap`` (independent of ``plant.rigid_body``), the tilt stop's
+    spring-damper on beta = acos(R_zz) about u = Z x s / |Z x s| with the gains of
+    ``stop_gains``, and a body torque (N·m)."""
+    r = p.rotor
     d = np.asarray(r.com_offset_m)
     J = np.diag(r.inertia_com_kgm2) + r.mass_kg * (d @ d * np.eye(3) - np.outer(d, d))
-    J_inv = np.linalg.inv(J)
     mg = r.mass_kg * np.array([0.0, 0.0, -r.gravity_m_s2])
+    R = A.to_matrix(q)
+    T = tm.from_matrix(R) @ current
+    k, c, beta_max = stop_gains(p)
+    s = R[:, 2]  # the shaft in the stator frame
+    beta = np.arccos(np.clip(s[2], -1.0, 1.0))
+    if beta > beta_max:
+        u = np.cross([0.0, 0.0, 1.0], s)
+        u /= np.linalg.norm(u)
+        T = T - max(0.0, k * (beta - beta_max) + c * (R @ w) @ u) * u
+    tau = R.T @ T + np.cross(d, R.T @ mg) - r.viscous_Nms_per_rad * w - np.cross(w, J @ w)
+    tau -= r.coulomb_Nm * w / np.sqrt(w @ w + r.coulomb_smoothing_rad_s**2)
+    return np.linalg.solve(J, tau + (0.0 if torque_body is None else torque_body))
+
+
+def reference(p: PlantParams, q0, w0, U):
+    """The equations of ``plant.dynamics`` integrated by scipy's DOP853 at tight tolerances,
+    K(q) evaluated continuously (``reference_acceleration``), the quaternion's components
+    integrated as a vector ODE. One solve per run of equal currents; returns the attitudes
+    (N+1, 4) at the physics steps."""
+    tm, h = TorqueMap(p.motor), p.physics_dt_s
 
     def rhs(_t, x, current):
         q, w = x[:4] / np.linalg.norm(x[:4]), x[4:]
-        R = A.to_matrix(q)
-        tau = R.T @ (tm(q) @ current) + np.cross(d, R.T @ mg) - r.viscous_Nms_per_rad * w
-        tau -= np.cross(w, J @ w) + r.coulomb_Nm * w / np.sqrt(
-            w @ w + r.coulomb_smoothing_rad_s**2
-        )
-        return np.r_[0.5 * A.multiply(x[:4], np.r_[0.0, w]), J_inv @ tau]
+        return np.r_[0.5 * A.multiply(x[:4], np.r_[0.0, w]),
+                     reference_acceleration(p, tm, q, w, current)]
 
     change = np.r_[0, np.flatnonzero(np.any(np.diff(U, axis=0) != 0, axis=1)) + 1, len(U)]
     x = np.r_[q0, w0]
@@ -87,25 +102,124 @@ def test_twin_on_the_group_stays_on_the_reference_up_to_the_terminal_speed(spin_
 def test_compiled_step_and_twin_take_the_same_step():
     """The two codes of the step (the compiled kernel of ``plant.rigid_body``, which the plant
     runs for one rotor and the batched engine for many; the CasADi twin's ``step``) discretise
-    the same equations with the same method: over the 1 s test sequence at 30 rad/s they agree
-    to rounding (far inside the 1e-6 rad of each to the reference). The batch holds two rotors,
+    the same equations with the same method: over the 1 s test sequence at 30 rad/s, with the
+    twin's fixed two sub-steps per step, they agree to rounding (far inside the 1e-6 rad of
+    each to the reference). The plant's own rule (the spin decays from 30 to 12 rad/s, so it
+    goes from two sub-steps to one) is the same kernel in a batch: the batch holds two rotors,
     the second at rest."""
     p = PlantParams()
     q0, w0 = A.from_zyz(0.3, np.deg2rad(5), 1.0), np.array([0.1, -0.1, 30.0])
     U = balanced_currents(np.random.default_rng(1), 0.3)
     Q, W = MujocoPlant(p, q0, w0).simulate(U)
     Qt, Wt = CasadiTwin(p).simulate(q0, w0, U)
-    body = RigidBody(p)
+    body, fixed = RigidBody(p), RigidBody(p, TWIN_SUBSTEPS, np.inf)
     q, w = np.stack([q0, [1.0, 0.0, 0.0, 0.0]]), np.stack([w0, np.zeros(3)])
-    Qb = [q[0]]
+    qf, wf = q[:1], w[:1]
+    Qb, Qf, Wf = [q[0]], [qf[0]], [wf[0]]
     for u in U:
         q, w = body.step(q, w, np.stack([u, np.zeros(16)]), p.physics_dt_s)
+        qf, wf = fixed.step(qf, wf, u[None], p.physics_dt_s)
         Qb.append(q[0])
-    assert max_angle(Q, Qt) < 1e-9
-    assert np.abs(W - Wt).max() < 1e-8
+        Qf.append(qf[0])
+        Wf.append(wf[0])
+    assert max_angle(Qf, Qt) < 1e-9
+    assert np.abs(np.array(Wf) - Wt).max() < 1e-8
     assert max_angle(Q, Qb) < 1e-12  # one rotor or a batch: the same kernel
     assert np.abs(W[-1] - w[0]).max() < 1e-10
     assert A.geodesic_angle(q[1], [1.0, 0.0, 0.0, 0.0]) == 0.0  # no torque, no motion
+
+
+def test_a_slow_rotor_takes_one_substep_and_stays_on_the_reference():
+    """At the study's rates (6 rad/s spin, the ±0.3 A test sequence) every physics step takes
+    one RKMK4 sub-step (four evaluations of the acceleration, counted by the kernel), and over
+    0.25 s the attitude stays within 2e-8 rad of the continuous reference (measured 1.0e-8 rad;
+    the fast rows' bound is 1e-6 rad)."""
+    p = PlantParams()
+    q0, w0 = A.from_zyz(0.3, np.deg2rad(5), 1.0), np.array([0.1, -0.1, 6.0])
+    U = balanced_currents(np.random.default_rng(0), 0.3)[:250]
+    Q_ref = reference(p, q0, w0, U)
+    body = RigidBody(p)
+    q, w = q0[None], w0[None]
+    Q, evaluations = [q0], []
+    for u in U:
+        q, w = body.step(q, w, u[None], p.physics_dt_s)
+        Q.append(q[0])
+        evaluations.append(body.evaluations[0])
+    assert set(evaluations) == {4}
+    assert max(A.tilt(q) for q in Q_ref) > np.deg2rad(5)  # the currents move the rotor
+    assert max_angle(Q, Q_ref) < 2e-8
+
+
+def test_fast_rows_take_the_substeps_their_rotation_needs():
+    """Rows of one batch take their own number of sub-steps: ceil(h |omega| / 0.016 rad) from
+    the documented rule (``SUBSTEP_ANGLE_RAD``), at least one: at rest, 6 and 15 rad/s one
+    (four evaluations), 30 rad/s two, 235 rad/s (the free-spin terminal speed) fifteen; a
+    shortened step of 0.4 ms at 60 rad/s two. Each row's result is the one it gets alone."""
+    p = PlantParams()
+    body = RigidBody(p)
+    spins = np.array([0.0, 6.0, 15.0, 30.0, 235.0, 60.0])
+    h = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 4e-4])
+    q = np.tile(A.from_zyz(0.3, np.deg2rad(5), 1.0), (6, 1))
+    w = np.column_stack([np.zeros(6), np.zeros(6), spins])
+    cur = np.tile(np.random.default_rng(3).uniform(-0.3, 0.3, 16), (6, 1))
+    q1, w1 = body.step(q, w, cur, h)
+    n = body.evaluations
+    assert n.tolist() == [4, 4, 4, 8, 60, 8]
+    for i in range(6):
+        qi, wi = body.step(q[i : i + 1], w[i : i + 1], cur[i : i + 1], h[i])
+        assert body.evaluations[0] == n[i]
+        assert np.array_equal(qi[0], q1[i]) and np.array_equal(wi[0], w1[i])
+
+
+def _reference_step(p: PlantParams, tm: TorqueMap, q, w, current, h, n, torque_body):
+    """n RKMK4 sub-steps of h/n (the method of ``plant.rigid_body``) written out in numpy on
+    ``reference_acceleration``."""
+    hs = h / n
+    for _ in range(n):
+        k_phi, k_w = [], []
+        for a in (0.0, 0.5, 0.5, 1.0):
+            phi = a * hs * k_phi[-1] if k_phi else np.zeros(3)
+            ws = w + a * hs * k_w[-1] if k_w else w
+            k_w.append(reference_acceleration(p, tm, A.multiply(q, A.from_rotvec(phi)), ws,
+                                              current, torque_body))
+            theta = np.linalg.norm(phi)  # the Bortz equation
+            c = 1.0 / 12.0 if theta < 1e-6 else (1.0 - theta / 2.0 / np.tan(theta / 2.0)) / theta**2
+            k_phi.append(ws + 0.5 * np.cross(phi, ws) + c * np.cross(phi, np.cross(phi, ws)))
+        phi = hs / 6.0 * (k_phi[0] + 2.0 * k_phi[1] + 2.0 * k_phi[2] + k_phi[3])
+        w = w + hs / 6.0 * (k_w[0] + 2.0 * k_w[1] + 2.0 * k_w[2] + k_w[3])
+        q = A.multiply(q, A.from_rotvec(phi))
+        q = q / np.linalg.norm(q)
+    return q, w
+
+
+def test_compiled_acceleration_and_step_are_the_straightforward_formula():
+    """The compiled kernel (window pairs listed once per step, series for the exponential map)
+    against the formula written out in numpy, on random rows: attitudes anywhere (the tilt stop
+    in contact on many), rates from 0 to 200 rad/s, currents up to the 2 A limit with some coils
+    off, body torques, one of 60 N·m that turns the rotor beyond the pair lists' margin within
+    the step. omega_dot to 1e-12 relative; one step with the kernel's own number of sub-steps
+    to 1e-12 rad and 1e-12 relative in omega."""
+    p = PlantParams()
+    tm, body = TorqueMap(p.motor), RigidBody(p)
+    rng = np.random.default_rng(4)
+    B = 24
+    q = np.stack([A.from_zyz(*rng.uniform(-np.pi, np.pi, 3)) for _ in range(B)])
+    w = rng.normal(size=(B, 3)) * rng.choice([0.0, 0.5, 5.0, 30.0, 200.0], size=(B, 1))
+    cur = rng.uniform(-2.0, 2.0, (B, 16)) * (rng.uniform(size=(B, 16)) > 0.2)
+    dist = rng.normal(size=(B, 3)) * 0.1
+    dist[0], w[0] = [60.0, 0.0, 0.0], 0.0
+    assert tilt_stop_contact(q, p).sum() > B // 2
+    acc = body.acceleration(q, w, cur, dist)
+    for b in range(B):
+        ref = reference_acceleration(p, tm, q[b], w[b], cur[b], dist[b])
+        assert np.abs(acc[b] - ref).max() < 1e-12 * np.abs(ref).max()
+    q1, w1 = body.step(q, w, cur, p.physics_dt_s, dist)
+    n = body.evaluations
+    assert n[0] > 4  # the 60 N·m row: 27 rad/s after the step, two sub-steps
+    for b in range(B):
+        qr, wr = _reference_step(p, tm, q[b], w[b], cur[b], p.physics_dt_s, n[b] // 4, dist[b])
+        assert A.geodesic_angle(q1[b], qr) < 1e-12
+        assert np.abs(w1[b] - wr).max() < 1e-12 * max(np.abs(wr).max(), 1.0)
 
 
 def test_each_row_takes_its_own_step_length():
