@@ -297,10 +297,7 @@ class ClosedLoop:
         ``run`` advances a ``MujocoPlant`` (``_advance_segment``); ``latency.batched``
         advances many runs at once."""
         c, p = self.config, self.params
-        rng = np.random.default_rng(c.seed)
-        rng_pipe, rng_ctrl, rng_dist = (
-            np.random.default_rng(s) for s in rng.integers(2**32, size=3)
-        )
+        rng_pipe, rng_ctrl, rng_dist = run_streams(c.seed)
         native = c.mujoco_sensor_delay_s is not None
         psd = np.asarray(c.disturbance_psd_Nm2s)
         if np.any(psd > 0):
@@ -535,6 +532,16 @@ class Segment:
     omega: NDArray[np.float64]
     currents: NDArray[np.float64]
     q_native: NDArray[np.float64] | None = None
+
+
+def run_streams(seed: int) -> tuple[np.random.Generator, ...]:
+    """A run's random streams, one Generator per purpose, spawned from ``LoopConfig.seed``:
+    the pipeline's latencies, the controller's latencies and the disturbance. Each stream is
+    consumed only by its purpose, so its numbers do not depend on the order of the events
+    (``latency.compiled`` draws the latencies of a whole run before it starts)."""
+    rng = np.random.default_rng(seed)
+    rng_pipe, rng_ctrl, rng_dist = (np.random.default_rng(s) for s in rng.integers(2**32, size=3))
+    return rng_pipe, rng_ctrl, rng_dist
 
 
 def _advance_segment(
