@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
+from latency import compiled
 from latency.loop import Advance, ClosedLoop, LoopResult, Segment
 from plant import attitude
 from plant.params import PlantParams
@@ -121,18 +122,23 @@ class _RunPlant:
 def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[LoopResult]:
     """Run the closed loops together and return their results, in order.
 
-    Runs with different ``PlantParams`` are batched separately; a run alone in its batch runs on
-    the event loop. Each result is what ``loop.run()`` returns (the same tables and
-    ``summarize`` metrics).
+    Runs of the default case (``latency.compiled.covers``) run whole in the compiled run loop,
+    one after the other; the others advance together in lockstep, those with different
+    ``PlantParams`` in separate batches, and a run alone in its batch runs on the event loop.
+    Each result is what ``loop.run()`` returns (the same tables and ``summarize`` metrics).
     """
     for lp in loops:
         if lp.config.mujoco_sensor_delay_s is not None:
             raise ValueError("mujoco_sensor_delay_s needs MuJoCo's sensors: use the event loop")
     results: list[LoopResult | None] = [None] * len(loops)
     groups: dict[str, list[int]] = {}
-    for i, lp in enumerate(loops):
-        groups.setdefault(lp.params.model_dump_json(), []).append(i)
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
+    for i, lp in enumerate(loops):
+        if compiled.covers(lp):  # the default case: the whole run in the compiled loop
+            results[i] = compiled.run(lp)
+            bar.update(1)
+        else:
+            groups.setdefault(lp.params.model_dump_json(), []).append(i)
     for members in groups.values():
         group = [loops[i] for i in members]
         # A batch of one gains nothing from the lockstep rounds: the event loop calls the same

@@ -616,12 +616,13 @@ def run(loop: ClosedLoop) -> LoopResult:
                          p.motor.i_max_A)
         st[_CMD : _CMD + N_COILS], st[_TDEL : _TDEL + 3] = alloc.currents, alloc.delivered
         st[_ALLOC_SAT], ready = float(alloc.saturated), True
-    steps = log.frame(int(st[_K]) + 1)
-    frames_df = _frames_table(fr, solver)
-    events_df = _events_table(evs[: int(st[_N_EV])], frames_df)
+    steps = log.columns(int(st[_K]) + 1)
+    frames_cols = _frames_columns(fr, solver)
+    events = _events_table(evs[: int(st[_N_EV])], frames_cols)
     stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
-    summary = summarize(steps, frames_df, events_df, c.duration_s, stopped)
-    return LoopResult(steps, frames_df, events_df, summary, c.model_dump(mode="json"))
+    summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
+    return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
+                      c.model_dump(mode="json"))
 
 
 def _model_arrays(model: CorModel) -> tuple[NDArray, NDArray, NDArray]:
@@ -661,11 +662,11 @@ def _reason(f: NDArray[np.float64], solver: CorSolver) -> str:
     return text
 
 
-def _frames_table(fr: NDArray[np.float64], solver: CorSolver) -> pd.DataFrame:
-    """The frames table of ``ClosedLoop.timeline`` from the kernel's frame record: the same
-    columns in the same order and types (a column appears once a frame has it)."""
+def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDArray]:
+    """The frames table of ``ClosedLoop.timeline`` from the kernel's frame record, as columns:
+    the same columns in the same order and types (a column appears once a frame has it)."""
     if not len(fr):
-        return pd.DataFrame()
+        return {}
     data: dict[str, NDArray] = {
         "frame": fr[:, _F_INDEX].astype(np.int64),
         "t_exposure_s": fr[:, _F_T_EXP],
@@ -692,10 +693,10 @@ def _frames_table(fr: NDArray[np.float64], solver: CorSolver) -> pd.DataFrame:
         data["est_reason"] = reasons
         data["latency_s"] = fr[:, _F_LATENCY]
         data["controller_compute_s"] = np.full(len(fr), np.nan)  # not timed per call
-    return pd.DataFrame(data)
+    return data
 
 
-def _events_table(evs: NDArray[np.float64], frames: pd.DataFrame) -> pd.DataFrame:
+def _events_table(evs: NDArray[np.float64], frames: dict[str, NDArray]) -> pd.DataFrame:
     """The events table (time, kind, detail) from the kernel's record, with the event loop's
     texts."""
     rows = []
@@ -706,7 +707,7 @@ def _events_table(evs: NDArray[np.float64], frames: pd.DataFrame) -> pd.DataFram
         elif kind in ("tracking_loss", "reacquisition"):
             detail = CAPTURE_REASONS[int(a)] or f"centre error {b:.1f} px"
         elif kind == "invalid_estimate":
-            detail = frames["est_reason"].iat[int(a)]
+            detail = frames["est_reason"][int(a)]
         elif kind == "invalid_command":
             detail = f"controller returned {np.array([a, b, c])!r}"
         elif kind == "saturation":
