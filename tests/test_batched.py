@@ -1,12 +1,14 @@
 """The batched engine against the event loop, run by run, and the engine choice."""
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from typer.testing import CliRunner
 
 from experiments.cli import app
 from experiments.scenario import Scenario, build_loop, run_many
+from latency import compiled
 from latency.batched import run_batched
 from plant import attitude as A
 
@@ -45,7 +47,24 @@ GRID = {
         pipeline={"observer": {"kind": "gamma", "shape_k": 9.0, "scale_theta_s": 0.003}},
     ),
     "aekf": _scenario(seed=5, observer={"kind": "aekf"}),
+    # The compiled run loop's case (latency.compiled.covers): PID and the per-frame solver,
+    # sequential and pipelined, constant and random observer and controller latencies,
+    # outliers.
+    "compiled, sequential, random latencies": _scenario(
+        seed=6, measurement={"outlier_prob": 0.1},
+        pipeline={"observer": {"kind": "uniform", "low_s": 0.01, "high_s": 0.05}},
+        controller_latency={"kind": "gamma", "shape_k": 4.0, "scale_theta_s": 0.001},
+    ),
+    "compiled, pipelined, random latency": _scenario(
+        seed=7, reference={"kind": "cone", "args": {"tilt_deg": 8.0, "yaw_rate_rad_s": 3.0}},
+        pipeline={"observer": {"kind": "normal", "mean_value_s": 0.045, "std_s": 0.01},
+                  "mode": "pipelined"},
+        controller_latency={"kind": "constant", "value_s": 0.002},
+    ),
 }
+#: The cases that the compiled run loop computes; the others advance in lockstep.
+COMPILED = {"nominal", "past the stability boundary", "saturation and tilt stop", "lost frames",
+            "compiled, sequential, random latencies", "compiled, pipelined, random latency"}
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +95,37 @@ def test_batched_runs_follow_the_event_loop_run_by_run(both_engines, case):
             assert other == pytest.approx(value, rel=0.01, abs=1e-12), key
 
 
+def test_the_compiled_run_loop_takes_exactly_its_cases():
+    """The engine's choice per run: the compiled loop for PID + per-frame solver with model
+    latencies, the lockstep rounds for the other observers, a region of interest, a blur limit,
+    a measured controller latency or a disturbance."""
+    for case, s in GRID.items():
+        assert compiled.covers(build_loop(s)) == (case in COMPILED), case
+    base = GRID["nominal"]
+    for change in ({"measurement": {"roi": {"rows": 400, "cols": 400}}},
+                   {"measurement": {"blur_limit_px": 5.0}},
+                   {"controller_latency": "measured"}):
+        other = Scenario.model_validate({**base.model_dump(mode="json"), **change})
+        assert not compiled.covers(build_loop(other)), change
+    disturbed = build_loop(base)
+    disturbed.config = disturbed.config.model_copy(update={"disturbance_psd_Nm2s": (1e-8,) * 3})
+    assert not compiled.covers(disturbed)
+
+
+@pytest.mark.parametrize("case", sorted(COMPILED))
+def test_compiled_runs_give_the_event_loops_tables(both_engines, case):
+    """The compiled loop's frames and events tables are the event loop's: the same columns and
+    types, every timing, pixel, flag and estimate (to 1e-9), the same event texts; only the
+    controller's compute time is not timed per call (NaN)."""
+    ev, bt = both_engines[case]
+    assert bt.frames["controller_compute_s"].isna().all()
+    pd.testing.assert_frame_equal(ev.frames.drop(columns="controller_compute_s"),
+                                  bt.frames.drop(columns="controller_compute_s"),
+                                  check_exact=False, rtol=1e-9, atol=1e-9)
+    assert ev.events.detail.tolist() == bt.events.detail.tolist()
+    pd.testing.assert_frame_equal(ev.steps, bt.steps, check_exact=False, rtol=1e-6, atol=1e-9)
+
+
 def test_the_grid_covers_what_it_claims(both_engines):
     """The grid's cases do what their names say (on the event loop, the reference)."""
     kinds = {case: set(ev.events.kind) for case, (ev, _) in both_engines.items()}
@@ -87,6 +137,9 @@ def test_the_grid_covers_what_it_claims(both_engines):
     # a growing oscillation: the error late in the run exceeds the step itself
     late = unstable.steps[unstable.steps.t_s > 0.8].error_deg
     assert late.max() > 5.0 and late.max() > nominal
+    seq = both_engines["compiled, sequential, random latencies"][0]
+    assert seq.frames.dropped.any() and seq.frames.latency_s.std() > 1e-3
+    assert not both_engines["compiled, pipelined, random latency"][0].frames.dropped.any()
 
 
 def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
