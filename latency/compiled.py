@@ -48,7 +48,8 @@ from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams, summariz
 from latency.pipeline import FrameScheduler
 from observer.cor_model import CorModel
 from observer.cor_solver import _CONVERGED, _SINGULAR, CorSolver, _lm, _residual_jac
-from observer.pixel_observer import SolverObserver
+from observer.gk.pixel_kalman import F_CV, H_CV
+from observer.pixel_observer import PixelKalmanObserver, SolverObserver
 from plant.rigid_body import PHYSICS_SUBSTEPS, RigidBody, _step_rows
 from plant.torque import N_COILS, TorqueMap, allocate
 
@@ -76,7 +77,9 @@ _INT, _PEND, _D, _D_INIT, _T_PREV = 60, 63, 66, 69, 70  # PID: integral, dI/dt, 
 _RATE_Q, _RATE_T, _RATE_W, _LAST_TAU = 71, 75, 76, 79  # PID: rate from attitude, held torque
 _FE_HAS, _FE_LAST, _FE_MOTION, _FE_LOST, _FE_SINCE = 82, 83, 87, 91, 92  # the front end
 _N_EV, _ALLOC_T, _ALLOC_Q, _DIV_DEG, _ALLOC_SAT = 93, 94, 97, 101, 102
-_N_STATE = 103
+#: The pixel Kalman filters of the two markers: per marker, initialised, X (4), P (4 x 4).
+_KF, _KF_SIZE = 103, 21
+_N_STATE = _KF + 2 * _KF_SIZE
 
 # --- the settings of a run (``par``), by index ------------------------------------------------
 (_P_DURATION, _P_H, _P_TAU_L, _P_N_STEPS, _P_COS_STOP, _P_DIV_DEG, _P_LOSS_PX, _P_SIGMA,
@@ -84,7 +87,8 @@ _N_STATE = 103
  _P_MAX_RMS, _P_MAX_TILT, _P_MAX_COND, _P_MAX_INVALID, _P_TAU_F, _P_LIMIT, _P_FRIC, _P_FRIC_W,
  _P_FF, _P_AW, _P_HOLD, _P_I_MAX, _P_TRUTH, _P_KT_COS) = range(30)
 _P_KP, _P_KI, _P_KD, _P_TT, _P_J = 30, 33, 36, 39, 42
-_N_PAR = 45
+_P_KF_ON, _P_KF_Q, _P_KF_R, _P_KF_V0 = 45, 46, 62, 66  # pixel Kalman: on, Q (4 x 4), R (2 x 2)
+_N_PAR = 67
 _AW_MODES = ("back_calculation", "conditional", "none")
 
 # --- the frame record (``fr``), by column -----------------------------------------------------
@@ -103,8 +107,8 @@ def covers(loop: ClosedLoop) -> bool:
     c, fe = loop.config, loop.front_end
     return (
         isinstance(loop.controller, PIDController)
-        and isinstance(loop.observer, SolverObserver)
-        and isinstance(loop.observer.solver, CorSolver)
+        and isinstance(_solver_observer(loop), SolverObserver)
+        and isinstance(_solver_observer(loop).solver, CorSolver)
         and isinstance(fe, MeasurementFrontEnd)
         and fe.params == loop.params
         and fe.config.roi is None
@@ -116,6 +120,15 @@ def covers(loop: ClosedLoop) -> bool:
         and not any(c.disturbance_psd_Nm2s)
         and c.mujoco_sensor_delay_s is None
     )
+
+
+def _solver_observer(loop: ClosedLoop) -> SolverObserver | None:
+    """The per-frame solver observer of the run: its observer, or the one behind its pixel
+    Kalman filters; None for other observers."""
+    obs = loop.observer
+    if isinstance(obs, PixelKalmanObserver):
+        return obs.inner
+    return obs if isinstance(obs, SolverObserver) else None
 
 
 def _schedule(loop: ClosedLoop) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -158,7 +171,9 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     c, p = loop.config, loop.params
     fe: MeasurementFrontEnd = loop.front_end  # type: ignore[assignment]
     m = fe.config
-    solver: CorSolver = loop.observer.solver  # type: ignore[attr-defined]
+    inner = _solver_observer(loop)
+    assert inner is not None and isinstance(inner.solver, CorSolver)
+    solver = inner.solver
     pid: PIDController = loop.controller  # type: ignore[assignment]
     pc = pid.config
     par = np.zeros(_N_PAR)
@@ -174,7 +189,12 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     par[_P_MAX_IT], par[_P_STEP_TOL] = sc.max_iterations, sc.step_tol_rad
     par[_P_MAX_RMS], par[_P_MAX_TILT] = sc.max_residual_rms_px, sc.max_tilt_rad
     par[_P_MAX_COND] = sc.max_condition
-    par[_P_MAX_INVALID] = loop.observer.max_invalid_s  # type: ignore[attr-defined]
+    par[_P_MAX_INVALID] = inner.max_invalid_s
+    if isinstance(loop.observer, PixelKalmanObserver):
+        kf = loop.observer.config
+        par[_P_KF_ON], par[_P_KF_V0] = 1.0, kf.velocity_var0
+        par[_P_KF_Q : _P_KF_Q + 16] = np.ravel(kf.Q)
+        par[_P_KF_R : _P_KF_R + 4] = np.ravel(kf.R)
     par[_P_TAU_F], par[_P_LIMIT] = pid.tau_f, pid.torque_limit
     par[_P_FRIC] = pc.friction_compensation_Nm
     par[_P_FRIC_W] = np.radians(pc.friction_compensation_width_deg)
@@ -308,6 +328,44 @@ def _solve(q_prev, uv, P, t_cor, intr, par):
     if tilt > par[_P_MAX_TILT]:
         return nan4, False, _R_TILT, tilt
     return q, True, _R_OK, 0.0
+
+
+@njit(cache=True)
+def _pixel_kalman(st, par, z, lost):
+    """The filters of ``PixelKalmanObserver.process`` (``observer.gk.pixel_kalman.PixelKalman``,
+    filterpy's equations: the prior, then the update in Joseph form, or coasting on the prior
+    when the frame is lost) on the measured centres z (2, 2), sensor px: the filtered centres
+    (NaN for a filter not yet initialised)."""
+    Q = par[_P_KF_Q : _P_KF_Q + 16].copy().reshape(4, 4)
+    R = par[_P_KF_R : _P_KF_R + 4].copy().reshape(2, 2)
+    out = np.full((2, 2), np.nan)
+    for i in range(2):
+        b = _KF + i * _KF_SIZE
+        x = st[b + 1 : b + 5].copy()
+        P = st[b + 5 : b + 21].copy().reshape(4, 4)
+        initialised = st[b] > 0
+        if initialised:
+            x = F_CV @ x
+            P = 1.0 * ((F_CV @ P) @ F_CV.T) + Q
+        if not lost and np.isfinite(z[i, 0]) and np.isfinite(z[i, 1]):
+            if not initialised:
+                x = np.array([z[i, 0], z[i, 1], 0.0, 0.0])
+                P = np.zeros((4, 4))
+                P[:2, :2] = R
+                P[2, 2] = P[3, 3] = par[_P_KF_V0]
+                initialised = True
+            else:
+                PHT = P @ H_CV.T
+                K = PHT @ np.linalg.inv(H_CV @ PHT + R)
+                x = x + K @ (z[i] - H_CV @ x)
+                I_KH = np.eye(4) - K @ H_CV
+                P = (I_KH @ P) @ I_KH.T + (K @ R) @ K.T
+        st[b] = 1.0 if initialised else 0.0
+        st[b + 1 : b + 5] = x
+        st[b + 5 : b + 21] = P.ravel()
+        if initialised:
+            out[i] = x[:2]
+    return out
 
 
 @njit(cache=True)
@@ -527,10 +585,14 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
                 _event(st, evs, t, _EV_DIVERGENCE, st[_DIV_DEG], 0.0, 0.0, 0.0)
         elif ev_kind[e] == _RELEASE:
             t_exp = f[_F_T_EXP]
-            if f[_F_CAP_LOST] > 0:
+            uv = f[_F_MEAS : _F_MEAS + 4].copy().reshape(2, 2)
+            lost = f[_F_CAP_LOST] > 0
+            if par[_P_KF_ON] > 0:  # the filters' prior stands in for a lost frame
+                uv = _pixel_kalman(st, par, uv, lost)
+                lost = lost and not np.all(np.isfinite(uv))
+            if lost:
                 code, value = _R_LOST, f[_F_CAP_REASON]
             else:
-                uv = f[_F_MEAS : _F_MEAS + 4].copy().reshape(2, 2)
                 q_sol, ok, code, value = _solve(st[_OBS_Q : _OBS_Q + 4], uv, *obs_model, par)
                 if ok:
                     st[_OBS_Q : _OBS_Q + 4], st[_OBS_T] = q_sol, t_exp
@@ -594,12 +656,14 @@ def run(loop: ClosedLoop) -> LoopResult:
     ref = loop.reference.sample_many(ev_t)
     body = RigidBody(p)
     tm = TorqueMap(p.motor)
-    solver: CorSolver = loop.observer.solver  # type: ignore[attr-defined]
+    solver = _solver_observer(loop).solver  # type: ignore[union-attr]
     par = _settings(loop)
     st = np.zeros(_N_STATE)
     q0 = np.asarray(c.q0, dtype=float) / np.linalg.norm(c.q0)
     st[_Q : _Q + 4], st[_W : _W + 3], st[_OBS_Q : _OBS_Q + 4] = q0, c.omega0_rad_s, q0
     st[_K], st[_T_PREV], st[_RATE_T] = -1.0, np.nan, -np.inf
+    for b in (_KF, _KF + _KF_SIZE):  # PixelKalman.reset: X = 0, P = I, not initialised
+        st[b + 5 : b + 21] = np.eye(4).ravel()
     for at, n in ((_EST, 4), (_RATE_Q, 4), (_RATE_W, 3)):
         st[at : at + n] = np.nan
     log = _StepLog(n_steps + 1)

@@ -61,10 +61,17 @@ GRID = {
                   "mode": "pipelined"},
         controller_latency={"kind": "constant", "value_s": 0.002},
     ),
+    "pixel Kalman coasting on lost frames": _scenario(
+        seed=8, observer={"kind": "pixel_kalman", "pixel_q_scale": 0.5},
+        measurement={"dropout_prob": 0.3, "outlier_prob": 0.05},
+        reference={"kind": "cone", "args": {"tilt_deg": 8.0, "yaw_rate_rad_s": 4.0}},
+        pipeline={"mode": "pipelined"},
+    ),
 }
 #: The cases that the compiled run loop computes; the others advance in lockstep.
 COMPILED = {"nominal", "past the stability boundary", "saturation and tilt stop", "lost frames",
-            "compiled, sequential, random latencies", "compiled, pipelined, random latency"}
+            "random latency, pixel Kalman", "compiled, sequential, random latencies",
+            "compiled, pipelined, random latency", "pixel Kalman coasting on lost frames"}
 
 
 @pytest.fixture(scope="module")
@@ -140,6 +147,9 @@ def test_the_grid_covers_what_it_claims(both_engines):
     seq = both_engines["compiled, sequential, random latencies"][0]
     assert seq.frames.dropped.any() and seq.frames.latency_s.std() > 1e-3
     assert not both_engines["compiled, pipelined, random latency"][0].frames.dropped.any()
+    coasting = both_engines["pixel Kalman coasting on lost frames"][0].frames
+    # frames lost by the front end whose estimate the filters' prior still gives (not lost)
+    assert (coasting.lost.astype(bool) & ~coasting.est_reason.str.contains("dropout")).any()
 
 
 def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
