@@ -34,8 +34,11 @@ covers), and the arithmetic of a few small products is ordered differently (roun
 
 from __future__ import annotations
 
+import hashlib
 import heapq
+import inspect
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -46,12 +49,41 @@ from controller.pid import PIDController
 from latency.frontends import MeasurementFrontEnd
 from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams, summarize
 from latency.pipeline import FrameScheduler
+from observer import cor_solver
 from observer.cor_model import CorModel
 from observer.cor_solver import _CONVERGED, _SINGULAR, CorSolver, _lm, _residual_jac
+from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.pixel_observer import PixelKalmanObserver, SolverObserver
+from plant import rigid_body, torque
 from plant.rigid_body import PHYSICS_SUBSTEPS, RigidBody, _step_rows
 from plant.torque import N_COILS, TorqueMap, allocate
+
+#: Where numba caches this module's compiled functions.
+_CACHE = Path(__file__).with_name("__pycache__")
+
+
+def _drop_stale_cache(folder: Path = _CACHE) -> None:
+    """Delete this module's numba cache (in ``folder``) when a module whose compiled functions
+    or constants its kernel uses has changed since the cache was written.
+
+    numba invalidates a cached function when its own source file changes, not when a function
+    it calls in another file does: the kernel compiles in the physics step, the solver's
+    iteration and the filter's matrices, so an edit there would otherwise leave it running
+    the old code. A digest of those files, kept beside the cache, says when to drop it."""
+    digest = hashlib.sha256()
+    for module in (rigid_body, cor_solver, pixel_kalman, torque):
+        digest.update(Path(inspect.getfile(module)).read_bytes())
+    stamp = folder / "compiled.deps.sha256"
+    if stamp.is_file() and stamp.read_text() == digest.hexdigest():
+        return
+    for cached in folder.glob(f"{Path(__file__).stem}.*.nb[ic]"):
+        cached.unlink(missing_ok=True)
+    folder.mkdir(exist_ok=True)
+    stamp.write_text(digest.hexdigest())
+
+
+_drop_stale_cache()
 
 # --- event kinds of the schedule, event codes of the record -----------------------------------
 _FRAME, _RELEASE, _COMMAND = 0, 1, 2

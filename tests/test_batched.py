@@ -67,11 +67,19 @@ GRID = {
         reference={"kind": "cone", "args": {"tilt_deg": 8.0, "yaw_rate_rad_s": 4.0}},
         pipeline={"mode": "pipelined"},
     ),
+    "compiled, PID variants": _scenario(
+        seed=9, controller={"kind": "pid", "config": {
+            "anti_windup": "conditional", "friction_compensation_Nm": 0.002, "feedforward": False,
+            "invalid_command": "zero", "crossover_rad_s": 40.0, "torque_limit_Nm": 0.05}},
+        measurement={"dropout_prob": 0.5},
+        reference={"kind": "cone", "args": {"tilt_deg": 10.0, "yaw_rate_rad_s": 6.0}},
+    ),
 }
 #: The cases that the compiled run loop computes; the others advance in lockstep.
 COMPILED = {"nominal", "past the stability boundary", "saturation and tilt stop", "lost frames",
             "random latency, pixel Kalman", "compiled, sequential, random latencies",
-            "compiled, pipelined, random latency", "pixel Kalman coasting on lost frames"}
+            "compiled, pipelined, random latency", "pixel Kalman coasting on lost frames",
+            "compiled, PID variants"}
 
 
 @pytest.fixture(scope="module")
@@ -198,3 +206,18 @@ def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
         event = run_summary(config)
         assert table.loc[rid, "result.rms_error_deg"] == pytest.approx(event["rms_error_deg"],
                                                                        rel=1e-9)
+
+
+def test_the_compiled_cache_is_dropped_when_a_module_it_compiles_in_changes(tmp_path):
+    """The kernel's numba cache goes when the digest of the modules whose code it compiles in
+    (physics, solver, filter) differs from the one written with it, and stays otherwise."""
+    cached = tmp_path / "compiled._run_events-1.py311.nbi"
+    other = tmp_path / "loop._helper-1.py311.nbi"
+    for f in (cached, other):
+        f.write_text("")
+    (tmp_path / "compiled.deps.sha256").write_text("a digest of other sources")
+    compiled._drop_stale_cache(tmp_path)
+    assert not cached.exists() and other.exists()
+    cached.write_text("")
+    compiled._drop_stale_cache(tmp_path)
+    assert cached.exists()
