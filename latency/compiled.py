@@ -1,13 +1,14 @@
 """The compiled run loop: a whole measurement-model run, events and physics, in one numba call.
 
 The default measurement-model case (``covers``): the measurement front end (pixel noise,
-dropouts, outliers, the tracker-window loss model), the per-frame least-squares observer
-(``observer.pixel_observer.SolverObserver`` with ``observer.cor_solver.CorSolver``), the PID
-(``controller.pid.PIDController``), sequential or pipelined frames, an observer and a controller
-latency from a model (any ``latency.models`` kind), no disturbance, the controller on each
-released estimate. The event loop (``latency.loop.ClosedLoop``) stays the reference: this module
-computes the same run, run by run, and the agreement tests (tests/test_batched.py,
-tests/test_compiled.py) hold it to it.
+dropouts, outliers, the tracker-window loss model, the blur limit, the region of interest), the
+per-frame least-squares observer (``observer.pixel_observer.SolverObserver`` with
+``observer.cor_solver.CorSolver``) alone or behind the pixel Kalman filters
+(``PixelKalmanObserver``), the PID (``controller.pid.PIDController``), sequential or pipelined
+frames, an observer and a controller latency from a model (any ``latency.models`` kind), no
+disturbance, the controller on each released estimate. The event loop
+(``latency.loop.ClosedLoop``) stays the reference: this module computes the same run, run by
+run, and the agreement tests (tests/test_batched.py) hold it to it.
 
 How. In such a run the events' times do not depend on the rotor's state: frames come on the
 camera's clock, the frame scheduler decides from the observer's latencies alone which frames it
@@ -21,10 +22,11 @@ between two events it advances the rotor with the compiled physics step
 records the steps table's rows and the tilt-stop events; on a frame it runs the front end,
 drawing its noise from the front end's own ``numpy.random.Generator`` (numba draws the same
 numbers as numpy from the same Generator, in the same order as ``MeasurementFrontEnd.capture``);
-on a release the warm-started Levenberg-Marquardt solve (``observer.cor_solver._lm``) and the
-PID law; on a command the least-norm current allocation. A command whose least-norm currents
-break the limits returns to Python for the LP of ``plant.torque.allocate`` and the kernel
-resumes from it. The per-step and per-frame logs are arrays; the events are codes with their
+on a release the pixel Kalman filters (when the run has them), the warm-started
+Levenberg-Marquardt solve (``observer.cor_solver._lm``) and the PID law; on a command the
+least-norm current allocation. A command whose least-norm currents break the limits returns
+to Python for the LP of ``plant.torque.allocate`` and the kernel resumes from it. The per-step
+and per-frame logs are arrays; the events are codes with their
 numbers, written out as the event loop's texts at the end.
 
 Where it differs from the event loop: the controller's compute time is not timed per call
@@ -94,7 +96,9 @@ EVENT_KINDS = ("frame_dropped", "tracking_loss", "reacquisition", "invalid_estim
 (_EV_DROPPED, _EV_LOSS, _EV_REACQ, _EV_INVALID_EST, _EV_INVALID_CMD, _EV_SATURATION,
  _EV_CONTACT, _EV_RELEASE, _EV_DIVERGENCE) = range(len(EVENT_KINDS))
 #: Why a front end lost a frame (``MeasurementFrontEnd.capture``'s reasons), by code.
-CAPTURE_REASONS = ("", "dropout (measurement model)", "marker left the search window")
+CAPTURE_REASONS = ("", "dropout (measurement model)", "marker left the search window",
+                   "marker outside the region of interest",
+                   "motion blur beyond the tracker's limit")
 #: Why an estimate is not a clean solution (``CorSolver.solve``), by code; the number each
 #: needs is in the frame record's ``reason_value``.
 _R_OK, _R_LOST, _R_BEHIND, _R_SINGULAR, _R_NOT_CONVERGED, _R_ILL, _R_RMS, _R_TILT = range(8)
@@ -120,7 +124,11 @@ _N_STATE = _KF + 2 * _KF_SIZE
  _P_FF, _P_AW, _P_HOLD, _P_I_MAX, _P_TRUTH, _P_KT_COS) = range(30)
 _P_KP, _P_KI, _P_KD, _P_TT, _P_J = 30, 33, 36, 39, 42
 _P_KF_ON, _P_KF_Q, _P_KF_R, _P_KF_V0 = 45, 46, 62, 66  # pixel Kalman: on, Q (4 x 4), R (2 x 2)
-_N_PAR = 67
+# the front end's region of interest (on, cols, rows, follow), the sensor's size (px), the blur
+# limit (px, NaN: none) and the camera's exposure (s)
+_P_ROI, _P_ROI_COLS, _P_ROI_ROWS, _P_ROI_FOLLOW, _P_SENSOR_W, _P_SENSOR_H = range(67, 73)
+_P_BLUR, _P_EXPOSURE = 73, 74
+_N_PAR = 75
 _AW_MODES = ("back_calculation", "conditional", "none")
 
 # --- the frame record (``fr``), by column -----------------------------------------------------
@@ -143,8 +151,6 @@ def covers(loop: ClosedLoop) -> bool:
         and isinstance(_solver_observer(loop).solver, CorSolver)
         and isinstance(fe, MeasurementFrontEnd)
         and fe.params == loop.params
-        and fe.config.roi is None
-        and fe.config.blur_limit_px is None
         and loop.params.camera.dist_coeffs[2:4] == (0.0, 0.0)
         and c.controller_rate_hz is None
         and c.controller_latency != "measured"
@@ -217,6 +223,12 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     par[_P_OUTLIER_PX] = m.outlier_px
     par[_P_SEARCH] = np.nan if m.search_radius_px is None else m.search_radius_px
     par[_P_PREDICT], par[_P_REACQ] = m.predictive_search, m.reacquire_after_frames
+    if m.roi is not None:
+        par[_P_ROI], par[_P_ROI_COLS], par[_P_ROI_ROWS] = 1.0, m.roi.cols, m.roi.rows
+        par[_P_ROI_FOLLOW] = m.roi.follow
+    par[_P_SENSOR_W], par[_P_SENSOR_H] = p.camera.sensor_width_px, p.camera.sensor_height_px
+    par[_P_BLUR] = np.nan if m.blur_limit_px is None else m.blur_limit_px
+    par[_P_EXPOSURE] = p.camera.exposure_s
     sc = solver.config
     par[_P_MAX_IT], par[_P_STEP_TOL] = sc.max_iterations, sc.step_tol_rad
     par[_P_MAX_RMS], par[_P_MAX_TILT] = sc.max_residual_rms_px, sc.max_tilt_rad
@@ -295,15 +307,60 @@ def _project(q, P, t_cor, intr):
 
 
 @njit(cache=True)
-def _capture(st, q, par, P, t_cor, intr, rng, meas):
-    """``MeasurementFrontEnd.capture`` (without region of interest or blur limit) at the
-    attitude q: writes the measured pixels into ``meas`` (NaN when lost) and returns (true
-    pixels, lost, reason code of ``CAPTURE_REASONS``). Draws from ``rng`` as capture does."""
+def _roi_misses(st, par, truth):
+    """``MeasurementFrontEnd._inside_roi`` negated: a marker's centre outside the region of
+    interest, centred on the sensor or on the mean predicted marker position
+    (``roi_centre_px``), shifted to lie on the sensor."""
+    size = (par[_P_SENSOR_W], par[_P_SENSOR_H])
+    extent = (par[_P_ROI_COLS], par[_P_ROI_ROWS])
+    predict = 1.0 if par[_P_PREDICT] > 0 else 0.0
+    for k in range(2):
+        centre = (size[k] - 1.0) / 2.0
+        if par[_P_ROI_FOLLOW] > 0 and st[_FE_HAS] > 0:
+            centre = 0.0
+            for j in range(2):
+                centre += 0.5 * (st[_FE_LAST + 2 * j + k] + predict * st[_FE_MOTION + 2 * j + k])
+        half = 0.5 * min(extent[k], size[k])
+        centre = min(max(centre, half - 0.5), size[k] - 0.5 - half)
+        for j in range(2):
+            if abs(truth[j, k] - centre) > 0.5 * extent[k]:
+                return True
+    return False
+
+
+@njit(cache=True)
+def _blur_travel_px(q, w, par, P, t_cor, intr):
+    """``MeasurementFrontEnd._blur_travel_px``: the largest marker travel (px) over the
+    camera's exposure at the body rate w, from the attitudes half an exposure either side."""
+    ends = np.empty((2, 2, 2))
+    for s in range(2):
+        rv = (2.0 * s - 1.0) * 0.5 * par[_P_EXPOSURE] * w
+        theta = np.sqrt(rv @ rv)
+        if theta < 1e-12:
+            dq = np.array([1.0, 0.5 * rv[0], 0.5 * rv[1], 0.5 * rv[2]])
+            dq = dq / np.sqrt(dq @ dq)
+        else:
+            c, sn = np.cos(0.5 * theta), np.sin(0.5 * theta) / theta
+            dq = np.array([c, sn * rv[0], sn * rv[1], sn * rv[2]])
+        qs = _qmul(q, dq)
+        ends[s] = _project(qs / np.sqrt(qs @ qs), P, t_cor, intr)
+    d = ends[1] - ends[0]
+    return max(np.sqrt(d[0] @ d[0]), np.sqrt(d[1] @ d[1]))
+
+
+@njit(cache=True)
+def _capture(st, q, w, par, P, t_cor, intr, rng, meas):
+    """``MeasurementFrontEnd.capture`` at the attitude q and body rate w: writes the measured
+    pixels into ``meas`` (NaN when lost) and returns (true pixels, lost, reason code of
+    ``CAPTURE_REASONS``). Draws from ``rng`` as capture does."""
     truth = _project(q, P, t_cor, intr)
     meas[:] = np.nan
     if rng.random() < par[_P_DROPOUT]:
         return truth, True, 1
     st[_FE_SINCE] += 1.0
+    if par[_P_ROI] > 0 and _roi_misses(st, par, truth):
+        st[_FE_LOST] += 1.0
+        return truth, True, 3
     predict = 1.0 if par[_P_PREDICT] > 0 else 0.0
     if np.isfinite(par[_P_SEARCH]) and st[_FE_HAS] > 0 and st[_FE_LOST] < par[_P_REACQ]:
         worst = 0.0
@@ -314,6 +371,8 @@ def _capture(st, q, par, P, t_cor, intr, rng, meas):
         if worst > par[_P_SEARCH]:
             st[_FE_LOST] += 1.0
             return truth, True, 2
+    if np.isfinite(par[_P_BLUR]) and _blur_travel_px(q, w, par, P, t_cor, intr) > par[_P_BLUR]:
+        return truth, True, 4
     z = np.empty((2, 2))
     for j in range(2):
         for k in range(2):
@@ -593,7 +652,8 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
             if frames[i, 2] > 0:
                 _event(st, evs, t, _EV_DROPPED, i, 0.0, 0.0, 0.0)
             else:
-                truth, cap_lost, reason = _capture(st, q, par, *true_model, rng, meas)
+                truth, cap_lost, reason = _capture(st, q, st[_W : _W + 3], par, *true_model, rng,
+                                                   meas)
                 worst, any_finite, lost = -np.inf, False, cap_lost
                 for j in range(2):
                     du, dv = meas[j, 0] - truth[j, 0], meas[j, 1] - truth[j, 1]

@@ -74,12 +74,17 @@ GRID = {
         measurement={"dropout_prob": 0.5},
         reference={"kind": "cone", "args": {"tilt_deg": 10.0, "yaw_rate_rad_s": 6.0}},
     ),
+    "compiled, region of interest and blur limit": _scenario(
+        seed=10, measurement={"roi": {"rows": 600, "cols": 1000, "follow": True},
+                              "blur_limit_px": 4.0, "search_radius_px": 240.0},
+        reference={"kind": "cone", "args": {"tilt_deg": 6.0, "yaw_rate_rad_s": 8.0}},
+    ),
 }
 #: The cases that the compiled run loop computes; the others advance in lockstep.
 COMPILED = {"nominal", "past the stability boundary", "saturation and tilt stop", "lost frames",
             "random latency, pixel Kalman", "compiled, sequential, random latencies",
             "compiled, pipelined, random latency", "pixel Kalman coasting on lost frames",
-            "compiled, PID variants"}
+            "compiled, PID variants", "compiled, region of interest and blur limit"}
 
 
 @pytest.fixture(scope="module")
@@ -117,11 +122,9 @@ def test_the_compiled_run_loop_takes_exactly_its_cases():
     for case, s in GRID.items():
         assert compiled.covers(build_loop(s)) == (case in COMPILED), case
     base = GRID["nominal"]
-    for change in ({"measurement": {"roi": {"rows": 400, "cols": 400}}},
-                   {"measurement": {"blur_limit_px": 5.0}},
-                   {"controller_latency": "measured"}):
-        other = Scenario.model_validate({**base.model_dump(mode="json"), **change})
-        assert not compiled.covers(build_loop(other)), change
+    measured = Scenario.model_validate({**base.model_dump(mode="json"),
+                                        "controller_latency": "measured"})
+    assert not compiled.covers(build_loop(measured))
     disturbed = build_loop(base)
     disturbed.config = disturbed.config.model_copy(update={"disturbance_psd_Nm2s": (1e-8,) * 3})
     assert not compiled.covers(disturbed)
@@ -155,6 +158,10 @@ def test_the_grid_covers_what_it_claims(both_engines):
     seq = both_engines["compiled, sequential, random latencies"][0]
     assert seq.frames.dropped.any() and seq.frames.latency_s.std() > 1e-3
     assert not both_engines["compiled, pipelined, random latency"][0].frames.dropped.any()
+    windowed = both_engines["compiled, region of interest and blur limit"][0].frames
+    lost_by = set(windowed.est_reason.dropna().str.split(";").str[0])
+    assert {"marker outside the region of interest",
+            "motion blur beyond the tracker's limit"} <= lost_by
     coasting = both_engines["pixel Kalman coasting on lost frames"][0].frames
     # frames lost by the front end whose estimate the filters' prior still gives (not lost)
     assert (coasting.lost.astype(bool) & ~coasting.est_reason.str.contains("dropout")).any()
