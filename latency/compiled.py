@@ -132,13 +132,13 @@ _N_PAR = 75
 _AW_MODES = ("back_calculation", "conditional", "none")
 
 # --- the frame record (``fr``), by column -----------------------------------------------------
-(_F_INDEX, _F_T_EXP, _F_T_REL, _F_DROPPED, _F_HANDLED) = range(5)
-_F_TRUE, _F_MEAS = 5, 9  # true and measured pixels, (red u, v, yellow u, v)
-(_F_CENTRE, _F_LOST, _F_CAP_LOST, _F_CAP_REASON, _F_RELEASED) = range(13, 18)
-_F_EST = 18  # the released estimate's attitude (4)
-_F_VALID, _F_REASON, _F_REASON_VALUE, _F_HELD_FROM, _F_LATENCY = range(22, 27)
-_F_TORQUE = 27  # the command computed on the release (3)
-_N_FR = 30
+_F_INDEX, _F_T_EXP, _F_T_REL, _F_DROPPED = range(4)
+_F_TRUE, _F_MEAS = 4, 8  # true and measured pixels, (red u, v, yellow u, v)
+_F_CENTRE, _F_LOST, _F_CAP_LOST, _F_CAP_REASON, _F_RELEASED = range(12, 17)
+_F_EST = 17  # the released estimate's attitude (4)
+_F_VALID, _F_REASON, _F_REASON_VALUE, _F_HELD_FROM, _F_LATENCY = range(21, 26)
+_F_TORQUE = 26  # the command computed on the release (3)
+_N_FR = 29
 
 
 def covers(loop: ClosedLoop) -> bool:
@@ -648,7 +648,7 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
             if newly:
                 st[_DIV], st[_DIV_DEG] = 1.0, err
             f[_F_INDEX], f[_F_T_EXP], f[_F_T_REL] = i, frames[i, 0], frames[i, 1]
-            f[_F_DROPPED], f[_F_HANDLED] = frames[i, 2], 1.0
+            f[_F_DROPPED] = frames[i, 2]
             if frames[i, 2] > 0:
                 _event(st, evs, t, _EV_DROPPED, i, 0.0, 0.0, 0.0)
             else:
