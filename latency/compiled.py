@@ -48,12 +48,31 @@ from numba import njit
 from numpy.typing import NDArray
 
 from controller.pid import PIDController
-from latency.frontends import MeasurementFrontEnd
+from latency.frontends import (
+    LOST_BLUR,
+    LOST_DROPOUT,
+    LOST_OUTSIDE_ROI,
+    LOST_OUTSIDE_WINDOW,
+    MeasurementFrontEnd,
+)
 from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams, summarize
 from latency.pipeline import FrameScheduler
 from observer import cor_solver
 from observer.cor_model import CorModel
-from observer.cor_solver import _CONVERGED, _SINGULAR, CorSolver, _lm, _residual_jac
+from observer.cor_solver import (
+    _CONVERGED,
+    _SINGULAR,
+    BEHIND_CAMERA,
+    DEGENERATE,
+    FAR_SIDE,
+    ILL_CONDITIONED,
+    NOT_CONVERGED,
+    RESIDUAL_TOO_LARGE,
+    CorSolver,
+    _lm,
+    _residual_jac,
+    failure_reason,
+)
 from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.pixel_observer import PixelKalmanObserver, SolverObserver
@@ -96,12 +115,10 @@ EVENT_KINDS = ("frame_dropped", "tracking_loss", "reacquisition", "invalid_estim
 (_EV_DROPPED, _EV_LOSS, _EV_REACQ, _EV_INVALID_EST, _EV_INVALID_CMD, _EV_SATURATION,
  _EV_CONTACT, _EV_RELEASE, _EV_DIVERGENCE) = range(len(EVENT_KINDS))
 #: Why a front end lost a frame (``MeasurementFrontEnd.capture``'s reasons), by code.
-CAPTURE_REASONS = ("", "dropout (measurement model)", "marker left the search window",
-                   "marker outside the region of interest",
-                   "motion blur beyond the tracker's limit")
-#: Why an estimate is not a clean solution (``CorSolver.solve``), by code; the number each
-#: needs is in the frame record's ``reason_value``.
-_R_OK, _R_LOST, _R_BEHIND, _R_SINGULAR, _R_NOT_CONVERGED, _R_ILL, _R_RMS, _R_TILT = range(8)
+CAPTURE_REASONS = ("", LOST_DROPOUT, LOST_OUTSIDE_WINDOW, LOST_OUTSIDE_ROI, LOST_BLUR)
+#: A solve's outcome (``_solve``): ``observer.cor_solver``'s failure codes (``failure_reason``),
+#: and two of its own: a clean solution, and a frame the front end lost (not solved).
+_R_OK, _R_LOST = -1, -2
 
 # --- the scalar state of a run (``st``), by index ---------------------------------------------
 _T, _K, _SAT, _STOP, _LOST, _DIV = 0, 1, 2, 3, 4, 5
@@ -400,24 +417,24 @@ def _solve(q_prev, uv, P, t_cor, intr, par):
     q = q_prev / np.sqrt(q_prev @ q_prev)
     r, _ = _residual_jac(q, P, uv, t_cor, intr)
     if not np.all(np.isfinite(r)):
-        return nan4, False, _R_BEHIND, 0.0
+        return nan4, False, BEHIND_CAMERA, 0.0
     q, status, it, cost, J = _lm(q, P, uv, t_cor, intr, int(par[_P_MAX_IT]), par[_P_STEP_TOL])
     if status == _SINGULAR:
-        return nan4, False, _R_SINGULAR, 0.0
+        return nan4, False, DEGENERATE, 0.0
     if status != _CONVERGED:
-        return nan4, False, _R_NOT_CONVERGED, 0.0
+        return nan4, False, NOT_CONVERGED, 0.0
     q = q / np.sqrt(q @ q)
     if q[0] < 0:
         q = -q
     rms = np.sqrt(cost / r.shape[0])
     cond = np.linalg.cond(J.T @ J)
     if not np.isfinite(cond) or cond > par[_P_MAX_COND]:
-        return nan4, False, _R_ILL, cond
+        return nan4, False, ILL_CONDITIONED, cond
     if rms > par[_P_MAX_RMS]:
-        return nan4, False, _R_RMS, rms
+        return nan4, False, RESIDUAL_TOO_LARGE, rms
     tilt = np.arccos(min(max(1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]), -1.0), 1.0))
     if tilt > par[_P_MAX_TILT]:
-        return nan4, False, _R_TILT, tilt
+        return nan4, False, FAR_SIDE, tilt
     return q, True, _R_OK, 0.0
 
 
@@ -801,18 +818,13 @@ def _flag_column(values: NDArray[np.float64]) -> NDArray:
 
 def _reason(f: NDArray[np.float64], solver: CorSolver) -> str:
     """The estimate's ``reason`` of a released frame's record (``SolverObserver.release``)."""
-    code, value, cfg = int(f[_F_REASON]), f[_F_REASON_VALUE], solver.config
-    text = {
-        _R_OK: "",
-        _R_LOST: CAPTURE_REASONS[int(value)] if code == _R_LOST else "",
-        _R_BEHIND: "start attitude projects markers behind the camera",
-        _R_SINGULAR: "singular normal equations (markers degenerate)",
-        _R_NOT_CONVERGED: f"did not converge in {cfg.max_iterations} iterations",
-        _R_ILL: f"ill-conditioned geometry (cond(JᵀJ) = {value:.3g})",
-        _R_RMS: f"diverged: residual RMS {value:.3g} px > {cfg.max_residual_rms_px} px",
-        _R_TILT: f"solution tilt {np.rad2deg(value):.1f}° beyond max_tilt_rad "
-        "(far-side solution)",
-    }[code]
+    code, value = int(f[_F_REASON]), f[_F_REASON_VALUE]
+    if code == _R_OK:
+        text = ""
+    elif code == _R_LOST:
+        text = CAPTURE_REASONS[int(value)]
+    else:
+        text = failure_reason(code, value, solver.config)
     if np.isfinite(f[_F_HELD_FROM]):
         text = f"{text}; holding the solution from t = {f[_F_HELD_FROM]:.4f} s"
     return text

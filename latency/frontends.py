@@ -82,6 +82,13 @@ class FrontEnd(Protocol):
         ...
 
 
+#: Why ``MeasurementFrontEnd.capture`` loses a frame (``Capture.reason``).
+LOST_DROPOUT = "dropout (measurement model)"
+LOST_OUTSIDE_WINDOW = "marker left the search window"
+LOST_OUTSIDE_ROI = "marker outside the region of interest"
+LOST_BLUR = "motion blur beyond the tracker's limit"
+
+
 class MeasurementConfig(BaseModel):
     """Noise and loss model of the measurement front end, sensor px.
 
@@ -185,11 +192,11 @@ class MeasurementFrontEnd:
         truth = marker_pixels(self.params, q)
         nothing = np.full((2, 2), np.nan)
         if self.rng.random() < c.dropout_prob:
-            return Capture(nothing, truth, True, "dropout (measurement model)")
+            return Capture(nothing, truth, True, LOST_DROPOUT)
         self._frames_since += 1
         if c.roi is not None and not self._inside_roi(truth, c.roi):
             self._lost_frames += 1
-            return Capture(nothing, truth, True, "marker outside the region of interest")
+            return Capture(nothing, truth, True, LOST_OUTSIDE_ROI)
         if (
             c.search_radius_px is not None
             and self._last is not None
@@ -198,9 +205,9 @@ class MeasurementFrontEnd:
             centre = self._last + (self._motion if c.predictive_search else 0.0)
             if np.max(np.linalg.norm(truth - centre, axis=1)) > c.search_radius_px:
                 self._lost_frames += 1
-                return Capture(nothing, truth, True, "marker left the search window")
+                return Capture(nothing, truth, True, LOST_OUTSIDE_WINDOW)
         if c.blur_limit_px is not None and self._blur_travel_px(q, omega) > c.blur_limit_px:
-            return Capture(nothing, truth, True, "motion blur beyond the tracker's limit")
+            return Capture(nothing, truth, True, LOST_BLUR)
         z = truth + self.rng.normal(scale=c.sigma_px, size=(2, 2))
         if self.rng.random() < c.outlier_prob:
             angle = self.rng.uniform(0, 2 * np.pi)
