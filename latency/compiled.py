@@ -36,6 +36,7 @@ covers), and the arithmetic of a few small products is ordered differently (roun
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import heapq
 import inspect
@@ -98,10 +99,11 @@ def _drop_stale_cache(folder: Path = _CACHE) -> None:
     stamp = folder / "compiled.deps.sha256"
     if stamp.is_file() and stamp.read_text() == digest.hexdigest():
         return
-    for cached in folder.glob(f"{Path(__file__).stem}.*.nb[ic]"):
-        cached.unlink(missing_ok=True)
-    folder.mkdir(exist_ok=True)
-    stamp.write_text(digest.hexdigest())
+    with contextlib.suppress(OSError):  # a read-only install: numba caches elsewhere
+        for cached in folder.glob(f"{Path(__file__).stem}.*.nb[ic]"):
+            cached.unlink(missing_ok=True)
+        folder.mkdir(exist_ok=True)
+        stamp.write_text(digest.hexdigest())
 
 
 _drop_stale_cache()
