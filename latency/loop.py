@@ -648,7 +648,8 @@ STEADY_STATE_WINDOW_S = 0.5
 
 
 #: A run's table as named columns: a ``pandas.DataFrame``, or a mapping of column names to
-#: arrays (the same columns, before the frame is built).
+#: arrays (the same columns, before the frame is built; empty for a table without rows, so
+#: that ``len`` is 0 exactly when the table has no rows).
 Columns = pd.DataFrame | Mapping[str, NDArray]
 
 
