@@ -476,7 +476,7 @@ class Scenario(_Model):
         stop = self.plant.rotor.tilt_stop_deg
         ref = ref_spec.build()
         times = np.linspace(0.0, self.duration_s, _TILT_CHECK_SAMPLES)
-        tilt_deg = max(np.degrees(attitude.tilt(ref.sample(float(t)).q)) for t in times)
+        tilt_deg = float(np.max(np.degrees(attitude.to_zyz_array(ref.sample_many(times).q)[:, 1])))
         if tilt_deg > stop + 1e-9:
             raise ValueError(
                 f"the reference reaches {tilt_deg:.3g}° of tilt, beyond the tilt stop "

@@ -1,24 +1,27 @@
-"""The batched engine: many measurement-model runs of the timed loop advanced together.
+"""The batched engine: many measurement-model runs of the timed loop.
 
 Each run is a ``latency.loop.ClosedLoop`` (its own seed, delays, observer settings, gains and
-reference). Its events (frames, releases, commands) run through the loop's own timeline
-(``ClosedLoop.timeline``), which, between two events, asks for the physics to move to the next
-event with its currents held (an ``Advance``). The engine serves the open requests of all runs
-together: each round moves every such run to its next physics grid point or its event, with one
-call of the vectorised rigid-body step (``plant.rigid_body.RigidBody``) over the batch, each run
-with its own step length (whole physics steps, and the shortened steps that put events on their
-exact times); it stores the states at the grid points and hands them back (a ``Segment``) when a
-run reaches its event. Between events nothing runs per run in Python. The physics is the same
-code as the event loop's (``plant.dynamics.MujocoPlant`` advances one rotor with the same step),
-and so are the event handlers and the random streams: run by run, the two engines compute the
-same trajectory to rounding (tests/test_batched.py).
+reference). The engine decides per run (``latency.compiled.covers``, from the types of its
+parts and its settings) which path computes it:
 
-Where the time goes (docs/closed_loop.md): the physics is the compiled kernel of
-``plant.rigid_body`` (a loop over the rows in numba), the same code the event loop calls for
-its one rotor; a run's events (front end, observer, controller) and its tables stay Python per
-run. Not covered: MuJoCo's natively delayed sensor (``mujoco_sensor_delay_s``), which needs the
-MuJoCo data of each run; those runs raise ``ValueError``. The engine is agnostic of the front
-end, but image-in-the-loop runs gain nothing from batching the physics (the renderer and tracker
+* the compiled run loop (``latency.compiled``): the default case (measurement front end,
+  per-frame least squares with or without the pixel Kalman filter, PID, model latencies), a
+  whole run, events and physics, in one numba call;
+* the lockstep rounds (``_run_group``) for the others: each run's events go through the loop's
+  own timeline (``ClosedLoop.timeline``), which, between two events, asks for the physics to
+  move to the next event with its currents held (an ``Advance``). The engine serves the open
+  requests of all runs together: each round moves every such run to its next physics grid
+  point or its event, with one call of the compiled rigid-body step
+  (``plant.rigid_body.RigidBody``) over the batch, each run with its own step length (whole
+  physics steps, and the shortened steps that put events on their exact times); it stores the
+  states at the grid points and hands them back (a ``Segment``) when a run reaches its event.
+
+Both paths use the physics of the event loop (``plant.dynamics.MujocoPlant`` advances one rotor
+with the same compiled step) and its random streams: run by run, the engines compute the same
+trajectory to rounding (tests/test_batched.py). Where the time goes: docs/closed_loop.md. Not
+covered: MuJoCo's natively delayed sensor (``mujoco_sensor_delay_s``), which needs the MuJoCo
+data of each run; those runs raise ``ValueError``. The engine is agnostic of the front end, but
+image-in-the-loop runs gain nothing from batching the physics (the renderer and tracker
 dominate), so callers send them to the event loop.
 """
 
@@ -30,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
+from latency import compiled
 from latency.loop import Advance, ClosedLoop, LoopResult, Segment
 from plant import attitude
 from plant.params import PlantParams
@@ -121,18 +125,23 @@ class _RunPlant:
 def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[LoopResult]:
     """Run the closed loops together and return their results, in order.
 
-    Runs with different ``PlantParams`` are batched separately; a run alone in its batch runs on
-    the event loop. Each result is what ``loop.run()`` returns (the same tables and
-    ``summarize`` metrics).
+    Runs of the default case (``latency.compiled.covers``) run whole in the compiled run loop,
+    one after the other; the others advance together in lockstep, those with different
+    ``PlantParams`` in separate batches, and a run alone in its batch runs on the event loop.
+    Each result is what ``loop.run()`` returns (the same tables and ``summarize`` metrics).
     """
     for lp in loops:
         if lp.config.mujoco_sensor_delay_s is not None:
             raise ValueError("mujoco_sensor_delay_s needs MuJoCo's sensors: use the event loop")
     results: list[LoopResult | None] = [None] * len(loops)
     groups: dict[str, list[int]] = {}
-    for i, lp in enumerate(loops):
-        groups.setdefault(lp.params.model_dump_json(), []).append(i)
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
+    for i, lp in enumerate(loops):
+        if compiled.covers(lp):  # the default case: the whole run in the compiled loop
+            results[i] = compiled.run(lp)
+            bar.update(1)
+        else:
+            groups.setdefault(lp.params.model_dump_json(), []).append(i)
     for members in groups.values():
         group = [loops[i] for i in members]
         # A batch of one gains nothing from the lockstep rounds: the event loop calls the same

@@ -84,6 +84,13 @@ class FrontEnd(Protocol):
         ...
 
 
+#: Why a front end loses a frame (``Capture.reason``).
+LOST_DROPOUT = "dropout (measurement model)"
+LOST_OUTSIDE_WINDOW = "marker left the search window"
+LOST_OUTSIDE_ROI = "marker outside the region of interest"
+LOST_BLUR = "motion blur beyond the tracker's limit"
+
+
 class MeasurementConfig(BaseModel):
     """Noise and loss model of the measurement front end, sensor px.
 
@@ -132,10 +139,6 @@ class MeasurementConfig(BaseModel):
     roi: RegionOfInterest | None = Field(
         None, description="Region of interest read out; None: the whole sensor."
     )
-
-
-#: ``Capture.reason`` of a frame whose markers were not in the region of interest read out.
-ROI_LOSS = "marker outside the region of interest"
 
 
 class MarkerPrediction:
@@ -216,12 +219,12 @@ class MeasurementFrontEnd:
         truth = marker_pixels(self.params, q)
         nothing = np.full((2, 2), np.nan)
         if self.rng.random() < c.dropout_prob:
-            return Capture(nothing, truth, True, "dropout (measurement model)")
+            return Capture(nothing, truth, True, LOST_DROPOUT)
         predicted = self._prediction.predicted_px
         self._prediction.frame()
         if c.roi is not None and not c.roi.contains(truth, self.roi_centre_px(c.roi)):
             self._lost_frames += 1
-            return Capture(nothing, truth, True, ROI_LOSS)
+            return Capture(nothing, truth, True, LOST_OUTSIDE_ROI)
         if (
             c.search_radius_px is not None
             and predicted is not None
@@ -229,9 +232,9 @@ class MeasurementFrontEnd:
         ):
             if np.max(np.linalg.norm(truth - predicted, axis=1)) > c.search_radius_px:
                 self._lost_frames += 1
-                return Capture(nothing, truth, True, "marker left the search window")
+                return Capture(nothing, truth, True, LOST_OUTSIDE_WINDOW)
         if c.blur_limit_px is not None and self._blur_travel_px(q, omega) > c.blur_limit_px:
-            return Capture(nothing, truth, True, "motion blur beyond the tracker's limit")
+            return Capture(nothing, truth, True, LOST_BLUR)
         z = truth + self.rng.normal(scale=c.sigma_px, size=(2, 2))
         if self.rng.random() < c.outlier_prob:
             angle = self.rng.uniform(0, 2 * np.pi)
@@ -259,7 +262,7 @@ class ImageFrontEnd:
         ``MarkerPrediction``), so the tracker sees only the region, in the sensor's
         coordinates. A marker the tracker loses there, or reports outside the region (a
         centre no pixel of this frame can have measured), is lost for the frame
-        (``ROI_LOSS``). The prediction takes only centres the tracker measured in the image,
+        (``LOST_OUTSIDE_ROI``). The prediction takes only centres the tracker measured in the image,
         so a following region stays put while the tracker coasts or has lost the markers.
 
     The tracker starts on the true boxes of the first frame, as a user's first-frame annotation
@@ -313,13 +316,13 @@ class ImageFrontEnd:
             boxes = np.asarray(frame.boxes_px, dtype=float)
             centres = boxes[:, :2] + 0.5 * boxes[:, 2:]
             if self._outside_roi(centres):  # nothing to annotate yet
-                return Capture(np.full((2, 2), np.nan), frame.marker_px, True, ROI_LOSS)
+                return Capture(np.full((2, 2), np.nan), frame.marker_px, True, LOST_OUTSIDE_ROI)
             self.locator.start(image, frame.boxes_px, frame.binning)
             self._prediction.measured(centres)
             return Capture(centres, frame.marker_px)
         loc = self.locator.step(image)
         if self._outside_roi(loc.marker_px):
-            return Capture(np.full((2, 2), np.nan), frame.marker_px, True, ROI_LOSS,
+            return Capture(np.full((2, 2), np.nan), frame.marker_px, True, LOST_OUTSIDE_ROI,
                            loc.compute_time_s)
         if not loc.lost and loc.red_measured and loc.yellow_measured:
             self._prediction.measured(loc.marker_px)  # not a coasting tracker's prediction

@@ -38,7 +38,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import time
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Protocol
@@ -297,10 +297,7 @@ class ClosedLoop:
         ``run`` advances a ``MujocoPlant`` (``_advance_segment``); ``latency.batched``
         advances many runs at once."""
         c, p = self.config, self.params
-        rng = np.random.default_rng(c.seed)
-        rng_pipe, rng_ctrl, rng_dist = (
-            np.random.default_rng(s) for s in rng.integers(2**32, size=3)
-        )
+        rng_pipe, rng_ctrl, rng_dist = run_streams(c.seed)
         native = c.mujoco_sensor_delay_s is not None
         psd = np.asarray(c.disturbance_psd_Nm2s)
         if np.any(psd > 0):
@@ -537,6 +534,16 @@ class Segment:
     q_native: NDArray[np.float64] | None = None
 
 
+def run_streams(seed: int) -> tuple[np.random.Generator, ...]:
+    """A run's random streams, one Generator per purpose, spawned from ``LoopConfig.seed``:
+    the pipeline's latencies, the controller's latencies and the disturbance. Each stream is
+    consumed only by its purpose, so its numbers do not depend on the order of the events
+    (``latency.compiled`` draws the latencies of a whole run before it starts)."""
+    rng = np.random.default_rng(seed)
+    rng_pipe, rng_ctrl, rng_dist = (np.random.default_rng(s) for s in rng.integers(2**32, size=3))
+    return rng_pipe, rng_ctrl, rng_dist
+
+
 def _advance_segment(
     plant: MujocoPlant, req: Advance, h: float, n_steps: int, native: bool
 ) -> Segment:
@@ -597,6 +604,11 @@ class _StepLog:
             rows[:, 40:44] = seg.q_native
 
     def frame(self, n: int, native: bool = False) -> pd.DataFrame:
+        """The steps table of rows 0 ... n - 1 (``columns`` as a frame)."""
+        return pd.DataFrame(self.columns(n, native))
+
+    def columns(self, n: int, native: bool = False) -> dict[str, NDArray]:
+        """The steps table's columns (rows 0 ... n - 1), with the derived errors and angles."""
         a = self.a[:n]
         cols = (
             ["t_s", "qw", "qx", "qy", "qz", "omega_x_rad_s", "omega_y_rad_s", "omega_z_rad_s"]
@@ -610,7 +622,7 @@ class _StepLog:
         )
         # Every column as an array first, one DataFrame at the end (inserting columns one by
         # one into a wide frame cost more than the rest of a short run's bookkeeping).
-        data = {name: a[:, k] for k, name in enumerate(cols)}
+        data: dict[str, NDArray] = {name: a[:, k] for k, name in enumerate(cols)}
         data["saturated"] = data["saturated"].astype(bool)
         data["tilt_stop"] = data["tilt_stop"].astype(bool)
         q, qr = a[:, 1:5], a[:, 8:12]
@@ -620,7 +632,7 @@ class _StepLog:
         for i, name in enumerate(("spin", "tilt", "yaw")):
             data[f"{name}_deg"] = zyz[:, i]
             data[f"ref_{name}_deg"] = zyz_ref[:, i]
-        return pd.DataFrame(data)
+        return data
 
 
 #: Loss of control (our choices, docs/closed_loop.md): any of these over a run.
@@ -635,9 +647,15 @@ SETTLE_BAND_DEG = 0.1
 STEADY_STATE_WINDOW_S = 0.5
 
 
+#: A run's table as named columns: a ``pandas.DataFrame``, or a mapping of column names to
+#: arrays (the same columns, before the frame is built; empty for a table without rows, so
+#: that ``len`` is 0 exactly when the table has no rows).
+Columns = pd.DataFrame | Mapping[str, NDArray]
+
+
 def summarize(
-    steps: pd.DataFrame,
-    frames: pd.DataFrame,
+    steps: Columns,
+    frames: Columns,
     events: pd.DataFrame,
     duration_s: float,
     stopped: str = "",
@@ -659,10 +677,13 @@ def summarize(
     * ``mean_latency_s``; ``diverged`` (1.0 if the error ever exceeded the divergence limit,
       ``stopped`` non-empty);
     * ``loss_of_control`` (1.0 or 0.0) and its criteria (:func:`loss_of_control`).
+
+    ``steps`` and ``frames`` are the run's tables (``LoopResult``), as frames or as their
+    columns (``Columns``): the metrics read arrays only.
     """
-    t = steps["t_s"].to_numpy()
+    t = np.asarray(steps["t_s"])
     dt = np.diff(t, prepend=t[0])
-    err = steps["error_deg"].to_numpy()
+    err = np.asarray(steps["error_deg"])
     out: dict[str, float] = {
         "duration_s": float(duration_s),
         "simulated_s": float(t[-1]),
@@ -670,9 +691,10 @@ def summarize(
         "max_error_deg": float(np.max(err)),
         "diverged": float(bool(stopped)),
     }
-    tilt_ok = (steps["ref_tilt_deg"].to_numpy() > 1.0) & (steps["tilt_deg"].to_numpy() > 1.0)
+    tilt_ok = (np.asarray(steps["ref_tilt_deg"]) > 1.0) & (np.asarray(steps["tilt_deg"]) > 1.0)
     for name in ("spin", "tilt", "yaw"):
-        d = attitude.wrap_angle(np.radians(steps[f"{name}_deg"] - steps[f"ref_{name}_deg"]))
+        d = attitude.wrap_angle(
+            np.radians(np.asarray(steps[f"{name}_deg"]) - np.asarray(steps[f"ref_{name}_deg"])))
         mask = np.ones_like(tilt_ok) if name == "tilt" else tilt_ok
         out[f"rms_{name}_error_deg"] = (
             float(np.degrees(np.sqrt(np.mean(d[mask] ** 2)))) if mask.any() else float("nan")
@@ -680,42 +702,50 @@ def summarize(
         out[f"max_{name}_error_deg"] = (
             float(np.degrees(np.max(np.abs(d[mask])))) if mask.any() else float("nan")
         )
-    T = steps[[f"torque_delivered_{c}_Nm" for c in "xyz"]].to_numpy()
-    out["control_effort_N2m2s"] = float(np.sum(np.sum(T**2, axis=1) * dt))
-    out["rms_torque_Nm"] = float(np.sqrt(np.mean(np.sum(T**2, axis=1))))
+    T2 = sum(np.asarray(steps[f"torque_delivered_{c}_Nm"]) ** 2 for c in "xyz")
+    out["control_effort_N2m2s"] = float(np.sum(T2 * dt))
+    out["rms_torque_Nm"] = float(np.sqrt(np.mean(T2)))
     out.update(_step_metrics(steps))
     late = t >= t[-1] - STEADY_STATE_WINDOW_S
     out["steady_state_error_deg"] = float(np.mean(err[late]))
     out["lost_frame_fraction"] = 0.0
     if len(frames):
-        processed = frames[~frames["dropped"]]
-        out["dropped_frame_fraction"] = float(frames["dropped"].mean())
-        out["lost_frame_fraction"] = (
-            float(processed["lost"].mean()) if len(processed) and "lost" in processed else 0.0
-        )
-        out["mean_latency_s"] = (
-            float(processed["latency_s"].mean()) if "latency_s" in processed else float("nan")
-        )
+        dropped = np.asarray(frames["dropped"], dtype=bool)
+        processed = ~dropped
+        out["dropped_frame_fraction"] = float(dropped.mean())
+        lost = _processed_lost(frames, processed)
+        out["lost_frame_fraction"] = float(lost.mean()) if len(lost) else 0.0
+        latency = (np.asarray(frames["latency_s"], dtype=float)[processed]
+                   if "latency_s" in frames else np.zeros(0))
+        known = latency[~np.isnan(latency)]
+        out["mean_latency_s"] = float(known.mean()) if len(known) else float("nan")
     out.update(loss_of_control(steps, frames, bool(stopped)))
     out["n_events"] = float(len(events))
     return out
 
 
+def _processed_lost(frames: Columns, processed: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The ``lost`` flags of the processed frames (none without the column); a flag that is
+    missing counts as not lost."""
+    if "lost" not in frames:
+        return np.zeros(0, dtype=bool)
+    lost = np.asarray(frames["lost"], dtype=object)[processed]
+    return np.where(pd.isna(lost), False, lost).astype(bool)
+
+
 def _longest_run_s(flags: np.ndarray, t: np.ndarray, t_end: float) -> float:
     """Longest time (s) ``flags`` stays True: from the first sample of a run of True to the
     next False sample (or ``t_end``)."""
-    best, start = 0.0, None
-    for f, ti in zip(flags, t, strict=True):
-        if f and start is None:
-            start = ti
-        elif not f and start is not None:
-            best, start = max(best, ti - start), None
-    if start is not None:
-        best = max(best, t_end - start)
-    return float(best)
+    f = np.concatenate(([False], np.asarray(flags, dtype=bool), [False]))
+    edges = np.flatnonzero(np.diff(f.astype(np.int8)))
+    starts, stops = edges[::2], edges[1::2]  # a run covers samples starts .. stops - 1
+    if not len(starts):
+        return 0.0
+    t_after = np.append(np.asarray(t, dtype=float), t_end)[stops]  # the next False sample
+    return float(np.max(t_after - np.asarray(t, dtype=float)[starts]))
 
 
-def loss_of_control(steps: pd.DataFrame, frames: pd.DataFrame, diverged: bool) -> dict[str, float]:
+def loss_of_control(steps: Columns, frames: Columns, diverged: bool) -> dict[str, float]:
     """Whether the loop lost control of the rotor during a run, and why (1.0 = yes).
 
     Any of (our thresholds, module constants): ``loc_tilt_stop``, the rotor rests against the
@@ -726,16 +756,17 @@ def loss_of_control(steps: pd.DataFrame, frames: pd.DataFrame, diverged: bool) -
     ``LOC_GROWTH_MIN_DEG``; ``loc_divergence``, the error exceeded the loop's divergence
     limit. Also returns ``longest_tilt_stop_s`` and ``longest_marker_loss_s``.
     """
-    t = steps["t_s"].to_numpy()
+    t = np.asarray(steps["t_s"])
     t_end = float(t[-1])
-    stop_s = _longest_run_s(steps["tilt_stop"].to_numpy(bool), t, t_end)
+    stop_s = _longest_run_s(np.asarray(steps["tilt_stop"], dtype=bool), t, t_end)
     loss_s, lost_frac = 0.0, 0.0
     if len(frames) and "lost" in frames:
-        processed = frames[~frames["dropped"]]
-        lost = processed["lost"].fillna(False).to_numpy(bool)
-        loss_s = _longest_run_s(lost, processed["t_exposure_s"].to_numpy(), t_end)
+        processed = ~np.asarray(frames["dropped"], dtype=bool)
+        lost = _processed_lost(frames, processed)
+        t_exp = np.asarray(frames["t_exposure_s"], dtype=float)[processed]
+        loss_s = _longest_run_s(lost, t_exp, t_end)
         lost_frac = float(lost.mean()) if len(lost) else 0.0
-    err = steps["error_deg"].to_numpy()
+    err = np.asarray(steps["error_deg"])
     q2 = err[(t >= 0.25 * t_end) & (t < 0.5 * t_end)]
     q4 = err[t >= 0.75 * t_end]
     rms2 = float(np.sqrt(np.mean(q2**2))) if len(q2) else 0.0
@@ -753,16 +784,21 @@ def loss_of_control(steps: pd.DataFrame, frames: pd.DataFrame, diverged: bool) -
     return out
 
 
-def _step_metrics(steps: pd.DataFrame) -> dict[str, float]:
+def _quaternions(table: Columns, prefix: str) -> NDArray[np.float64]:
+    """The (n, 4) quaternions of the columns ``<prefix>qw`` ... ``<prefix>qz``."""
+    return np.column_stack([np.asarray(table[f"{prefix}q{c}"], dtype=float) for c in "wxyz"])
+
+
+def _step_metrics(steps: Columns) -> dict[str, float]:
     nan = {"settling_time_s": float("nan"), "overshoot_pct": float("nan"),
            "step_size_deg": float("nan")}
-    qr = steps[["ref_qw", "ref_qx", "ref_qy", "ref_qz"]].to_numpy()
+    qr = _quaternions(steps, "ref_")
     changes = np.flatnonzero(attitude.geodesic_angle(qr[:-1], qr[1:]) > 1e-9)
     if len(changes) == 0:
         return nan
     i0 = changes[-1] + 1
-    t = steps["t_s"].to_numpy()
-    q = steps[["qw", "qx", "qy", "qz"]].to_numpy()
+    t = np.asarray(steps["t_s"])
+    q = _quaternions(steps, "")
     q_from, q_to = qr[i0 - 1], qr[i0]  # the commanded step: reference before and after
     size = attitude.geodesic_angle(q_from, q_to)
     if size < 1e-6:

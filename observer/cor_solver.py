@@ -207,6 +207,28 @@ def _lm(q, P, uv, t_cor, intr, max_iterations, step_tol):
     return q, _NOT_CONVERGED, it, cost, J
 
 
+#: Why a solve is invalid after its start was accepted, by code, with the number each text
+#: needs (``failure_reason``).
+BEHIND_CAMERA, DEGENERATE, NOT_CONVERGED, ILL_CONDITIONED, RESIDUAL_TOO_LARGE, FAR_SIDE = range(6)
+
+
+def failure_reason(code: int, value: float, config: CorSolverConfig) -> str:
+    """The ``SolverResult.reason`` of an invalid solve: ``code`` one of the constants above,
+    ``value`` the condition number of JᵀJ, the RMS residual (px) or the solution's tilt (rad)
+    for the codes that report one."""
+    if code == BEHIND_CAMERA:
+        return "start attitude projects markers behind the camera"
+    if code == DEGENERATE:
+        return "singular normal equations (markers degenerate)"
+    if code == NOT_CONVERGED:
+        return f"did not converge in {config.max_iterations} iterations"
+    if code == ILL_CONDITIONED:
+        return f"ill-conditioned geometry (cond(JᵀJ) = {value:.3g})"
+    if code == RESIDUAL_TOO_LARGE:
+        return f"diverged: residual RMS {value:.3g} px > {config.max_residual_rms_px} px"
+    return f"solution tilt {np.rad2deg(value):.1f}° beyond max_tilt_rad (far-side solution)"
+
+
 class CorSolver:
     """CoR-constrained attitude solver (seed 002 §2.4) as an ``AttitudeSolver``.
 
@@ -299,18 +321,18 @@ class CorSolver:
 
         r, _ = self._residual_jac(q, P, uv_v)
         if not np.all(np.isfinite(r)):
-            return SolverResult.invalid("start attitude projects markers behind the camera")
+            return SolverResult.invalid(failure_reason(BEHIND_CAMERA, np.nan, cfg))
         q, status, it, cost, J = _lm(q, P, np.ascontiguousarray(uv_v), self._t_cor, self._intr,
                                      int(cfg.max_iterations), float(cfg.step_tol_rad))
         if status == _SINGULAR:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it,
-                reason="singular normal equations (markers degenerate)",
+                reason=failure_reason(DEGENERATE, np.nan, cfg),
             )
         if status == _NOT_CONVERGED:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it,
-                reason=f"did not converge in {cfg.max_iterations} iterations",
+                reason=failure_reason(NOT_CONVERGED, np.nan, cfg),
                 residual_rms_px=float(np.sqrt(cost / len(r))),
             )
         q = q / np.linalg.norm(q)
@@ -322,7 +344,7 @@ class CorSolver:
         if not np.isfinite(cond) or cond > cfg.max_condition:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
-                reason=f"ill-conditioned geometry (cond(JᵀJ) = {cond:.3g})",
+                reason=failure_reason(ILL_CONDITIONED, cond, cfg),
             )
         if cfg.sigma_px is None:
             dof = len(r) - 3
@@ -334,12 +356,11 @@ class CorSolver:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
                 covariance=cov,
-                reason=f"diverged: residual RMS {rms:.3g} px > {cfg.max_residual_rms_px} px",
+                reason=failure_reason(RESIDUAL_TOO_LARGE, rms, cfg),
             )
         if _tilt(q) > cfg.max_tilt_rad:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
-                reason=f"solution tilt {np.rad2deg(_tilt(q)):.1f}° beyond max_tilt_rad "
-                "(far-side solution)",
+                reason=failure_reason(FAR_SIDE, _tilt(q), cfg),
             )
         return SolverResult(q=q, covariance=cov, residual_rms_px=rms, iterations=it)

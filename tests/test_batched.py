@@ -1,12 +1,14 @@
 """The batched engine against the event loop, run by run, and the engine choice."""
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from typer.testing import CliRunner
 
 from experiments.cli import app
 from experiments.scenario import Scenario, build_loop, run_many
+from latency import compiled
 from latency.batched import run_batched
 from plant import attitude as A
 
@@ -45,7 +47,44 @@ GRID = {
         pipeline={"observer": {"kind": "gamma", "shape_k": 9.0, "scale_theta_s": 0.003}},
     ),
     "aekf": _scenario(seed=5, observer={"kind": "aekf"}),
+    # The compiled run loop's case (latency.compiled.covers): PID and the per-frame solver,
+    # sequential and pipelined, constant and random observer and controller latencies,
+    # outliers.
+    "compiled, sequential, random latencies": _scenario(
+        seed=6, measurement={"outlier_prob": 0.1},
+        pipeline={"observer": {"kind": "uniform", "low_s": 0.01, "high_s": 0.05}},
+        controller_latency={"kind": "gamma", "shape_k": 4.0, "scale_theta_s": 0.001},
+    ),
+    "compiled, pipelined, random latency": _scenario(
+        seed=7, reference={"kind": "cone", "args": {"tilt_deg": 8.0, "yaw_rate_rad_s": 3.0}},
+        pipeline={"observer": {"kind": "normal", "mean_value_s": 0.045, "std_s": 0.01},
+                  "mode": "pipelined"},
+        controller_latency={"kind": "constant", "value_s": 0.002},
+    ),
+    "pixel Kalman coasting on lost frames": _scenario(
+        seed=8, observer={"kind": "pixel_kalman", "pixel_q_scale": 0.5},
+        measurement={"dropout_prob": 0.3, "outlier_prob": 0.05},
+        reference={"kind": "cone", "args": {"tilt_deg": 8.0, "yaw_rate_rad_s": 4.0}},
+        pipeline={"mode": "pipelined"},
+    ),
+    "compiled, PID variants": _scenario(
+        seed=9, controller={"kind": "pid", "config": {
+            "anti_windup": "conditional", "friction_compensation_Nm": 0.002, "feedforward": False,
+            "invalid_command": "zero", "crossover_rad_s": 40.0, "torque_limit_Nm": 0.05}},
+        measurement={"dropout_prob": 0.5},
+        reference={"kind": "cone", "args": {"tilt_deg": 10.0, "yaw_rate_rad_s": 6.0}},
+    ),
+    "compiled, region of interest and blur limit": _scenario(
+        seed=10, measurement={"roi": {"rows": 600, "cols": 1000, "follow": True},
+                              "blur_limit_px": 4.0, "search_radius_px": 240.0},
+        reference={"kind": "cone", "args": {"tilt_deg": 6.0, "yaw_rate_rad_s": 8.0}},
+    ),
 }
+#: The cases that the compiled run loop computes; the others advance in lockstep.
+COMPILED = {"nominal", "past the stability boundary", "saturation and tilt stop", "lost frames",
+            "random latency, pixel Kalman", "compiled, sequential, random latencies",
+            "compiled, pipelined, random latency", "pixel Kalman coasting on lost frames",
+            "compiled, PID variants", "compiled, region of interest and blur limit"}
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +115,35 @@ def test_batched_runs_follow_the_event_loop_run_by_run(both_engines, case):
             assert other == pytest.approx(value, rel=0.01, abs=1e-12), key
 
 
+def test_the_compiled_run_loop_takes_exactly_its_cases():
+    """The engine's choice per run: the compiled loop for PID + per-frame solver with model
+    latencies, the lockstep rounds for the other observers, a region of interest, a blur limit,
+    a measured controller latency or a disturbance."""
+    for case, s in GRID.items():
+        assert compiled.covers(build_loop(s)) == (case in COMPILED), case
+    base = GRID["nominal"]
+    measured = Scenario.model_validate({**base.model_dump(mode="json"),
+                                        "controller_latency": "measured"})
+    assert not compiled.covers(build_loop(measured))
+    disturbed = build_loop(base)
+    disturbed.config = disturbed.config.model_copy(update={"disturbance_psd_Nm2s": (1e-8,) * 3})
+    assert not compiled.covers(disturbed)
+
+
+@pytest.mark.parametrize("case", sorted(COMPILED))
+def test_compiled_runs_give_the_event_loops_tables(both_engines, case):
+    """The compiled loop's frames and events tables are the event loop's: the same columns and
+    types, every timing, pixel, flag and estimate (to 1e-9), the same event texts; only the
+    controller's compute time is not timed per call (NaN)."""
+    ev, bt = both_engines[case]
+    assert bt.frames["controller_compute_s"].isna().all()
+    pd.testing.assert_frame_equal(ev.frames.drop(columns="controller_compute_s"),
+                                  bt.frames.drop(columns="controller_compute_s"),
+                                  check_exact=False, rtol=1e-9, atol=1e-9)
+    assert ev.events.detail.tolist() == bt.events.detail.tolist()
+    pd.testing.assert_frame_equal(ev.steps, bt.steps, check_exact=False, rtol=1e-6, atol=1e-9)
+
+
 def test_the_grid_covers_what_it_claims(both_engines):
     """The grid's cases do what their names say (on the event loop, the reference)."""
     kinds = {case: set(ev.events.kind) for case, (ev, _) in both_engines.items()}
@@ -87,6 +155,16 @@ def test_the_grid_covers_what_it_claims(both_engines):
     # a growing oscillation: the error late in the run exceeds the step itself
     late = unstable.steps[unstable.steps.t_s > 0.8].error_deg
     assert late.max() > 5.0 and late.max() > nominal
+    seq = both_engines["compiled, sequential, random latencies"][0]
+    assert seq.frames.dropped.any() and seq.frames.latency_s.std() > 1e-3
+    assert not both_engines["compiled, pipelined, random latency"][0].frames.dropped.any()
+    windowed = both_engines["compiled, region of interest and blur limit"][0].frames
+    lost_by = set(windowed.est_reason.dropna().str.split(";").str[0])
+    assert {"marker outside the region of interest",
+            "motion blur beyond the tracker's limit"} <= lost_by
+    coasting = both_engines["pixel Kalman coasting on lost frames"][0].frames
+    # frames lost by the front end whose estimate the filters' prior still gives (not lost)
+    assert (coasting.lost.astype(bool) & ~coasting.est_reason.str.contains("dropout")).any()
 
 
 def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
@@ -135,3 +213,18 @@ def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
         event = run_summary(config)
         assert table.loc[rid, "result.rms_error_deg"] == pytest.approx(event["rms_error_deg"],
                                                                        rel=1e-9)
+
+
+def test_the_compiled_cache_is_dropped_when_a_module_it_compiles_in_changes(tmp_path):
+    """The kernel's numba cache goes when the digest of the modules whose code it compiles in
+    (physics, solver, filter) differs from the one written with it, and stays otherwise."""
+    cached = tmp_path / "compiled._run_events-1.py311.nbi"
+    other = tmp_path / "loop._helper-1.py311.nbi"
+    for f in (cached, other):
+        f.write_text("")
+    (tmp_path / "compiled.deps.sha256").write_text("a digest of other sources")
+    compiled._drop_stale_cache(tmp_path)
+    assert not cached.exists() and other.exists()
+    cached.write_text("")
+    compiled._drop_stale_cache(tmp_path)
+    assert cached.exists()

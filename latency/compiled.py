@@ -1,0 +1,890 @@
+"""The compiled run loop: a whole measurement-model run, events and physics, in one numba call.
+
+The default measurement-model case (``covers``): the measurement front end (pixel noise,
+dropouts, outliers, the tracker-window loss model, the blur limit, the region of interest), the
+per-frame least-squares observer (``observer.pixel_observer.SolverObserver`` with
+``observer.cor_solver.CorSolver``) alone or behind the pixel Kalman filters
+(``PixelKalmanObserver``), the PID (``controller.pid.PIDController``), sequential or pipelined
+frames, an observer and a controller latency from a model (any ``latency.models`` kind), no
+disturbance, the controller on each released estimate. The event loop
+(``latency.loop.ClosedLoop``) stays the reference: this module computes the same run, run by
+run, and the agreement tests (tests/test_batched.py) hold it to it.
+
+How. In such a run the events' times do not depend on the rotor's state: frames come on the
+camera's clock, the frame scheduler decides from the observer's latencies alone which frames it
+drops and when it releases the others, and each command comes one controller latency after its
+release. So the run's event sequence is built first, in Python, with the run's own latency
+streams and the loop's tie rule (``_schedule``: the same ``FrameScheduler`` and the same
+priority queue), and the reference is sampled at the grid points and at the events' times
+(``Reference.sample_many``). Then ``_run_events`` (numba, cached on disk) walks the events:
+between two events it advances the rotor with the compiled physics step
+(``plant.rigid_body._step_rows``, the one code of the physics) as ``_advance_segment`` does,
+records the steps table's rows and the tilt-stop events; on a frame it runs the front end,
+drawing its noise from the front end's own ``numpy.random.Generator`` (numba draws the same
+numbers as numpy from the same Generator, in the same order as ``MeasurementFrontEnd.capture``);
+on a release the pixel Kalman filters (when the run has them), the warm-started
+Levenberg-Marquardt solve (``observer.cor_solver._lm``) and the PID law; on a command the
+least-norm current allocation. A command whose least-norm currents break the limits returns
+to Python for the LP of ``plant.torque.allocate`` and the kernel resumes from it. The per-step
+and per-frame logs are arrays; the events are codes with their
+numbers, written out as the event loop's texts at the end.
+
+Where it differs from the event loop: the controller's compute time is not timed per call
+(``frames.controller_compute_s`` is NaN; the controller latency is a model in every run it
+covers), and the arithmetic of a few small products is ordered differently (rounding, 1e-16).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import heapq
+import inspect
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numba import njit
+from numpy.typing import NDArray
+
+from controller.pid import PIDController
+from latency.frontends import (
+    LOST_BLUR,
+    LOST_DROPOUT,
+    LOST_OUTSIDE_ROI,
+    LOST_OUTSIDE_WINDOW,
+    MeasurementFrontEnd,
+)
+from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams, summarize
+from latency.pipeline import FrameScheduler
+from observer import cor_solver
+from observer.cor_model import CorModel
+from observer.cor_solver import (
+    _CONVERGED,
+    _SINGULAR,
+    BEHIND_CAMERA,
+    DEGENERATE,
+    FAR_SIDE,
+    ILL_CONDITIONED,
+    NOT_CONVERGED,
+    RESIDUAL_TOO_LARGE,
+    CorSolver,
+    _lm,
+    _residual_jac,
+    failure_reason,
+)
+from observer.gk import pixel_kalman
+from observer.gk.pixel_kalman import F_CV, H_CV
+from observer.pixel_observer import PixelKalmanObserver, SolverObserver
+from plant import rigid_body, torque
+from plant.rigid_body import PHYSICS_SUBSTEPS, RigidBody, _step_rows
+from plant.torque import N_COILS, TorqueMap, allocate
+
+#: Where numba caches this module's compiled functions.
+_CACHE = Path(__file__).with_name("__pycache__")
+
+
+def _drop_stale_cache(folder: Path = _CACHE) -> None:
+    """Delete this module's numba cache (in ``folder``) when a module whose compiled functions
+    or constants its kernel uses has changed since the cache was written.
+
+    numba invalidates a cached function when its own source file changes, not when a function
+    it calls in another file does: the kernel compiles in the physics step, the solver's
+    iteration and the filter's matrices, so an edit there would otherwise leave it running
+    the old code. A digest of those files, kept beside the cache, says when to drop it."""
+    digest = hashlib.sha256()
+    for module in (rigid_body, cor_solver, pixel_kalman, torque):
+        digest.update(Path(inspect.getfile(module)).read_bytes())
+    stamp = folder / "compiled.deps.sha256"
+    if stamp.is_file() and stamp.read_text() == digest.hexdigest():
+        return
+    with contextlib.suppress(OSError):  # a read-only install: numba caches elsewhere
+        for cached in folder.glob(f"{Path(__file__).stem}.*.nb[ic]"):
+            cached.unlink(missing_ok=True)
+        folder.mkdir(exist_ok=True)
+        stamp.write_text(digest.hexdigest())
+
+
+_drop_stale_cache()
+
+# --- event kinds of the schedule, event codes of the record -----------------------------------
+_FRAME, _RELEASE, _COMMAND = 0, 1, 2
+#: The event loop's event kinds, in the order of their codes in ``_run_events``'s record.
+EVENT_KINDS = ("frame_dropped", "tracking_loss", "reacquisition", "invalid_estimate",
+               "invalid_command", "saturation", "tilt_stop_contact", "tilt_stop_release",
+               "divergence")
+(_EV_DROPPED, _EV_LOSS, _EV_REACQ, _EV_INVALID_EST, _EV_INVALID_CMD, _EV_SATURATION,
+ _EV_CONTACT, _EV_RELEASE, _EV_DIVERGENCE) = range(len(EVENT_KINDS))
+#: Why a front end lost a frame (``MeasurementFrontEnd.capture``'s reasons), by code.
+CAPTURE_REASONS = ("", LOST_DROPOUT, LOST_OUTSIDE_WINDOW, LOST_OUTSIDE_ROI, LOST_BLUR)
+#: A solve's outcome (``_solve``): ``observer.cor_solver``'s failure codes (``failure_reason``),
+#: and two of its own: a clean solution, and a frame the front end lost (not solved).
+_R_OK, _R_LOST = -1, -2
+
+# --- the scalar state of a run (``st``), by index ---------------------------------------------
+_T, _K, _SAT, _STOP, _LOST, _DIV = 0, 1, 2, 3, 4, 5
+_Q, _W, _CUR = 6, 10, 13  # plant: attitude (4), body rate (3), actual coil currents (16)
+_CMD, _TCMD, _TDEL = 29, 45, 48  # commanded currents (16), commanded and delivered torque (3)
+_EST = 51  # the latest released estimate's attitude (4), NaN before the first
+_OBS_Q, _OBS_T = 55, 59  # the observer's solution (4) and the time of its last valid one
+_INT, _PEND, _D, _D_INIT, _T_PREV = 60, 63, 66, 69, 70  # PID: integral, dI/dt, filtered rate
+_RATE_Q, _RATE_T, _RATE_W, _LAST_TAU = 71, 75, 76, 79  # PID: rate from attitude, held torque
+_FE_HAS, _FE_LAST, _FE_MOTION, _FE_LOST, _FE_SINCE = 82, 83, 87, 91, 92  # the front end
+_N_EV, _ALLOC_T, _ALLOC_Q, _DIV_DEG, _ALLOC_SAT = 93, 94, 97, 101, 102
+#: The pixel Kalman filters of the two markers: per marker, initialised, X (4), P (4 x 4).
+_KF, _KF_SIZE = 103, 21
+_N_STATE = _KF + 2 * _KF_SIZE
+
+# --- the settings of a run (``par``), by index ------------------------------------------------
+(_P_DURATION, _P_H, _P_TAU_L, _P_N_STEPS, _P_COS_STOP, _P_DIV_DEG, _P_LOSS_PX, _P_SIGMA,
+ _P_DROPOUT, _P_OUTLIER, _P_OUTLIER_PX, _P_SEARCH, _P_PREDICT, _P_REACQ, _P_MAX_IT, _P_STEP_TOL,
+ _P_MAX_RMS, _P_MAX_TILT, _P_MAX_COND, _P_MAX_INVALID, _P_TAU_F, _P_LIMIT, _P_FRIC, _P_FRIC_W,
+ _P_FF, _P_AW, _P_HOLD, _P_I_MAX, _P_TRUTH, _P_KT_COS) = range(30)
+_P_KP, _P_KI, _P_KD, _P_TT, _P_J = 30, 33, 36, 39, 42
+_P_KF_ON, _P_KF_Q, _P_KF_R, _P_KF_V0 = 45, 46, 62, 66  # pixel Kalman: on, Q (4 x 4), R (2 x 2)
+# the front end's region of interest (on, cols, rows, follow), the sensor's size (px), the blur
+# limit (px, NaN: none) and the camera's exposure (s)
+_P_ROI, _P_ROI_COLS, _P_ROI_ROWS, _P_ROI_FOLLOW, _P_SENSOR_W, _P_SENSOR_H = range(67, 73)
+_P_BLUR, _P_EXPOSURE = 73, 74
+_N_PAR = 75
+_AW_MODES = ("back_calculation", "conditional", "none")
+
+# --- the frame record (``fr``), by column -----------------------------------------------------
+_F_INDEX, _F_T_EXP, _F_T_REL, _F_DROPPED = range(4)
+_F_TRUE, _F_MEAS = 4, 8  # true and measured pixels, (red u, v, yellow u, v)
+_F_CENTRE, _F_LOST, _F_CAP_LOST, _F_CAP_REASON, _F_RELEASED = range(12, 17)
+_F_EST = 17  # the released estimate's attitude (4)
+_F_VALID, _F_REASON, _F_REASON_VALUE, _F_HELD_FROM, _F_LATENCY = range(21, 26)
+_F_TORQUE = 26  # the command computed on the release (3)
+_N_FR = 29
+
+
+def covers(loop: ClosedLoop) -> bool:
+    """Whether the compiled run loop computes ``loop`` (the module docstring's case), from the
+    types of its parts and its settings."""
+    c, fe = loop.config, loop.front_end
+    return (
+        isinstance(loop.controller, PIDController)
+        and isinstance(_solver_observer(loop), SolverObserver)
+        and isinstance(_solver_observer(loop).solver, CorSolver)
+        and isinstance(fe, MeasurementFrontEnd)
+        and fe.params == loop.params
+        and loop.params.camera.dist_coeffs[2:4] == (0.0, 0.0)
+        and c.controller_rate_hz is None
+        and c.controller_latency != "measured"
+        and c.observer_latency == "model"
+        and not any(c.disturbance_psd_Nm2s)
+        and c.mujoco_sensor_delay_s is None
+    )
+
+
+def _solver_observer(loop: ClosedLoop) -> SolverObserver | None:
+    """The per-frame solver observer of the run: its observer, or the one behind its pixel
+    Kalman filters; None for other observers."""
+    obs = loop.observer
+    if isinstance(obs, PixelKalmanObserver):
+        return obs.inner
+    return obs if isinstance(obs, SolverObserver) else None
+
+
+def _schedule(loop: ClosedLoop) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """The run's handled events in the event loop's order, and its frames' timing.
+
+    The event loop's queue (``ClosedLoop.timeline``: the first frame at mid-exposure, each
+    frame pushing the next frame and then its release, each release its command; ties in the
+    order pushed) with the run's own streams (``latency.loop.run_streams``): each frame's
+    observer latency from the pipeline's stream, each command's controller latency from the
+    controller's. Returns the events' times (s), kinds and frame indices, and per frame
+    (t_exposure, t_release, dropped)."""
+    c = loop.config
+    pipe = c.pipeline
+    rng_pipe, rng_ctrl, _ = run_streams(c.seed)
+    scheduler = FrameScheduler(pipe, rng_pipe)
+    queue: list[tuple[float, int, int, int]] = []
+    order = itertools.count()
+    heapq.heappush(queue, (0.5 * pipe.exposure_s, next(order), _FRAME, 0))
+    events, frames = [], []
+    while queue and queue[0][0] < c.duration_s - 1e-12:
+        t, _, kind, index = heapq.heappop(queue)
+        events.append((t, kind, index))
+        if kind == _FRAME:
+            timing = scheduler.next_frame()
+            t_next = (timing.index + 1) * pipe.frame_period_s + 0.5 * pipe.exposure_s
+            heapq.heappush(queue, (t_next, next(order), _FRAME, timing.index + 1))
+            frames.append((timing.t_exposure, timing.t_release, timing.dropped))
+            if not timing.dropped:
+                heapq.heappush(queue, (timing.t_release, next(order), _RELEASE, timing.index))
+        elif kind == _RELEASE:
+            latency = c.controller_latency.sample(rng_ctrl)
+            heapq.heappush(queue, (t + latency, next(order), _COMMAND, index))
+    ev = np.array(events, dtype=float).reshape(-1, 3)
+    return ev[:, 0].copy(), ev[:, 1].astype(np.int64), ev[:, 2].astype(np.int64), \
+        np.array(frames, dtype=float).reshape(-1, 3)
+
+
+def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
+    """The run's numbers for the kernel (``par``; the ``_P_*`` indices)."""
+    c, p = loop.config, loop.params
+    fe: MeasurementFrontEnd = loop.front_end  # type: ignore[assignment]
+    m = fe.config
+    inner = _solver_observer(loop)
+    assert inner is not None and isinstance(inner.solver, CorSolver)
+    solver = inner.solver
+    pid: PIDController = loop.controller  # type: ignore[assignment]
+    pc = pid.config
+    par = np.zeros(_N_PAR)
+    par[_P_DURATION], par[_P_H] = c.duration_s, p.physics_dt_s
+    par[_P_TAU_L], par[_P_N_STEPS] = p.motor.coil_time_constant_s, loop.n_steps
+    par[_P_COS_STOP] = np.cos(np.deg2rad(p.rotor.tilt_stop_deg))
+    par[_P_DIV_DEG], par[_P_LOSS_PX] = c.divergence_deg, c.loss_threshold_px
+    par[_P_SIGMA], par[_P_DROPOUT], par[_P_OUTLIER] = m.sigma_px, m.dropout_prob, m.outlier_prob
+    par[_P_OUTLIER_PX] = m.outlier_px
+    par[_P_SEARCH] = np.nan if m.search_radius_px is None else m.search_radius_px
+    par[_P_PREDICT], par[_P_REACQ] = m.predictive_search, m.reacquire_after_frames
+    if m.roi is not None:
+        par[_P_ROI], par[_P_ROI_COLS], par[_P_ROI_ROWS] = 1.0, m.roi.cols, m.roi.rows
+        par[_P_ROI_FOLLOW] = m.roi.follow
+    par[_P_SENSOR_W], par[_P_SENSOR_H] = p.camera.sensor_width_px, p.camera.sensor_height_px
+    par[_P_BLUR] = np.nan if m.blur_limit_px is None else m.blur_limit_px
+    par[_P_EXPOSURE] = p.camera.exposure_s
+    sc = solver.config
+    par[_P_MAX_IT], par[_P_STEP_TOL] = sc.max_iterations, sc.step_tol_rad
+    par[_P_MAX_RMS], par[_P_MAX_TILT] = sc.max_residual_rms_px, sc.max_tilt_rad
+    par[_P_MAX_COND] = sc.max_condition
+    par[_P_MAX_INVALID] = inner.max_invalid_s
+    if isinstance(loop.observer, PixelKalmanObserver):
+        kf = loop.observer.config
+        par[_P_KF_ON], par[_P_KF_V0] = 1.0, kf.velocity_var0
+        par[_P_KF_Q : _P_KF_Q + 16] = np.ravel(kf.Q)
+        par[_P_KF_R : _P_KF_R + 4] = np.ravel(kf.R)
+    par[_P_TAU_F], par[_P_LIMIT] = pid.tau_f, pid.torque_limit
+    par[_P_FRIC] = pc.friction_compensation_Nm
+    par[_P_FRIC_W] = np.radians(pc.friction_compensation_width_deg)
+    par[_P_FF], par[_P_AW] = pc.feedforward, _AW_MODES.index(pc.anti_windup)
+    par[_P_HOLD] = pc.invalid_command == "hold"
+    par[_P_I_MAX], par[_P_TRUTH] = p.motor.i_max_A, c.allocate_with == "truth"
+    par[_P_KT_COS] = np.cos(np.deg2rad(p.motor.cutoff_deg))
+    for at, v in ((_P_KP, pid.Kp), (_P_KI, pid.Ki), (_P_KD, pid.Kd), (_P_TT, pid.T_t),
+                  (_P_J, pid.J)):
+        par[at : at + 3] = v
+    return par
+
+
+# --- the kernel's pieces (numba) -------------------------------------------------------------
+@njit(cache=True)
+def _qmul(a, b):
+    """Hamilton product of two quaternions (4,) (w, x, y, z)."""
+    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
+
+
+@njit(cache=True)
+def _conj_mul(a, b):
+    """a* ⊗ b for unit quaternions a and b, each normalised first (``plant.attitude``)."""
+    a = a / np.sqrt(a @ a)
+    b = b / np.sqrt(b @ b)
+    return _qmul(np.array([a[0], -a[1], -a[2], -a[3]]), b)
+
+
+@njit(cache=True)
+def _matrix(q):
+    """R(q) (3, 3), rotor to stator, of the normalised q (``plant.attitude.to_matrix``)."""
+    w, x, y, z = q / np.sqrt(q @ q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+@njit(cache=True)
+def _rotvec(q):
+    """Rotation vector (rad, angle in [0, pi]) of q (``plant.attitude.to_rotvec``)."""
+    q = q / np.sqrt(q @ q)
+    if q[0] < 0:
+        q = -q
+    s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if s < 1e-12:
+        return 2.0 * q[1:]
+    return 2.0 * np.arctan2(s, q[0]) * q[1:] / s
+
+
+@njit(cache=True)
+def _geodesic(q1, q2):
+    """Angle (rad) of the rotation from q1 to q2 (``plant.attitude.geodesic_angle``)."""
+    d = _conj_mul(q1, q2)
+    return 2.0 * np.arctan2(np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3]), abs(d[0]))
+
+
+@njit(cache=True)
+def _project(q, P, t_cor, intr):
+    """Marker pixels (2, 2) at attitude q: the CoR model's projection (``observer.cor_model``,
+    the same as ``plant.camera.marker_pixels`` for a lens without tangential distortion)."""
+    r, _ = _residual_jac(q, P, np.zeros((P.shape[0], 2)), t_cor, intr)
+    return -r.reshape(P.shape[0], 2)
+
+
+@njit(cache=True)
+def _roi_misses(st, par, truth):
+    """``MeasurementFrontEnd._inside_roi`` negated: a marker's centre outside the region of
+    interest, centred on the sensor or on the mean predicted marker position
+    (``roi_centre_px``), shifted to lie on the sensor."""
+    size = (par[_P_SENSOR_W], par[_P_SENSOR_H])
+    extent = (par[_P_ROI_COLS], par[_P_ROI_ROWS])
+    predict = 1.0 if par[_P_PREDICT] > 0 else 0.0
+    for k in range(2):
+        centre = (size[k] - 1.0) / 2.0
+        if par[_P_ROI_FOLLOW] > 0 and st[_FE_HAS] > 0:
+            centre = 0.0
+            for j in range(2):
+                centre += 0.5 * (st[_FE_LAST + 2 * j + k] + predict * st[_FE_MOTION + 2 * j + k])
+        half = 0.5 * min(extent[k], size[k])
+        centre = min(max(centre, half - 0.5), size[k] - 0.5 - half)
+        for j in range(2):
+            if abs(truth[j, k] - centre) > 0.5 * extent[k]:
+                return True
+    return False
+
+
+@njit(cache=True)
+def _blur_travel_px(q, w, par, P, t_cor, intr):
+    """``MeasurementFrontEnd._blur_travel_px``: the largest marker travel (px) over the
+    camera's exposure at the body rate w, from the attitudes half an exposure either side."""
+    ends = np.empty((2, 2, 2))
+    for s in range(2):
+        rv = (2.0 * s - 1.0) * 0.5 * par[_P_EXPOSURE] * w
+        theta = np.sqrt(rv @ rv)
+        if theta < 1e-12:
+            dq = np.array([1.0, 0.5 * rv[0], 0.5 * rv[1], 0.5 * rv[2]])
+            dq = dq / np.sqrt(dq @ dq)
+        else:
+            c, sn = np.cos(0.5 * theta), np.sin(0.5 * theta) / theta
+            dq = np.array([c, sn * rv[0], sn * rv[1], sn * rv[2]])
+        qs = _qmul(q, dq)
+        ends[s] = _project(qs / np.sqrt(qs @ qs), P, t_cor, intr)
+    d = ends[1] - ends[0]
+    return max(np.sqrt(d[0] @ d[0]), np.sqrt(d[1] @ d[1]))
+
+
+@njit(cache=True)
+def _capture(st, q, w, par, P, t_cor, intr, rng, meas):
+    """``MeasurementFrontEnd.capture`` at the attitude q and body rate w: writes the measured
+    pixels into ``meas`` (NaN when lost) and returns (true pixels, lost, reason code of
+    ``CAPTURE_REASONS``). Draws from ``rng`` as capture does."""
+    truth = _project(q, P, t_cor, intr)
+    meas[:] = np.nan
+    if rng.random() < par[_P_DROPOUT]:
+        return truth, True, 1
+    st[_FE_SINCE] += 1.0
+    if par[_P_ROI] > 0 and _roi_misses(st, par, truth):
+        st[_FE_LOST] += 1.0
+        return truth, True, 3
+    predict = 1.0 if par[_P_PREDICT] > 0 else 0.0
+    if np.isfinite(par[_P_SEARCH]) and st[_FE_HAS] > 0 and st[_FE_LOST] < par[_P_REACQ]:
+        worst = 0.0
+        for j in range(2):
+            du = truth[j, 0] - (st[_FE_LAST + 2 * j] + predict * st[_FE_MOTION + 2 * j])
+            dv = truth[j, 1] - (st[_FE_LAST + 2 * j + 1] + predict * st[_FE_MOTION + 2 * j + 1])
+            worst = max(worst, np.sqrt(du * du + dv * dv))
+        if worst > par[_P_SEARCH]:
+            st[_FE_LOST] += 1.0
+            return truth, True, 2
+    if np.isfinite(par[_P_BLUR]) and _blur_travel_px(q, w, par, P, t_cor, intr) > par[_P_BLUR]:
+        return truth, True, 4
+    z = np.empty((2, 2))
+    for j in range(2):
+        for k in range(2):
+            z[j, k] = truth[j, k] + (0.0 + par[_P_SIGMA] * rng.normal())
+    if rng.random() < par[_P_OUTLIER]:
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        j = rng.integers(0, 2)
+        z[j, 0] += par[_P_OUTLIER_PX] * np.cos(angle)
+        z[j, 1] += par[_P_OUTLIER_PX] * np.sin(angle)
+    for j in range(2):
+        for k in range(2):
+            if st[_FE_HAS] > 0:
+                st[_FE_MOTION + 2 * j + k] = (z[j, k] - st[_FE_LAST + 2 * j + k]) / st[_FE_SINCE]
+            st[_FE_LAST + 2 * j + k] = z[j, k]
+    st[_FE_HAS], st[_FE_LOST], st[_FE_SINCE] = 1.0, 0.0, 0.0
+    meas[:, :] = z
+    return truth, False, 0
+
+
+@njit(cache=True)
+def _solve(q_prev, uv, P, t_cor, intr, par):
+    """``CorSolver.solve`` warm-started at q_prev on both markers' pixels uv (2, 2) (the front
+    end measures both or none): (q, valid, reason code, its number)."""
+    nan4 = np.full(4, np.nan)
+    q = q_prev / np.sqrt(q_prev @ q_prev)
+    r, _ = _residual_jac(q, P, uv, t_cor, intr)
+    if not np.all(np.isfinite(r)):
+        return nan4, False, BEHIND_CAMERA, 0.0
+    q, status, it, cost, J = _lm(q, P, uv, t_cor, intr, int(par[_P_MAX_IT]), par[_P_STEP_TOL])
+    if status == _SINGULAR:
+        return nan4, False, DEGENERATE, 0.0
+    if status != _CONVERGED:
+        return nan4, False, NOT_CONVERGED, 0.0
+    q = q / np.sqrt(q @ q)
+    if q[0] < 0:
+        q = -q
+    rms = np.sqrt(cost / r.shape[0])
+    cond = np.linalg.cond(J.T @ J)
+    if not np.isfinite(cond) or cond > par[_P_MAX_COND]:
+        return nan4, False, ILL_CONDITIONED, cond
+    if rms > par[_P_MAX_RMS]:
+        return nan4, False, RESIDUAL_TOO_LARGE, rms
+    tilt = np.arccos(min(max(1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]), -1.0), 1.0))
+    if tilt > par[_P_MAX_TILT]:
+        return nan4, False, FAR_SIDE, tilt
+    return q, True, _R_OK, 0.0
+
+
+@njit(cache=True)
+def _pixel_kalman(st, par, z, lost):
+    """The filters of ``PixelKalmanObserver.process`` (``observer.gk.pixel_kalman.PixelKalman``,
+    filterpy's equations: the prior, then the update in Joseph form, or coasting on the prior
+    when the frame is lost) on the measured centres z (2, 2), sensor px: the filtered centres
+    (NaN for a filter not yet initialised)."""
+    Q = par[_P_KF_Q : _P_KF_Q + 16].copy().reshape(4, 4)
+    R = par[_P_KF_R : _P_KF_R + 4].copy().reshape(2, 2)
+    out = np.full((2, 2), np.nan)
+    for i in range(2):
+        b = _KF + i * _KF_SIZE
+        x = st[b + 1 : b + 5].copy()
+        P = st[b + 5 : b + 21].copy().reshape(4, 4)
+        initialised = st[b] > 0
+        if initialised:
+            x = F_CV @ x
+            P = 1.0 * ((F_CV @ P) @ F_CV.T) + Q
+        if not lost and np.isfinite(z[i, 0]) and np.isfinite(z[i, 1]):
+            if not initialised:
+                x = np.array([z[i, 0], z[i, 1], 0.0, 0.0])
+                P = np.zeros((4, 4))
+                P[:2, :2] = R
+                P[2, 2] = P[3, 3] = par[_P_KF_V0]
+                initialised = True
+            else:
+                PHT = P @ H_CV.T
+                K = PHT @ np.linalg.inv(H_CV @ PHT + R)
+                x = x + K @ (z[i] - H_CV @ x)
+                I_KH = np.eye(4) - K @ H_CV
+                P = (I_KH @ P) @ I_KH.T + (K @ R) @ K.T
+        st[b] = 1.0 if initialised else 0.0
+        st[b + 1 : b + 5] = x
+        st[b + 5 : b + 21] = P.ravel()
+        if initialised:
+            out[i] = x[:2]
+    return out
+
+
+@njit(cache=True)
+def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
+    """``PIDController.command`` on an estimate (valid, attitude, the time it describes) with
+    the reference sampled at the call: the stator-frame torque (3,), N·m."""
+    if not valid:
+        st[_PEND : _PEND + 3] = 0.0
+        st[_T_PREV] = t_state
+        if par[_P_HOLD] == 0:
+            st[_LAST_TAU : _LAST_TAU + 3] = 0.0
+        return st[_LAST_TAU : _LAST_TAU + 3].copy()
+    dt = 0.0 if np.isnan(st[_T_PREV]) else max(t_state - st[_T_PREV], 0.0)
+    st[_T_PREV] = t_state
+    q = q_est / np.sqrt(q_est @ q_est)
+    q_e = _conj_mul(q, ref_q)
+    e = _rotvec(q_e)
+    R_e = _matrix(q_e)
+    w_r = R_e @ ref_w
+    a_r = R_e @ ref_a
+    # the rate from successive attitudes (``controller.pid.RateFromAttitude``)
+    has_prev = not np.isnan(st[_RATE_Q])
+    if has_prev and t_state > st[_RATE_T]:
+        dq = _conj_mul(st[_RATE_Q : _RATE_Q + 4], q)
+        st[_RATE_W : _RATE_W + 3] = _rotvec(dq) / (t_state - st[_RATE_T])
+    if not has_prev or t_state > st[_RATE_T]:
+        st[_RATE_Q : _RATE_Q + 4] = q
+        st[_RATE_T] = t_state
+    omega = st[_RATE_W : _RATE_W + 3]
+    d = st[_D : _D + 3]
+    if np.all(np.isfinite(omega)):
+        x = w_r - omega
+        if st[_D_INIT] == 0:
+            d[:] = x
+            st[_D_INIT] = 1.0
+        else:
+            d += (1.0 - np.exp(-dt / par[_P_TAU_F])) * (x - d)
+    st[_INT : _INT + 3] = st[_INT : _INT + 3] + st[_PEND : _PEND + 3] * dt
+    Kp, Ki, Kd = par[_P_KP : _P_KP + 3], par[_P_KI : _P_KI + 3], par[_P_KD : _P_KD + 3]
+    tau = Kp * e + st[_INT : _INT + 3] + Kd * d
+    if par[_P_FRIC] > 0.0:
+        tau = tau + par[_P_FRIC] * np.tanh(e / par[_P_FRIC_W])
+    if par[_P_FF] > 0:
+        J = par[_P_J : _P_J + 3]
+        Jw = J * w_r
+        gyro = np.array([w_r[1] * Jw[2] - w_r[2] * Jw[1], w_r[2] * Jw[0] - w_r[0] * Jw[2],
+                         w_r[0] * Jw[1] - w_r[1] * Jw[0]])
+        tau = tau + J * a_r + gyro
+    R = _matrix(q)
+    T = R @ tau
+    n = np.sqrt(T @ T)
+    saturated = n > par[_P_LIMIT]
+    if saturated:
+        T = T * (par[_P_LIMIT] / n)
+    tau_sat = R.T @ T
+    rate = Ki * e
+    if par[_P_AW] == 0:
+        rate = rate + (tau_sat - tau) / par[_P_TT : _P_TT + 3]
+    elif par[_P_AW] == 1 and saturated:
+        for i in range(3):
+            excess = tau[i] - tau_sat[i]
+            if np.sign(e[i]) == np.sign(excess) and abs(excess) > 0:
+                rate[i] = 0.0
+    st[_PEND : _PEND + 3] = rate
+    st[_LAST_TAU : _LAST_TAU + 3] = T
+    return T.copy()
+
+
+@njit(cache=True)
+def _torque_map(q, coils, magnets, gain, cos_cut):
+    """K(q) (3, 16), N·m/A (``plant.torque.TorqueMap``); ``gain`` is k_T s_j (18,)."""
+    R = _matrix(q)
+    K = np.empty((3, coils.shape[0]))
+    r = magnets @ R.T
+    for i in range(coils.shape[0]):
+        v0 = v1 = v2 = 0.0
+        for j in range(r.shape[0]):
+            x = (coils[i, 0] * r[j, 0] + coils[i, 1] * r[j, 1] + coils[i, 2] * r[j, 2]
+                 - cos_cut) / (1.0 - cos_cut)
+            if x > 0.0:
+                g = gain[j] * x * x
+                v0 += g * r[j, 0]
+                v1 += g * r[j, 1]
+                v2 += g * r[j, 2]
+        c = coils[i]
+        K[0, i] = c[1] * v2 - c[2] * v1
+        K[1, i] = c[2] * v0 - c[0] * v2
+        K[2, i] = c[0] * v1 - c[1] * v0
+    return K
+
+
+@njit(cache=True)
+def _event(st, evs, t, code, a, b, c, d):
+    """Append an event (time s, code of ``EVENT_KINDS``, up to four numbers) to the record."""
+    n = int(st[_N_EV])
+    evs[n, 0], evs[n, 1], evs[n, 2], evs[n, 3], evs[n, 4], evs[n, 5] = t, code, a, b, c, d
+    st[_N_EV] = n + 1
+
+
+@njit(cache=True)
+def _record(st, k, ref_grid, log, evs, par):
+    """Row k of the steps table (``latency.loop._StepLog``) from the state at grid point k;
+    a tilt-stop contact or release event where the flag changes (each row shows the flag of
+    the row before)."""
+    row = log[k]
+    row[0] = k * par[_P_H]
+    row[1:5] = st[_Q : _Q + 4]
+    row[5:8] = st[_W : _W + 3]
+    row[8:12] = ref_grid[k]
+    row[12:15] = st[_TCMD : _TCMD + 3]
+    row[15:18] = st[_TDEL : _TDEL + 3]
+    row[18:34] = st[_CUR : _CUR + N_COILS]
+    row[34:38] = st[_EST : _EST + 4]
+    row[38] = st[_SAT]
+    row[39] = st[_STOP]
+    q = st[_Q : _Q + 4]
+    stop = 1.0 if 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]) < par[_P_COS_STOP] else 0.0
+    if stop != st[_STOP]:
+        _event(st, evs, row[0], _EV_CONTACT if stop > 0 else _EV_RELEASE, 0.0, 0.0, 0.0, 0.0)
+    st[_STOP] = stop
+
+
+@njit(cache=True)
+def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets, gain,
+             scal):
+    """``latency.loop._advance_segment`` on the run's state: to the next grid point or the
+    target, whichever is first (whole steps, a shortened last one, the coils' first-order
+    lag exact at each step's start), recording each grid point, until within 1e-12 s of the
+    target."""
+    h, tau_l, n_steps = par[_P_H], par[_P_TAU_L], int(par[_P_N_STEPS])
+    q = st[_Q : _Q + 4].copy().reshape(1, 4)
+    w = st[_W : _W + 3].copy().reshape(1, 3)
+    cur = st[_CUR : _CUR + N_COILS].copy().reshape(1, N_COILS)
+    cmd = st[_CMD : _CMD + N_COILS]
+    dist = np.zeros((1, 3))
+    hk = np.empty(1)
+    t, k = st[_T], int(st[_K])
+    while True:
+        t_grid = (k + 1) * h
+        t_to = min(target, t_grid)
+        if t_to > t:
+            dt = t_to - t
+            n = int(np.floor(dt / h + 1e-9))
+            rest = dt - n * h
+            for s in range(n + 1):
+                hk[0] = h if s < n else rest
+                if s == n and not rest > 1e-12:
+                    break
+                decay = np.exp(-hk[0] / tau_l) if tau_l > 0 else 0.0
+                cur[0] = cmd + (cur[0] - cmd) * decay
+                q, w = _step_rows(q, w, cur, hk, dist, PHYSICS_SUBSTEPS, J, J_inv, com, m_g,
+                                  coils, magnets, gain, scal)
+            t = t_to
+            st[_Q : _Q + 4], st[_W : _W + 3], st[_CUR : _CUR + N_COILS] = q[0], w[0], cur[0]
+        if abs(t - t_grid) < 1e-12 and k + 1 <= n_steps:
+            k += 1
+            _record(st, k, ref_grid, log, evs, par)
+        if t >= target - 1e-12:
+            break
+    st[_T], st[_K] = t, k
+
+
+@njit(cache=True)
+def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, ref_w, ref_a,
+                par, J, J_inv, com, m_g, coils, magnets, gain, scal, true_model, obs_model,
+                tm_gain, rng, st, log, fr, evs):
+    """Run the events from index e on (the module docstring). Returns the index of a command
+    whose currents need ``plant.torque.allocate`` (its torque and attitude in ``st``; call
+    again with ``alloc_ready`` and the allocation in ``st``), or the number of events when the
+    run is complete. ``true_model`` and ``obs_model`` are (markers (2, 3), m; CoR in the camera
+    frame (3,), m; intrinsics (7,)) of the camera's truth and of the observer's model."""
+    duration = par[_P_DURATION]
+    if st[_K] < 0:
+        st[_K] = 0.0
+        _record(st, 0, ref_grid, log, evs, par)
+    meas = np.empty((2, 2))
+    while e < ev_t.shape[0]:
+        target = min(ev_t[e], duration)
+        if target > st[_T]:
+            _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets,
+                     gain, scal)
+        t = st[_T]
+        i = ev_idx[e]
+        f = fr[i]
+        if ev_kind[e] == _FRAME:
+            q = st[_Q : _Q + 4]
+            err = np.degrees(_geodesic(q, ref_q[e]))
+            newly = (not np.isfinite(err) or err > par[_P_DIV_DEG]) and st[_DIV] == 0
+            if newly:
+                st[_DIV], st[_DIV_DEG] = 1.0, err
+            f[_F_INDEX], f[_F_T_EXP], f[_F_T_REL] = i, frames[i, 0], frames[i, 1]
+            f[_F_DROPPED] = frames[i, 2]
+            if frames[i, 2] > 0:
+                _event(st, evs, t, _EV_DROPPED, i, 0.0, 0.0, 0.0)
+            else:
+                truth, cap_lost, reason = _capture(st, q, st[_W : _W + 3], par, *true_model, rng,
+                                                   meas)
+                worst, any_finite, lost = -np.inf, False, cap_lost
+                for j in range(2):
+                    du, dv = meas[j, 0] - truth[j, 0], meas[j, 1] - truth[j, 1]
+                    d = np.sqrt(du * du + dv * dv)
+                    if np.isfinite(d):
+                        any_finite = True
+                        worst = max(worst, d)
+                    if not d <= par[_P_LOSS_PX]:
+                        lost = True
+                if lost != (st[_LOST] > 0):
+                    _event(st, evs, t, _EV_LOSS if lost else _EV_REACQ, reason,
+                           worst if any_finite else np.nan, 0.0, 0.0)
+                    st[_LOST] = 1.0 if lost else 0.0
+                f[_F_TRUE : _F_TRUE + 4] = truth.ravel()
+                f[_F_MEAS : _F_MEAS + 4] = meas.ravel()
+                f[_F_CENTRE] = worst if any_finite else np.nan
+                f[_F_LOST] = 1.0 if lost else 0.0
+                f[_F_CAP_LOST] = 1.0 if cap_lost else 0.0
+                f[_F_CAP_REASON] = reason
+            if newly:
+                _event(st, evs, t, _EV_DIVERGENCE, st[_DIV_DEG], 0.0, 0.0, 0.0)
+        elif ev_kind[e] == _RELEASE:
+            t_exp = f[_F_T_EXP]
+            uv = f[_F_MEAS : _F_MEAS + 4].copy().reshape(2, 2)
+            lost = f[_F_CAP_LOST] > 0
+            if par[_P_KF_ON] > 0:  # the filters' prior stands in for a lost frame
+                uv = _pixel_kalman(st, par, uv, lost)
+                lost = lost and not np.all(np.isfinite(uv))
+            if lost:
+                code, value = _R_LOST, f[_F_CAP_REASON]
+            else:
+                q_sol, ok, code, value = _solve(st[_OBS_Q : _OBS_Q + 4], uv, *obs_model, par)
+                if ok:
+                    st[_OBS_Q : _OBS_Q + 4], st[_OBS_T] = q_sol, t_exp
+            valid = t_exp - st[_OBS_T] <= par[_P_MAX_INVALID]
+            st[_EST : _EST + 4] = st[_OBS_Q : _OBS_Q + 4]
+            f[_F_RELEASED] = 1.0
+            f[_F_EST : _F_EST + 4] = st[_OBS_Q : _OBS_Q + 4]
+            f[_F_VALID], f[_F_REASON], f[_F_REASON_VALUE] = 1.0 if valid else 0.0, code, value
+            f[_F_HELD_FROM] = st[_OBS_T] if st[_OBS_T] < t_exp else np.nan
+            f[_F_LATENCY] = t - t_exp
+            if not valid:
+                _event(st, evs, t, _EV_INVALID_EST, i, 0.0, 0.0, 0.0)
+            torque = _pid(st, par, valid, st[_EST : _EST + 4], st[_OBS_T], ref_q[e], ref_w[e],
+                          ref_a[e])
+            if not np.all(np.isfinite(torque)):
+                _event(st, evs, t, _EV_INVALID_CMD, torque[0], torque[1], torque[2], 0.0)
+                torque[:] = 0.0
+            f[_F_TORQUE : _F_TORQUE + 3] = torque
+        else:
+            torque = f[_F_TORQUE : _F_TORQUE + 3]
+            if alloc_ready:  # the allocation of ``plant.torque.allocate``, set by the caller
+                alloc_ready = False
+                saturated = st[_ALLOC_SAT]
+            else:  # the least-norm currents, when they are within the limits
+                truth_q = par[_P_TRUTH] > 0 or f[_F_VALID] == 0
+                q_alloc = st[_Q : _Q + 4].copy() if truth_q else f[_F_EST : _F_EST + 4].copy()
+                K = _torque_map(q_alloc, coils, magnets, tm_gain, par[_P_KT_COS])
+                currents = K.T @ np.linalg.solve(K @ K.T, torque)
+                if np.max(np.abs(currents)) > par[_P_I_MAX]:
+                    st[_ALLOC_T : _ALLOC_T + 3] = torque
+                    st[_ALLOC_Q : _ALLOC_Q + 4] = q_alloc
+                    return e
+                st[_CMD : _CMD + N_COILS] = currents
+                st[_TDEL : _TDEL + 3] = K @ currents
+                saturated = 0.0
+            if saturated != st[_SAT]:
+                if saturated > 0:
+                    delivered = st[_TDEL : _TDEL + 3]
+                    _event(st, evs, t, _EV_SATURATION, np.sqrt(delivered @ delivered),
+                           np.sqrt(torque @ torque), 0.0, 0.0)
+                st[_SAT] = saturated
+            st[_TCMD : _TCMD + 3] = torque
+        e += 1
+    if duration > st[_T]:
+        _advance(st, duration, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets,
+                 gain, scal)
+    return e
+
+
+# --- the run ----------------------------------------------------------------------------------
+def run(loop: ClosedLoop) -> LoopResult:
+    """Run ``loop`` (``covers(loop)`` must hold) and return what ``loop.run()`` returns: the
+    same tables and ``summarize`` metrics (module docstring: where they differ)."""
+    if not covers(loop):
+        raise ValueError("the compiled run loop does not cover this run; use the event loop")
+    c, p = loop.config, loop.params
+    ev_t, ev_kind, ev_idx, frames = _schedule(loop)
+    n_steps = loop.n_steps
+    ref_grid = np.ascontiguousarray(
+        loop.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q)
+    ref = loop.reference.sample_many(ev_t)
+    body = RigidBody(p)
+    tm = TorqueMap(p.motor)
+    solver = _solver_observer(loop).solver  # type: ignore[union-attr]
+    par = _settings(loop)
+    st = np.zeros(_N_STATE)
+    q0 = np.asarray(c.q0, dtype=float) / np.linalg.norm(c.q0)
+    st[_Q : _Q + 4], st[_W : _W + 3], st[_OBS_Q : _OBS_Q + 4] = q0, c.omega0_rad_s, q0
+    st[_K], st[_T_PREV], st[_RATE_T] = -1.0, np.nan, -np.inf
+    for b in (_KF, _KF + _KF_SIZE):  # PixelKalman.reset: X = 0, P = I, not initialised
+        st[b + 5 : b + 21] = np.eye(4).ravel()
+    for at, n in ((_EST, 4), (_RATE_Q, 4), (_RATE_W, 3)):
+        st[at : at + n] = np.nan
+    log = _StepLog(n_steps + 1)
+    fr = np.full((len(frames), _N_FR), np.nan)
+    evs = np.zeros((4 * len(frames) + n_steps + 8, 6))
+    args = (ev_t, ev_kind, ev_idx, frames, ref_grid, np.ascontiguousarray(ref.q),
+            np.ascontiguousarray(ref.omega), np.ascontiguousarray(ref.alpha), par, *body.consts,
+            _model_arrays(CorModel.nominal(p)), _model_arrays(solver.model),
+            p.motor.k_T_Nm_per_A * tm.s, loop.front_end.rng, st, log.a, fr, evs)
+    e, ready = 0, False
+    while (e := _run_events(e, ready, *args)) < len(ev_t):
+        # least-norm currents beyond the limits: the LP and bounded solve of ``allocate``
+        alloc = allocate(st[_ALLOC_T : _ALLOC_T + 3], tm(st[_ALLOC_Q : _ALLOC_Q + 4]),
+                         p.motor.i_max_A)
+        st[_CMD : _CMD + N_COILS], st[_TDEL : _TDEL + 3] = alloc.currents, alloc.delivered
+        st[_ALLOC_SAT], ready = float(alloc.saturated), True
+    steps = log.columns(int(st[_K]) + 1)
+    frames_cols = _frames_columns(fr, solver)
+    events = _events_table(evs[: int(st[_N_EV])], frames_cols)
+    stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
+    summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
+    return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
+                      c.model_dump(mode="json"))
+
+
+def _model_arrays(model: CorModel) -> tuple[NDArray, NDArray, NDArray]:
+    """A CoR model for the kernel: markers (n, 3), m, CoR in the camera frame (3,), m, and the
+    intrinsics (fx, fy, cx, cy, k1, k2, k3)."""
+    return (np.ascontiguousarray(model.markers_m, dtype=float),
+            np.asarray(model.t_cor_m, dtype=float), model.intrinsics.as_array())
+
+
+def _flag_column(values: NDArray[np.float64]) -> NDArray:
+    """A flag column as the event loop's list of row dicts gives it: bool, or object with NaN
+    where some rows lack it."""
+    present = ~np.isnan(values)
+    if present.all():
+        return values.astype(bool)
+    out = np.full(len(values), np.nan, dtype=object)
+    out[present] = values[present].astype(bool)
+    return out
+
+
+def _reason(f: NDArray[np.float64], solver: CorSolver) -> str:
+    """The estimate's ``reason`` of a released frame's record (``SolverObserver.release``)."""
+    code, value = int(f[_F_REASON]), f[_F_REASON_VALUE]
+    if code == _R_OK:
+        text = ""
+    elif code == _R_LOST:
+        text = CAPTURE_REASONS[int(value)]
+    else:
+        text = failure_reason(code, value, solver.config)
+    if np.isfinite(f[_F_HELD_FROM]):
+        text = f"{text}; holding the solution from t = {f[_F_HELD_FROM]:.4f} s"
+    return text
+
+
+def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDArray]:
+    """The frames table of ``ClosedLoop.timeline`` from the kernel's frame record, as columns:
+    the same columns in the same order and types (a column appears once a frame has it)."""
+    if not len(fr):
+        return {}
+    data: dict[str, NDArray] = {
+        "frame": fr[:, _F_INDEX].astype(np.int64),
+        "t_exposure_s": fr[:, _F_T_EXP],
+        "t_release_s": fr[:, _F_T_REL],
+        "dropped": fr[:, _F_DROPPED].astype(bool),
+    }
+    captured = ~data["dropped"]
+    if captured.any():
+        for k, name in enumerate(("true_red_u_px", "true_red_v_px", "true_yellow_u_px",
+                                  "true_yellow_v_px", "meas_red_u_px", "meas_red_v_px",
+                                  "meas_yellow_u_px", "meas_yellow_v_px")):
+            data[name] = fr[:, _F_TRUE + k]
+        data["centre_error_px"] = fr[:, _F_CENTRE]
+        data["lost"] = _flag_column(fr[:, _F_LOST])
+        data["observer_compute_s"] = np.where(captured, 0.0, np.nan)
+    released = fr[:, _F_RELEASED] == 1.0
+    if released.any():
+        for k, name in enumerate(("est_qw", "est_qx", "est_qy", "est_qz")):
+            data[name] = fr[:, _F_EST + k]
+        data["est_valid"] = _flag_column(fr[:, _F_VALID])
+        reasons = np.full(len(fr), np.nan, dtype=object)
+        for i in np.flatnonzero(released):
+            reasons[i] = _reason(fr[i], solver)
+        data["est_reason"] = reasons
+        data["latency_s"] = fr[:, _F_LATENCY]
+        data["controller_compute_s"] = np.full(len(fr), np.nan)  # not timed per call
+    return data
+
+
+def _events_table(evs: NDArray[np.float64], frames: dict[str, NDArray]) -> pd.DataFrame:
+    """The events table (time, kind, detail) from the kernel's record, with the event loop's
+    texts."""
+    rows = []
+    for t, code, a, b, c, _ in evs:
+        kind = EVENT_KINDS[int(code)]
+        if kind == "frame_dropped":
+            detail = f"frame {int(a)}"
+        elif kind in ("tracking_loss", "reacquisition"):
+            detail = CAPTURE_REASONS[int(a)] or f"centre error {b:.1f} px"
+        elif kind == "invalid_estimate":
+            detail = frames["est_reason"][int(a)]
+        elif kind == "invalid_command":
+            detail = f"controller returned {np.array([a, b, c])!r}"
+        elif kind == "saturation":
+            detail = f"delivered {a:.3g} of {b:.3g} N·m"
+        elif kind == "divergence":
+            detail = f"divergence: geodesic error {a:.1f} deg"
+        else:
+            detail = ""
+        rows.append((float(t), kind, detail))
+    return pd.DataFrame(rows, columns=["t_s", "kind", "detail"])
