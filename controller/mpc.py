@@ -305,7 +305,7 @@ class _Problem:
         # casadi from Python costs ~50 µs, so a 30 ms prediction in 1 ms steps would cost more
         # than the solve.
         self.chunk = 16
-        self.rk4_chunk = self.rk4.mapaccum("rk4_chunk", self.chunk)
+        self.rk4_chunk = self.rk4.mapaccum("mpc_rk4_chunk", self.chunk)
 
     def _build_nlp(self) -> None:
         cfg = self.config
@@ -316,30 +316,33 @@ class _Problem:
         self.ng = int(nlp["g"].numel())
         self.hess_gn = self._gauss_newton_hessian(nlp, tilt_rows, ball_rows)
         self.nlp = nlp
-        #: The derivatives compiled to machine code (``codegen``), else None.
-        self.compiled = self._compile(Phi) if cfg.codegen and cfg.solver != "ipopt" else None
+        #: The functions compiled to machine code (``codegen``) by role: ``rk4_chunk`` and,
+        #: for the SQP, ``jac_fg`` and ``hess_lag``; empty without ``codegen`` or a compiler.
+        self.compiled = self._compile(Phi) if cfg.codegen else {}
+        self.rk4_chunk = self.compiled.get("rk4_chunk", self.rk4_chunk)
         self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
 
-    def _compile(self, Phi: ca.Function) -> dict[str, ca.Function] | None:
-        """``jac_fg`` (objective, its gradient, constraints, their Jacobian) and, with the
-        Gauss-Newton Hessian, ``hess_lag``, compiled (``controller.codegen``); None without a
-        C compiler. The Jacobian is taken of a second copy of the NLP whose shooting steps are
-        calls of one function (``never_inline``): its C code holds the step's derivative once
-        instead of N times (0.3 MB instead of 2.6 MB of C, 2-3 s of compiling instead of 12 s)
-        and runs as fast; its values equal the inlined graph's to rounding."""
-        x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
-        step = ca.Function("mpc_phi", [x, T], [Phi(x, T)], {"never_inline": True})
-        nlp = self._nlp_graph(step)[0]
-        w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
-        jac_fg = ca.Function("mpc_jac_fg", [w, p], [f, ca.gradient(f, w), g, ca.jacobian(g, w)],
-                             ["x", "p"], ["f", "grad_f_x", "g", "jac_g_x"])
-        functions = [jac_fg]
-        if self.config.hessian == "gauss_newton":
-            functions.append(self.hess_gn)
-        loaded = compiled(functions, "mpc")
-        if loaded is None:
-            return None
-        return dict(zip(("jac_fg", "hess_lag"), loaded, strict=False))
+    def _compile(self, Phi: ca.Function) -> dict[str, ca.Function]:
+        """The prediction's ``rk4_chunk`` and, for the SQP, ``jac_fg`` (objective, its
+        gradient, constraints, their Jacobian) and, with the Gauss-Newton Hessian,
+        ``hess_lag``, compiled (``controller.codegen``); empty without a C compiler. The
+        Jacobian is taken of a second copy of the NLP whose shooting steps are calls of one
+        function (``never_inline``): its C code holds the step's derivative once instead of N
+        times (0.3 MB instead of 2.6 MB of C, 2-3 s of compiling instead of 12 s) and runs as
+        fast; its values equal the inlined graph's to rounding."""
+        functions = {"rk4_chunk": self.rk4_chunk}
+        if self.config.solver != "ipopt":
+            x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
+            step = ca.Function("mpc_phi", [x, T], [Phi(x, T)], {"never_inline": True})
+            nlp = self._nlp_graph(step)[0]
+            w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
+            functions["jac_fg"] = ca.Function(
+                "mpc_jac_fg", [w, p], [f, ca.gradient(f, w), g, ca.jacobian(g, w)],
+                ["x", "p"], ["f", "grad_f_x", "g", "jac_g_x"])
+            if self.config.hessian == "gauss_newton":
+                functions["hess_lag"] = self.hess_gn
+        loaded = compiled(list(functions.values()), "mpc")
+        return {} if loaded is None else dict(zip(functions, loaded, strict=True))
 
     def _nlp_graph(
         self, Phi: ca.Function
@@ -465,7 +468,7 @@ class _Problem:
         opts: dict = {"print_time": False, "record_time": False}
         if cfg.hessian == "gauss_newton":
             opts["hess_lag"] = self.hess_gn
-        opts |= self.compiled or {}
+        opts |= {k: f for k, f in self.compiled.items() if k in ("jac_fg", "hess_lag")}
         if cfg.solver == "ipopt":
             opts["ipopt"] = {
                 "print_level": 0,
