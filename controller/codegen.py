@@ -13,7 +13,8 @@ Cache folder: ``$PMSPM_CACHE_DIR`` if set, else ``__pycache__/casadi`` beside th
 numba's cache, git-ignored), else a folder in the system's temporary directory when the package
 folder is read-only. Concurrent processes compiling the same library wait on a lock file, so
 two workers that start together compile it once. Compiler: ``$CC`` or ``gcc``; ``compiled``
-returns None when there is none, and callers keep the virtual machine.
+returns None when there is none or when compiling fails (with a warning), and callers keep the
+virtual machine.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 
 import casadi as ca
@@ -58,7 +60,8 @@ def compiler() -> str | None:
 def compiled(functions: list[ca.Function], prefix: str) -> list[ca.Function] | None:
     """``functions`` compiled into one shared library (cached, module docstring) and loaded
     from it, in order, under their own names (which must be distinct C identifiers). None
-    without a C compiler. ``prefix`` names the library file (``<prefix>_<hash>.so``)."""
+    without a C compiler or when compiling fails (a warning says why). ``prefix`` names the
+    library file (``<prefix>_<hash>.so``)."""
     cc = compiler()
     if cc is None:
         return None
@@ -74,16 +77,28 @@ def compiled(functions: list[ca.Function], prefix: str) -> list[ca.Function] | N
         with open(folder / f"{lib.name}.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be compiling it
             if not lib.exists():
-                _compile(command, source, lib)
+                failure = _compile(command, source, lib)
+                if failure:
+                    warnings.warn(f"compiling {prefix} with {cc} failed ({failure}); CasADi's "
+                                  "virtual machine evaluates the functions instead",
+                                  stacklevel=2)
+                    return None
     return [ca.external(f.name(), str(lib)) for f in functions]
 
 
-def _compile(command: list[str], source: str, lib: Path) -> None:
-    """Compile ``source`` into ``lib`` atomically (a temporary file, then a rename)."""
+def _compile(command: list[str], source: str, lib: Path) -> str:
+    """Compile ``source`` into ``lib`` atomically (a temporary file, then a rename). Returns
+    "" on success, else why it failed (the end of the compiler's messages)."""
     with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
         c_file = Path(tmp) / "code.c"
         c_file.write_text(source)
         out = Path(tmp) / lib.name
-        subprocess.run([*command, str(c_file), "-o", str(out)], check=True,
-                       capture_output=True)
+        try:
+            subprocess.run([*command, str(c_file), "-o", str(out)], check=True,
+                           capture_output=True)
+        except subprocess.CalledProcessError as exc:
+            return f"exit status {exc.returncode}: {exc.stderr.decode(errors='replace')[-300:]}"
+        except OSError as exc:
+            return str(exc)
         os.replace(out, lib)
+    return ""

@@ -41,6 +41,15 @@ def test_compiled_library_is_built_once_and_then_loaded_from_the_cache(tmp_path,
     assert np.allclose(np.asarray(again(x0)).ravel(), expected, rtol=1e-14, atol=0)
 
 
+def test_a_failing_compiler_leaves_the_virtual_machine_with_a_warning(tmp_path, monkeypatch):
+    monkeypatch.setenv("PMSPM_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CC", "false")  # a "compiler" that always fails
+    x = ca.SX.sym("x")
+    with pytest.warns(UserWarning, match="virtual machine"):
+        assert codegen.compiled([ca.Function("t_g", [x], [2 * x])], "t") is None
+    assert not list(tmp_path.glob("*.so"))
+
+
 @needs_cc
 def test_compiled_jacobian_equals_the_virtual_machine_jacobian():
     """The compiled ``jac_fg`` (of the NLP with its shooting step as a called function) against
