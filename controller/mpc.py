@@ -1,7 +1,7 @@
 """Delay-aware nonlinear MPC of the rotor attitude with CasADi.
 
-One module of about 690 lines: the NLP, its solvers, the warm start and the delay compensation
-share the CasADi functions and the command history of one controller object.
+One module of about 780 lines: the NLP, its solvers, the warm start and the delay compensation
+share the CasADi functions (``_Problem``) and the command history of one controller object.
 
 Model
 -----
@@ -65,6 +65,14 @@ its own ``t_0``; ``record_command`` lets the loop report overrides). The compute
 ``compute_latency_s`` when set, else the median of the measured durations of the last 20 calls. With
 ``delay_aware=False`` the estimate is taken as the state at t.
 
+Shared and compiled problems
+----------------------------
+The CasADi side (twins, NLP, solver, bounds: ``_Problem``) keeps no state between solves, so
+controllers with the same problem settings (the fields outside ``RUNTIME_FIELDS``) and plant
+share one, built once per process (``shared_problem``). With ``codegen`` the SQP's Jacobian and
+Hessian and the prediction's RK4 chunk run as machine code compiled once and cached on disk
+(``controller.codegen``); they are the same functions to rounding (docs/controllers.md).
+
 Solve time
 ----------
 Every call is timed with the controller's ``clock`` (``time.perf_counter`` by default):
@@ -74,6 +82,8 @@ sees); ``solve_stats()`` gives the median and p95.
 
 from __future__ import annotations
 
+import functools
+import json
 import time
 from collections import deque
 from collections.abc import Callable
@@ -85,7 +95,8 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.base import Controller, InvalidCommand, Reference, RefSample
+from controller.base import Controller, InvalidCommand, Reference
+from controller.codegen import compiled
 from controller.pid import (
     RateFromAttitude,
     estimate_usable,
@@ -157,7 +168,9 @@ class MPCConfig(BaseModel):
         ge=1,
         description="Our choice: SQP iteration cap per solve. Warm-started solves take 1–3; on an "
         "active tilt constraint the Gauss-Newton SQP converges linearly (halving the residual "
-        "per iteration), and 8 iterations leave < 1e-5 rad of dynamics gap.",
+        "per iteration), and 8 iterations leave < 1e-5 rad of dynamics gap. 1 is the "
+        "real-time iteration: measured, 0.6x the solve time but a different closed loop near "
+        "the stability boundary (docs/controllers.md).",
     )
     tol_pr: float = Field(1e-5, gt=0.0, description="Our choice: primal tolerance (gap, rad).")
     tol_du: float = Field(1e-4, gt=0.0, description="Our choice: dual tolerance (cost units).")
@@ -165,6 +178,15 @@ class MPCConfig(BaseModel):
         "gauss_newton",
         description="Our choice, by measurement: the exact Lagrangian Hessian took 2.1 ms per "
         "evaluation, the Gauss-Newton one 0.15 ms (docs/controllers.md).",
+    )
+    codegen: bool = Field(
+        True,
+        description="Our choice, by measurement (docs/controllers.md): the SQP's Jacobian and "
+        "Gauss-Newton Hessian compiled to machine code with the system C compiler "
+        "(controller.codegen: compiled once, cached on disk; 2-3 s the first time) instead of "
+        "CasADi's virtual machine, and the prediction's RK4 steps; the same functions to "
+        "rounding, the solve 1.6-2.7x faster. With IPOPT only the prediction is compiled; "
+        "without a C compiler nothing is.",
     )
     delay_aware: bool = Field(True, description="Predict the estimate forward (module docstring).")
     reference_preview: bool = Field(
@@ -222,45 +244,59 @@ def terminal_weight(J: float, h: float, q_th: float, q_w: float, r: float) -> ND
     return scipy.linalg.solve_discrete_are(A, B, h * np.diag([q_th, q_w]), np.array([[h * r]]))
 
 
-class MPCController(Controller):
-    """Nonlinear MPC behind ``command(estimate, reference, t) -> stator torque (N·m)``.
+#: MPCConfig fields that the controller reads at run time; every other field shapes the
+#: optimisation problem (``_Problem``) and is part of its cache key.
+RUNTIME_FIELDS = frozenset({"delay_aware", "reference_preview", "compute_latency_s",
+                            "actuation_delay_s", "prediction_step_s", "invalid_command"})
 
-    Attributes: ``last_plan`` (states (N+1, 7) and torques (N, 3) of the last solution),
-    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``compute_times_s``,
-    ``unconverged`` (solves stopped by the iteration cap or reporting no success; their torque
-    is still used), ``failures`` (solves with no finite solution or a solver error; the previous
-    torque is held), ``invalid_count`` (invalid estimates; ``invalid_command`` applies).
-    ``clock`` (default ``time.perf_counter``, s) times the calls and solves; tests inject a
-    stand-in so that the timing does not depend on machine load.
-    """
 
-    def __init__(
-        self,
-        config: MPCConfig | None = None,
-        params: PlantParams | None = None,
-        clock: Callable[[], float] = time.perf_counter,
-    ) -> None:
-        self.config = cfg = config or MPCConfig()
-        self.clock = clock
-        self.params = params or PlantParams()
-        self.twin = CasadiTwin(self.params)
+class _Problem:
+    """The CasADi side of the MPC for one configuration and plant: the prediction step, the NLP
+    and its solver, the bounds and the layout of the decision vector. It holds no state between
+    solves (the warm start and the history are the controller's), so every controller with the
+    same problem settings and plant shares one (``shared_problem``): a sweep process builds it,
+    and compiles or loads its derivatives, once."""
+
+    def __init__(self, config: MPCConfig, params: PlantParams) -> None:
+        self.config = cfg = config
+        self.params = params
+        self.twin = CasadiTwin(params)
         eps = cfg.model_coulomb_smoothing_rad_s
         if eps is None:
             self.model_twin = self.twin
         else:
-            rotor = self.params.rotor.model_copy(update={"coulomb_smoothing_rad_s": eps})
-            self.model_twin = CasadiTwin(self.params.model_copy(update={"rotor": rotor}))
-        self.J = np.diag(self.params.rotor.inertia_about_centre_kgm2).copy()
+            rotor = params.rotor.model_copy(update={"coulomb_smoothing_rad_s": eps})
+            self.model_twin = CasadiTwin(params.model_copy(update={"rotor": rotor}))
+        self.J = np.diag(params.rotor.inertia_about_centre_kgm2).copy()
         if cfg.torque_limit_Nm is not None:
             self.torque_limit = float(cfg.torque_limit_Nm)
         else:
-            cap = worst_case_capacity(self.params.motor, self.params.rotor.tilt_stop_deg)
+            cap = worst_case_capacity(params.motor, params.rotor.tilt_stop_deg)
             self.torque_limit = cfg.torque_limit_margin * cap
+        self.N, self.h = cfg.horizon_steps, cfg.step_s
         self._build_prediction()
         self._build_nlp()
-        self.solve_times_s: list[float] = []
-        self.compute_times_s: list[float] = []
-        self.reset()
+        # Positions of X_k, U_k and S_k in the decision vector (stage order X, U, S).
+        stage = np.arange(self.N)[:, None] * 11
+        self.ix = np.vstack([stage + np.arange(7), 11 * self.N + np.arange(7)])
+        self.iu = stage + 7 + np.arange(3)
+        self.i_s = stage[:, 0] + 10
+
+    def pack(self, X: NDArray, U: NDArray, S: NDArray) -> NDArray[np.float64]:
+        """The decision vector of states X (N+1, 7), torques U (N, 3) and slacks S (N)."""
+        w = np.empty(self.nw)
+        w[self.ix], w[self.iu], w[self.i_s] = X, U, S
+        return w
+
+    def unpack(self, w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """(X, U, S) of a decision vector (inverse of ``pack``)."""
+        return w[self.ix], w[self.iu], w[self.i_s]
+
+    def bounds(self, x0: NDArray) -> dict[str, NDArray]:
+        """The solver's bounds (lbx, ubx, lbg, ubg) with the first state fixed to ``x0``."""
+        lbw, ubw = self.lbw.copy(), self.ubw.copy()
+        lbw[:7] = ubw[:7] = x0
+        return {"lbx": lbw, "ubx": ubw, "lbg": self.lbg, "ubg": self.ubg}
 
     # --- construction ----------------------------------------------------------------------
     def _build_prediction(self) -> None:
@@ -279,13 +315,53 @@ class MPCController(Controller):
         # The same for a chunk of steps in one call (a zero step is the identity): calling
         # casadi from Python costs ~50 µs, so a 30 ms prediction in 1 ms steps would cost more
         # than the solve.
-        self._chunk = 16
-        self._rk4_chunk = self.rk4.mapaccum("rk4_chunk", self._chunk)
+        self.chunk = 16
+        self.rk4_chunk = self.rk4.mapaccum("mpc_rk4_chunk", self.chunk)
 
     def _build_nlp(self) -> None:
         cfg = self.config
-        N, h, M = cfg.horizon_steps, cfg.step_s, cfg.rk4_substeps
-        self.N, self.h = N, h
+        Phi = self._shooting_step(cfg.step_s, cfg.rk4_substeps)
+        nlp, bounds, tilt_rows, ball_rows = self._nlp_graph(Phi)
+        self.lbw, self.ubw, self.lbg, self.ubg = bounds
+        self.nw = int(nlp["x"].numel())
+        self.ng = int(nlp["g"].numel())
+        self.hess_gn = self._gauss_newton_hessian(nlp, tilt_rows, ball_rows)
+        self.nlp = nlp
+        #: The functions compiled to machine code (``codegen``) by role: ``rk4_chunk`` and,
+        #: for the SQP, ``jac_fg`` and ``hess_lag``; empty without ``codegen`` or a compiler.
+        self.compiled = self._compile(Phi) if cfg.codegen else {}
+        self.rk4_chunk = self.compiled.get("rk4_chunk", self.rk4_chunk)
+        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+
+    def _compile(self, Phi: ca.Function) -> dict[str, ca.Function]:
+        """The prediction's ``rk4_chunk`` and, for the SQP, ``jac_fg`` (objective, its
+        gradient, constraints, their Jacobian) and, with the Gauss-Newton Hessian,
+        ``hess_lag``, compiled (``controller.codegen``); empty without a C compiler. The
+        Jacobian is taken of a second copy of the NLP whose shooting steps are calls of one
+        function (``never_inline``): its C code holds the step's derivative once instead of N
+        times (0.3 MB instead of 2.6 MB of C, 2-3 s of compiling instead of 12 s) and runs as
+        fast; its values equal the inlined graph's to rounding."""
+        functions = {"rk4_chunk": self.rk4_chunk}
+        if self.config.solver != "ipopt":
+            x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
+            step = ca.Function("mpc_phi", [x, T], [Phi(x, T)], {"never_inline": True})
+            nlp = self._nlp_graph(step)[0]
+            w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
+            functions["jac_fg"] = ca.Function(
+                "mpc_jac_fg", [w, p], [f, ca.gradient(f, w), g, ca.jacobian(g, w)],
+                ["x", "p"], ["f", "grad_f_x", "g", "jac_g_x"])
+            if self.config.hessian == "gauss_newton":
+                functions["hess_lag"] = self.hess_gn
+        loaded = compiled(list(functions.values()), "mpc")
+        return {} if loaded is None else dict(zip(functions, loaded, strict=True))
+
+    def _nlp_graph(
+        self, Phi: ca.Function
+    ) -> tuple[dict, tuple[NDArray, ...], list[int], list[int]]:
+        """The NLP (casadi dict x, f, g, p) with the shooting step ``Phi``, its bounds (lbw,
+        ubw, lbg, ubg) and the rows of the tilt and torque-ball constraints."""
+        cfg = self.config
+        N, h = cfg.horizon_steps, cfg.step_s
         weights = [
             lqr_weights(self.J[i], cfg.bandwidth_rad_s, cfg.damping, self.torque_limit)
             for i in range(3)
@@ -294,8 +370,6 @@ class MPCController(Controller):
         Qw = np.array([w[1] for w in weights])
         r = weights[0][2]
         P = [terminal_weight(self.J[i], h, *weights[i]) for i in range(3)]
-
-        Phi = self._shooting_step(h, M)
 
         Xs = [ca.SX.sym(f"X{k}", 7) for k in range(N + 1)]
         Us = [ca.SX.sym(f"U{k}", 3) for k in range(N)]
@@ -315,7 +389,6 @@ class MPCController(Controller):
         w, lbw, ubw, g, lbg, ubg = [], [], [], [], [], []
         ball_rows: list[int] = []
         tilt_rows: list[int] = []
-        self._layout: list[tuple[str, int]] = []
         big = 1e3
         for k in range(N + 1):
             w.append(Xs[k])
@@ -355,19 +428,10 @@ class MPCController(Controller):
             if k < N:
                 J_cost += cfg.tilt_slack_l1 * Ss[k] + cfg.tilt_slack_l2 * Ss[k] ** 2
 
-        self._lbw = np.array(lbw, dtype=float)
-        self._ubw = np.array(ubw, dtype=float)
-        self._lbg = np.array(lbg, dtype=float)
-        self._ubg = np.array(ubg, dtype=float)
+        bounds = tuple(np.array(b, dtype=float) for b in (lbw, ubw, lbg, ubg))
         pvec = ca.vertcat(ca.vec(p_qref), ca.vec(p_wref), ca.vec(p_tff))
-        wv = ca.vertcat(*w)
-        G = ca.vertcat(*g)
-        nlp = {"x": wv, "f": J_cost, "g": G, "p": pvec}
-        self._nw = int(nlp["x"].numel())
-        self._ng = int(nlp["g"].numel())
-        self._hess_gn = self._gauss_newton_hessian(J_cost, wv, pvec, G, tilt_rows, ball_rows)
-        self._nlp = nlp
-        self.solver = ca.nlpsol("mpc", *self._solver_spec(), nlp, self._solver_options())
+        nlp = {"x": ca.vertcat(*w), "f": J_cost, "g": ca.vertcat(*g), "p": pvec}
+        return nlp, bounds, tilt_rows, ball_rows
 
     def _shooting_step(self, h: float, M: int) -> ca.Function:
         """One shooting interval of ``h`` (s): ``M`` plain RK4 sub-steps of the twin's
@@ -384,25 +448,27 @@ class MPCController(Controller):
             xi = xi + hm / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         return ca.Function("Phi", [x, T], [xi])
 
-    def _gauss_newton_hessian(self, J_cost: ca.SX, wv: ca.SX, pvec: ca.SX, G: ca.SX,
-                              tilt_rows: list[int], ball_rows: list[int]) -> ca.Function:
+    def _gauss_newton_hessian(
+        self, nlp: dict, tilt_rows: list[int], ball_rows: list[int]
+    ) -> ca.Function:
         """Gauss-Newton-type Hessian of the Lagrangian. The cost is quadratic in w (e_k is
         linear in q_k for a given q_ref), so its Hessian is exact. Of the constraints only the
         path constraints keep their (cheap, diagonal) curvature, with the multiplier signs
         projected so that the Hessian stays positive semidefinite (casadi: lam_g < 0 at an
         active lower bound, > 0 at an active upper bound); the curvature of the RK4 dynamics
         is left out."""
+        wv, G = nlp["x"], nlp["g"]
         lam_f = ca.SX.sym("lam_f")
-        lam_g = ca.SX.sym("lam_g", self._ng)
+        lam_g = ca.SX.sym("lam_g", G.numel())
         L_path = 0
         for i in tilt_rows:
             L_path += ca.fmin(lam_g[i], 0) * G[i]
         for i in ball_rows:
             L_path += ca.fmax(lam_g[i], 0) * G[i]
-        H = lam_f * ca.hessian(J_cost, wv)[0] + ca.hessian(L_path, wv)[0]
+        H = lam_f * ca.hessian(nlp["f"], wv)[0] + ca.hessian(L_path, wv)[0]
         if self.config.solver == "ipopt":  # IPOPT takes the upper triangle only
             H = ca.triu(H)
-        return ca.Function("nlp_hess_l", [wv, pvec, lam_f, lam_g], [H],
+        return ca.Function("mpc_hess_l", [wv, nlp["p"], lam_f, lam_g], [H],
                            ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
 
     def _solver_spec(self) -> tuple[str]:
@@ -412,7 +478,8 @@ class MPCController(Controller):
         cfg = self.config
         opts: dict = {"print_time": False, "record_time": False}
         if cfg.hessian == "gauss_newton":
-            opts["hess_lag"] = self._hess_gn
+            opts["hess_lag"] = self.hess_gn
+        opts |= {k: f for k, f in self.compiled.items() if k in ("jac_fg", "hess_lag")}
         if cfg.solver == "ipopt":
             opts["ipopt"] = {
                 "print_level": 0,
@@ -460,6 +527,52 @@ class MPCController(Controller):
         if cfg.hessian == "exact":
             opts["convexify_strategy"] = "regularize"
         return opts
+
+
+def shared_problem(config: MPCConfig, params: PlantParams) -> _Problem:
+    """The ``_Problem`` of ``config`` (its fields outside ``RUNTIME_FIELDS``) on ``params``,
+    built once per process and shared (the 16 most recently used are kept)."""
+    key = json.dumps([config.model_dump(mode="json", exclude=set(RUNTIME_FIELDS)),
+                      params.model_dump(mode="json")], sort_keys=True)
+    return _problem_of(key)
+
+
+@functools.lru_cache(maxsize=16)
+def _problem_of(key: str) -> _Problem:
+    config, params = json.loads(key)
+    return _Problem(MPCConfig.model_validate(config), PlantParams.model_validate(params))
+
+
+class MPCController(Controller):
+    """Nonlinear MPC behind ``command(estimate, reference, t) -> stator torque (N·m)``.
+
+    Attributes: ``last_plan`` (states (N+1, 7) and torques (N, 3) of the last solution),
+    ``last_t0`` (its start time, s), ``last_status``, ``solve_times_s``, ``compute_times_s``,
+    ``unconverged`` (solves stopped by the iteration cap or reporting no success; their torque
+    is still used), ``failures`` (solves with no finite solution or a solver error; the previous
+    torque is held), ``invalid_count`` (invalid estimates; ``invalid_command`` applies).
+    ``clock`` (default ``time.perf_counter``, s) times the calls and solves; tests inject a
+    stand-in so that the timing does not depend on machine load.
+    """
+
+    def __init__(
+        self,
+        config: MPCConfig | None = None,
+        params: PlantParams | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        self.config = cfg = config or MPCConfig()
+        self.clock = clock
+        self.params = params or PlantParams()
+        self.problem = shared_problem(cfg, self.params)
+        self.J, self.torque_limit = self.problem.J, self.problem.torque_limit
+        self.N, self.h = self.problem.N, self.problem.h
+        #: The solver (casadi nlpsol) and one RK4 step of the twin, (x (7), T (3) stator N·m,
+        #: h s) -> x after h; both shared with the other controllers of the same problem.
+        self.solver, self.rk4 = self.problem.solver, self.problem.rk4
+        self.solve_times_s: list[float] = []
+        self.compute_times_s: list[float] = []
+        self.reset()
 
     # --- public ----------------------------------------------------------------------------
     def reset(self) -> None:
@@ -511,14 +624,10 @@ class MPCController(Controller):
         feedback law of ``latency.mpc_law``."""
         x0 = np.asarray(x0, dtype=float).reshape(7)
         x0 = np.r_[attitude.normalize(x0[:4], "x0[:4]"), attitude.check_finite("x0[4:]", x0[4:])]
-        lbw, ubw = self._lbw.copy(), self._ubw.copy()
-        lbw[:7] = x0
-        ubw[:7] = x0
-        sol = self.solver(lbx=lbw, ubx=ubw, lbg=self._lbg, ubg=self._ubg,
-                          p=self._parameters(reference, t0, x0[:4]),
-                          x0=self._pack(np.tile(x0, (self.N + 1, 1)), np.zeros((self.N, 3)),
-                                        np.zeros(self.N)))
-        _, U, _ = self._unpack(np.asarray(sol["x"]).ravel())
+        sol = self.solver(**self.problem.bounds(x0), p=self._parameters(reference, t0, x0[:4]),
+                          x0=self.problem.pack(np.tile(x0, (self.N + 1, 1)),
+                                               np.zeros((self.N, 3)), np.zeros(self.N)))
+        _, U, _ = self.problem.unpack(np.asarray(sol["x"]).ravel())
         return U[0].copy()
 
     def record_command(self, t_apply: float, torque: NDArray[np.float64]) -> None:
@@ -549,12 +658,12 @@ class MPCController(Controller):
             n = max(int(np.ceil((b - a) / dmax - 1e-9)), 1)
             Ts += [T] * n
             hs += [(b - a) / n] * n
-        pad = -len(hs) % self._chunk
+        pad = -len(hs) % self.problem.chunk
         Ts = np.array(Ts + [np.zeros(3)] * pad).T
         hs = np.array(hs + [0.0] * pad)
-        for i in range(0, len(hs), self._chunk):
-            sl = slice(i, i + self._chunk)
-            x = np.asarray(self._rk4_chunk(x, Ts[:, sl], hs[sl]))[:, -1]
+        for i in range(0, len(hs), self.problem.chunk):
+            sl = slice(i, i + self.problem.chunk)
+            x = np.asarray(self.problem.rk4_chunk(x, Ts[:, sl], hs[sl]))[:, -1]
         return x
 
     # --- internals -------------------------------------------------------------------------
@@ -587,13 +696,14 @@ class MPCController(Controller):
         ``reference_preview`` the reference at ``t_call`` (s; default ``t0``) is held."""
         N, h, J = self.N, self.h, self.J
         if self.config.reference_preview:
-            samples = [reference.sample(t0 + k * h) for k in range(N + 1)]
+            ref = reference.sample_many(t0 + h * np.arange(N + 1))
+            qr = attitude.normalize(np.asarray(ref.q, dtype=float), "reference.q")
+            wr = np.asarray(ref.omega, dtype=float)
+            ar = np.asarray(ref.alpha, dtype=float)[:N]
         else:
-            held = RefSample(q=reference.sample(t0 if t_call is None else t_call).q)
-            samples = [held] * (N + 1)
-        qr = attitude.normalize(np.array([s.q for s in samples]), "reference.q")
-        wr = np.array([s.omega for s in samples], dtype=float)
-        ar = np.array([s.alpha for s in samples[:N]], dtype=float)
+            held = reference.sample(t0 if t_call is None else t_call).q
+            qr = np.tile(attitude.normalize(held, "reference.q"), (N + 1, 1))
+            wr, ar = np.zeros((N + 1, 3)), np.zeros((N, 3))
         # Keep the short way round: each quaternion on the side of the previous one (and q0).
         prev = q0
         for k in range(N + 1):
@@ -604,38 +714,14 @@ class MPCController(Controller):
         tff = np.einsum("kij,kj->ki", attitude.to_matrix(qr[:N]), tau)
         return np.r_[qr.ravel(), wr.ravel(), tff.ravel()]
 
-    def _pack(self, X: NDArray, U: NDArray, S: NDArray) -> NDArray[np.float64]:
-        parts = []
-        for k in range(self.N + 1):
-            parts.append(X[k])
-            if k < self.N:
-                parts.append(U[k])
-                parts.append([S[k]])
-        return np.concatenate(parts)
-
-    def _unpack(self, w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-        N = self.N
-        X = np.empty((N + 1, 7))
-        U = np.empty((N, 3))
-        S = np.empty(N)
-        i = 0
-        for k in range(N + 1):
-            X[k] = w[i : i + 7]
-            i += 7
-            if k < N:
-                U[k] = w[i : i + 3]
-                S[k] = w[i + 3]
-                i += 4
-        return X, U, S
-
     def _initial_guess(self, x0: NDArray, t0: float) -> dict:
         N = self.N
         if self._warm is None:
             X = np.tile(x0, (N + 1, 1))
             U = np.zeros((N, 3))
             S = np.zeros(N)
-            return {"x0": self._pack(X, U, S)}
-        X, U, S = self._unpack(self._warm["w"])
+            return {"x0": self.problem.pack(X, U, S)}
+        X, U, S = self.problem.unpack(self._warm["w"])
         m = int(round((t0 - self._warm["t0"]) / self.h))
         m = min(max(m, 0), N)
         if m > 0:
@@ -647,7 +733,7 @@ class MPCController(Controller):
         # Keep every quaternion of the guess on x0's side of the double cover.
         flip = X[:, :4] @ x0[:4] < 0
         X[flip, :4] *= -1.0
-        guess = {"x0": self._pack(X, U, S)}
+        guess = {"x0": self.problem.pack(X, U, S)}
         if m == 0:
             guess["lam_x0"] = self._warm["lam_x"]
             guess["lam_g0"] = self._warm["lam_g"]
@@ -658,16 +744,13 @@ class MPCController(Controller):
             return self._safe(t)
         x0, t0 = self._initial_state(est, t)
         p = self._parameters(reference, t0, x0[:4], t)
-        lbw, ubw = self._lbw.copy(), self._ubw.copy()
-        lbw[:7] = x0
-        ubw[:7] = x0
         guess = self._initial_guess(x0, t0)
         ts = self.clock()
         try:
-            sol = self.solver(lbx=lbw, ubx=ubw, lbg=self._lbg, ubg=self._ubg, p=p, **guess)
+            sol = self.solver(**self.problem.bounds(x0), p=p, **guess)
             w = np.asarray(sol["x"]).ravel()
         except RuntimeError as err:  # a QP solver error: hold the previous torque
-            sol, w = None, np.full(self._nw, np.nan)
+            sol, w = None, np.full(self.problem.nw, np.nan)
             self.last_status = f"solver error: {err}"
         self.last_solve_time_s = self.clock() - ts
         self.solve_times_s.append(self.last_solve_time_s)
@@ -680,7 +763,7 @@ class MPCController(Controller):
             self.failures += 1
             self._warm = None
         else:
-            X, U, _ = self._unpack(w)
+            X, U, _ = self.problem.unpack(w)
             self._warm = {
                 "w": w,
                 "lam_x": np.asarray(sol["lam_x"]).ravel(),

@@ -184,14 +184,15 @@ def _interrupted() -> NoReturn:
 @app.command()
 def study(
     out: OutOption = Path("runs"),
-    quick: Annotated[bool, typer.Option(help="A small study (a minute) for a smoke test.")] = False,
+    quick: Annotated[bool, typer.Option(
+        help="A small study (a minute) for a smoke test: 2 delays, 2 seeds, 1.5 s runs.")] = False,
     workers: Annotated[int | None, typer.Option(help="Local worker processes.")] = None,
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
     n_seeds: Annotated[
         int | None,
-        typer.Option(help="Seeds per closed-loop point (default 2; 95 % intervals want >= 32)."),
+        typer.Option(help="Seeds per closed-loop point (default 32; --quick: 2)."),
     ] = None,
     engine: EngineOption = None,
     motor_file: Annotated[
@@ -228,7 +229,7 @@ def study(
     if quick:
         cfg = cfg.model_copy(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
-                    "latency_frames": 10}
+                    "latency_frames": 10, "n_seeds": n_seeds or 2}
         )
     try:
         folder = run_study(out, cfg)

@@ -202,7 +202,7 @@ def write_report(
         "Full tables: `sweep.parquet` (one row per run; every run's own file is in "
         "`sweep/runs/`), `sweep_intervals.parquet`, `loss_of_control.parquet`.",
         "",
-        *_image_loop_section(image_loop, n_seeds),
+        *_image_loop_section(image_loop, cfg.image_loop_n_seeds),
         "## 3. Time series: 16.33 ms against 31.23 ms",
         "",
         "![time series](timeseries_16_vs_31ms.png)",

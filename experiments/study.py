@@ -90,8 +90,11 @@ from plant.params import PlantParams
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
 DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
 #: Most runs per batch of the batched engine in the study's sweep (the runs are spread evenly
-#: over the workers first).
-STUDY_BATCH = 256
+#: over the workers first). Our choice: 128, the engine's best batch size measured
+#: (docs/closed_loop.md: 45x real time against 40x at 256), and 28 batches for the default
+#: sweep's 3,584 runs instead of 14, so the last batch, which one worker runs while the other
+#: may be done, is half as long.
+STUDY_BATCH = 128
 
 
 class StudyConfig(BaseModel):
@@ -100,19 +103,35 @@ class StudyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     delays_ms: tuple[float, ...] = Field(
-        (0.0, 8.0, GK_MS, 24.0, DUAL_MS, 40.0, 50.0, 60.0),
-        description="Observer latencies of the sweep, ms (seed 000 Table 1 values included).",
+        (0.0, GK_MS, 24.0, DUAL_MS, 40.0, 50.0, 60.0),
+        description="Observer latencies of the sweep, ms (seed 000 Table 1 values included). "
+        "Our choice: below one frame period (27.8 ms, where the sequential observer starts to "
+        "drop frames) 0, 16.33 and 24 ms; a 32-seed study with 8 ms as well lost control in "
+        "none of its runs from 0 to 24 ms, and every metric there lay between its values at "
+        "0 and 16.33 ms (docs/closed_loop.md), so 8 ms was dropped to keep `make study` "
+        "under 10 minutes; the points go where loss of control sets in (31.23-60 ms).",
     )
     max_rates_rad_s: tuple[float, ...] = Field(
         (1.0, 3.0, 6.0), description="Peak angular rates of the random references, rad/s."
     )
     duration_s: float = Field(4.0, gt=0.5, description="Simulated time per sweep run, s.")
     n_seeds: int = Field(
+        32,
+        ge=1,
+        description="Seeds per closed-loop point of the sweep (seeds 0..n-1), every point the "
+        "same. Our choice: 32, enough for 95 % intervals that mean something (a Wilson "
+        "interval at 0 of 32 runs reaches 11 %; at 0 of 2, 66 %). 91 points x 32 seeds = "
+        "2,912 runs of 4 s: about 6 min of the sweep on two idle cores with the batched "
+        "engine and the compiled MPC (docs/closed_loop.md, the budget), so `make study` "
+        "stays under 10 minutes with the install.",
+    )
+    image_loop_n_seeds: int = Field(
         2,
         ge=1,
-        description="Seeds per closed-loop point (seeds 0..n-1). Intervals at 95 % need many "
-        "(>= 32 for the bands to mean much); the default keeps `make study` to minutes on two "
-        "cores with the event loop.",
+        description="Seeds per row of the image-mode section (``image_loop``, `pmspm study "
+        "--full`). Our choice: 2, as before the sweep's default rose to 32: every frame "
+        "of those runs is rendered and tracked by a network (minutes per run on two cores), "
+        "so its intervals are wide; raise it for narrower ones.",
     )
     friction_compensation_Nm: float = Field(
         2.0e-3, ge=0.0, description="The PID variant's friction compensation, N·m (our "
@@ -319,10 +338,12 @@ def _controller_spec(name: str, cfg: StudyConfig) -> PIDSpec | MPCSpec:
     return specs[name]()
 
 
-#: Controllers of the sweep: every variant on the step and on the fastest random reference (on
-#: the step the PID's feedforward is zero, on a moving reference it is not), PID and MPC on the
+#: Controllers of the sweep: every variant on the fastest random reference, every variant but
+#: the PID without reference feedforward on the step (the step's feedforward is zero, so those
+#: runs would repeat the PID's bit for bit: 256 runs of the default study), PID and MPC on the
 #: other random references.
-STEP_CONTROLLERS = ("pid", "pid_noff", "pid_friction", "mpc", "mpc_nopreview")
+VARIANTS = ("pid", "pid_noff", "pid_friction", "mpc", "mpc_nopreview")
+STEP_CONTROLLERS = tuple(c for c in VARIANTS if c != "pid_noff")
 RANDOM_CONTROLLERS = ("pid", "mpc")
 
 
@@ -342,7 +363,7 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
     out = []
     refs = [(*STEP_REFERENCE, STEP_CONTROLLERS)]
     fastest = max(cfg.max_rates_rad_s, default=None)
-    refs += [(*_random_reference(w), STEP_CONTROLLERS if w == fastest else RANDOM_CONTROLLERS)
+    refs += [(*_random_reference(w), VARIANTS if w == fastest else RANDOM_CONTROLLERS)
              for w in cfg.max_rates_rad_s]
     for d in cfg.delays_ms:
         for ref_name, ref, rate, controllers in refs:
@@ -443,7 +464,8 @@ IMAGE_TRACKERS = {"gk_transt": "transt", "dual_transt": "dual_transt"}
 def image_loop_configs(
     cfg: StudyConfig, params: PlantParams, profiles: dict[str, Empirical]
 ) -> list[dict]:
-    """Image-mode scenarios as dicts (tracker x controller x reference x seed): frames rendered
+    """Image-mode scenarios as dicts (tracker x controller x reference x
+    ``image_loop_n_seeds`` seeds): frames rendered
     by the analytic renderer and tracked by GK-TransT or the dual TransT, the per-frame solver,
     the observer latency drawn from that tracker's profile measured here (``profiles``, by
     ``IMAGE_TRACKERS`` name), the 5° step and the fastest random reference, PID and MPC."""
@@ -454,7 +476,7 @@ def image_loop_configs(
         median_ms = 1e3 * float(np.median(profile.samples_s))
         for ref_name, ref, rate in refs:
             for ctrl in RANDOM_CONTROLLERS:
-                for seed in range(cfg.n_seeds):
+                for seed in range(cfg.image_loop_n_seeds):
                     s = Scenario(
                         name=f"image-{name}-{ctrl}-{ref_name}-s{seed}",
                         duration_s=cfg.duration_s, seed=seed, mode="image",

@@ -38,7 +38,7 @@ import control as ct
 import numpy as np
 from numpy.typing import NDArray
 
-from controller.base import RefSample
+from controller.base import Reference, RefSample
 from controller.mpc import MPCConfig, MPCController
 from latency.zoh import zoh_integrals
 from plant import attitude
@@ -48,7 +48,7 @@ __all__ = ["mpc_discrete_law", "mpc_state_gain"]
 
 
 @dataclass(frozen=True)
-class _Hold:
+class _Hold(Reference):
     """A constant reference: rest at ``q``."""
 
     q: NDArray[np.float64]

@@ -27,10 +27,13 @@ PROFILES = {"gk_transt": Empirical(samples_s=(0.019, 0.020, 0.021), source="test
 
 
 def test_image_loop_configs_close_the_loop_on_each_tracker_at_its_latency():
-    cfg = StudyConfig(n_seeds=2, max_rates_rad_s=(1.0, 4.0), duration_s=1.0)
+    cfg = StudyConfig(n_seeds=5, image_loop_n_seeds=3, max_rates_rad_s=(1.0, 4.0),
+                      duration_s=1.0)
     configs = image_loop_configs(cfg, PlantParams(), PROFILES)
-    # 2 trackers x (the step, the fastest random reference) x (PID, MPC) x 2 seeds
-    assert len(configs) == 2 * 2 * 2 * 2
+    # 2 trackers x (the step, the fastest random reference) x (PID, MPC) x 3 seeds (the image
+    # section's own seed count, not the sweep's)
+    assert len(configs) == 2 * 2 * 2 * 3
+    assert {c["seed"] for c in configs} == {0, 1, 2}
     for c in configs:
         study = c["study"]
         s = Scenario.model_validate({k: v for k, v in c.items() if k != "study"})
@@ -49,7 +52,7 @@ def test_without_full_the_report_says_how_to_get_the_section():
 
 @pytest.mark.slow
 def test_image_loop_runs_both_trackers_with_intervals(tmp_path):
-    cfg = StudyConfig(n_seeds=1, max_rates_rad_s=(), duration_s=0.6, workers=1)
+    cfg = StudyConfig(image_loop_n_seeds=1, max_rates_rad_s=(), duration_s=0.6, workers=1)
     for name, profile in PROFILES.items():
         profile.save(tmp_path / f"latency_{name}.json")
     table = image_loop(cfg, PlantParams(), tmp_path)
@@ -62,5 +65,5 @@ def test_image_loop_runs_both_trackers_with_intervals(tmp_path):
     # each tracker ran at its own latency: the dual TransT's runs lag 25 ms more
     lag = runs.groupby("tracker").mean_latency_s.mean()
     assert lag["dual_transt"] - lag["gk_transt"] == pytest.approx(0.025, abs=2e-3)
-    text = "\n".join(_image_loop_section(table, cfg.n_seeds))
+    text = "\n".join(_image_loop_section(table, cfg.image_loop_n_seeds))
     assert "gk_transt" in text and "dual_transt" in text
