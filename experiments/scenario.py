@@ -276,12 +276,13 @@ class Scenario(_Model):
     seed: int = Field(0, ge=0, description="Random seed (numpy needs it >= 0).")
     mode: Literal["measurement", "image"] = "measurement"
     renderer: Literal["analytic", "mujoco"] = "analytic"
-    tracker: Literal["kcf", "csrt", "transt", "dual_transt"] = Field(
+    tracker: Literal["kcf", "csrt", "transt", "dual_transt", "k2cf"] = Field(
         "kcf",
         description="Image mode, marker observers: the red marker's tracker inside the GK "
         "assistance (observer.trackers.make_pair_tracker): OpenCV KCF or CSRT, or the "
         "shipped TransT network ('transt': GK-TransT, seed 000 §3.2); or 'dual_transt', "
-        "one TransT per marker without the GK assistance (seed 000's dual TransT).",
+        "one TransT per marker without the GK assistance (seed 000's dual TransT); or "
+        "'k2cf', the kinematic Kalman correlation filter on both markers.",
     )
     plant: PlantParams = PlantParams()
     pipeline: PipelineConfig = PipelineConfig()
@@ -540,7 +541,7 @@ def _renderer(s: Scenario):
 
 #: The scenario's tracker names -> ``observer.trackers.make_pair_tracker`` names.
 PAIR_TRACKER_OF = {"kcf": "kcf_gk", "csrt": "csrt_gk", "transt": "gk_transt",
-                   "dual_transt": "dual_transt"}
+                   "dual_transt": "dual_transt", "k2cf": "k2cf"}
 
 
 def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> ClosedLoop:

@@ -579,9 +579,11 @@ def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
     from experiments.codesign.report import image_check, image_scenarios
     from experiments.scenario import PAIR_TRACKER_OF
 
-    spec = _tiny(image_check={"seeds": [0, 1]})
+    # a user's tracker without an image implementation (image_tracker None) is skipped
+    mine = {"latency": {"kind": "constant", "value_s": 0.01}, "image_tracker": None}
+    spec = _tiny(image_check={"seeds": [0, 1]}, tracker_models={"mine": mine})
     expected = {"gk_transt": "transt", "dual_transt": "dual_transt", "kcf_gk": "kcf",
-                "csrt_gk": "csrt", "k2cf": None}
+                "csrt_gk": "csrt", "k2cf": "k2cf", "mine": None}
     assert set(spec.tracker_models) == set(expected)
     for name, scenario_tracker in expected.items():
         design = Design(frame_rate_hz=36.0, tracker=name, observer="solver")

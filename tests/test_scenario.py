@@ -99,6 +99,17 @@ def test_measured_controller_latency_is_the_compute_time_of_each_command():
     assert np.all(loop_times > 0) and np.ptp(loop_times) > 0  # measured, not a constant
 
 
+def test_image_mode_runs_k2cf_on_rendered_frames():
+    """``tracker: k2cf`` closes the loop with K²CF on both markers: every frame measured,
+    within 5 sensor px of the renderer's truth."""
+    sc = Scenario.model_validate({"duration_s": 0.4, "mode": "image", "tracker": "k2cf"})
+    loop = build_loop(sc)
+    assert loop.front_end.locator.name == "k2cf"
+    r = loop.run()
+    assert r.summary["lost_frame_fraction"] == 0.0
+    assert r.frames.centre_error_px.max() < 5.0
+
+
 def test_image_mode_takes_the_transt_tracker_and_rejects_it_elsewhere():
     """``tracker: transt`` runs GK-TransT (the shipped network in the GK assistance) on the
     rendered frames; a tracker other than the default outside image mode names the field."""
