@@ -254,8 +254,8 @@ def write_report(
 
 
 def _json(x):
-    """JSON for numpy scalars."""
-    return x.item() if hasattr(x, "item") else str(x)
+    """JSON for numpy scalars (and text for anything else ``json`` cannot write)."""
+    return x.item() if isinstance(x, np.generic) else str(x)
 
 
 def _check_text(spec: CodesignSpec, check: dict) -> str:
