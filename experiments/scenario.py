@@ -198,10 +198,12 @@ ReferenceSpec = Annotated[TiltStepSpec | RefSpec, Field(discriminator="kind")]
 
 #: Median whole-call time of the MPC (``MPCController.command``: prediction, parameters and
 #: solve), s, measured on this 2-core machine by ``python benchmarks/bench_controllers.py``
-#: (benchmarks/results/bench_controllers.json, ``mpc_<solver>_command_median_s``, 2026-11-22;
-#: N = 15 steps of 10 ms, 400 solves per variant): our measured default for the MPC's
-#: controller latency, per (solver, hessian). A constant keeps sweeps reproducible; use
-#: ``controller_latency: measured`` for the wall-clock time of each call instead.
+#: (``mpc_<solver>_command_median_s``, 2026-11-22, before the compiled derivatives; N = 15
+#: steps of 10 ms, 400 solves per variant): our default for the MPC's controller latency, per
+#: (solver, hessian). The compiled derivatives cut the default's call to 1.39 ms (2026-12-02,
+#: docs/controllers.md); the constants are kept, on the safe side, so that results stay
+#: comparable. A constant keeps sweeps reproducible; use ``controller_latency: measured`` for
+#: the wall-clock time of each call instead.
 MPC_CALL_MEDIAN_S: dict[tuple[str, str], float] = {
     ("sqp_hpipm", "gauss_newton"): 0.0039982,  # the default solver: 4.00 ms
     ("sqp_qpoases", "gauss_newton"): 0.0092908,
