@@ -18,7 +18,7 @@ streams and the loop's tie rule (``_schedule``: the same ``FrameScheduler`` and 
 priority queue), and the reference is sampled at the grid points and at the events' times
 (``Reference.sample_many``). Then ``_run_events`` (numba, cached on disk) walks the events:
 between two events it advances the rotor with the compiled physics step
-(``plant.rigid_body._step_rows``, the one code of the physics) as ``_advance_segment`` does,
+(``plant.rigid_body._step_row``, the one code of the physics) as ``_advance_segment`` does,
 records the steps table's rows and the tilt-stop events; on a frame it runs the front end,
 drawing its noise from the front end's own ``numpy.random.Generator`` (numba draws the same
 numbers as numpy from the same Generator, in the same order as ``MeasurementFrontEnd.capture``);
@@ -78,7 +78,14 @@ from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.pixel_observer import PixelKalmanObserver, SolverObserver
 from plant import rigid_body, torque
-from plant.rigid_body import PHYSICS_SUBSTEPS, RigidBody, _step_rows
+from plant.rigid_body import (
+    PHYSICS_SUBSTEPS,
+    SUBSTEP_ANGLE_RAD,
+    RigidBody,
+    _pair_lists,
+    _rotor_tuples,
+    _step_row,
+)
 from plant.torque import N_COILS, TorqueMap, allocate
 
 #: Where numba caches this module's compiled functions.
@@ -606,12 +613,15 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
     lag exact at each step's start), recording each grid point, until within 1e-12 s of the
     target."""
     h, tau_l, n_steps = par[_P_H], par[_P_TAU_L], int(par[_P_N_STEPS])
-    q = st[_Q : _Q + 4].copy().reshape(1, 4)
-    w = st[_W : _W + 3].copy().reshape(1, 3)
-    cur = st[_CUR : _CUR + N_COILS].copy().reshape(1, N_COILS)
+    # one rotor's state as tuples and its scratch pair lists, stepped by the physics kernel's
+    # per-row function (no array per step)
+    q = (st[_Q], st[_Q + 1], st[_Q + 2], st[_Q + 3])
+    w = (st[_W], st[_W + 1], st[_W + 2])
+    cur = st[_CUR : _CUR + N_COILS].copy()
     cmd = st[_CMD : _CMD + N_COILS]
-    dist = np.zeros((1, 3))
-    hk = np.empty(1)
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
+    cutoff = np.arccos(scal[3])
     t, k = st[_T], int(st[_K])
     while True:
         t_grid = (k + 1) * h
@@ -621,15 +631,18 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
             n = int(np.floor(dt / h + 1e-9))
             rest = dt - n * h
             for s in range(n + 1):
-                hk[0] = h if s < n else rest
+                hk = h if s < n else rest
                 if s == n and not rest > 1e-12:
                     break
-                decay = np.exp(-hk[0] / tau_l) if tau_l > 0 else 0.0
-                cur[0] = cmd + (cur[0] - cmd) * decay
-                q, w = _step_rows(q, w, cur, hk, dist, PHYSICS_SUBSTEPS, J, J_inv, com, m_g,
-                                  coils, magnets, gain, scal)
+                decay = np.exp(-hk / tau_l) if tau_l > 0 else 0.0
+                for i in range(N_COILS):
+                    cur[i] = cmd[i] + (cur[i] - cmd[i]) * decay
+                q, w, _ = _step_row(q, w, cur, hk, (0.0, 0.0, 0.0), PHYSICS_SUBSTEPS, rotor,
+                                    coils, magnets, gain, cutoff, pairs, SUBSTEP_ANGLE_RAD)
             t = t_to
-            st[_Q : _Q + 4], st[_W : _W + 3], st[_CUR : _CUR + N_COILS] = q[0], w[0], cur[0]
+            st[_Q], st[_Q + 1], st[_Q + 2], st[_Q + 3] = q
+            st[_W], st[_W + 1], st[_W + 2] = w
+            st[_CUR : _CUR + N_COILS] = cur
         if abs(t - t_grid) < 1e-12 and k + 1 <= n_steps:
             k += 1
             _record(st, k, ref_grid, log, evs, par)
@@ -754,9 +767,13 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
 
 
 # --- the run ----------------------------------------------------------------------------------
-def run(loop: ClosedLoop) -> LoopResult:
+def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     """Run ``loop`` (``covers(loop)`` must hold) and return what ``loop.run()`` returns: the
-    same tables and ``summarize`` metrics (module docstring: where they differ)."""
+    same tables and ``summarize`` metrics (module docstring: where they differ).
+
+    ``tables=False`` leaves the steps and frames tables of the result empty: the summary is
+    computed from the same columns, without building their DataFrames (for sweeps that keep
+    the summaries only)."""
     if not covers(loop):
         raise ValueError("the compiled run loop does not cover this run; use the event loop")
     c, p = loop.config, loop.params
@@ -796,6 +813,8 @@ def run(loop: ClosedLoop) -> LoopResult:
     events = _events_table(evs[: int(st[_N_EV])], frames_cols)
     stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
     summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
+    if not tables:
+        steps, frames_cols = {}, {}
     return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
                       c.model_dump(mode="json"))
 

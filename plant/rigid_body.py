@@ -297,6 +297,64 @@ def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, ga
     return _acceleration(qs, ws, d, pairs, rotor, magnets)
 
 
+@njit(cache=True, inline="always")
+def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, pairs,
+              max_angle):
+    """Advance one rotor, at attitude qb (4-tuple) and body rate wb (3-tuple, rad/s), by h s
+    with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple, N·m) held: RKMK4
+    sub-steps as ``_step_rows`` says. ``rotor`` holds the constants (``_rotor_tuples``),
+    ``cutoff`` is the windows' cut-off angle phi_c, rad, and ``pairs`` the scratch lists of
+    ``_pair_lists`` (overwritten). Returns (q, omega, acceleration evaluations)."""
+    scal = rotor[4]
+    # The pairs that can open during the step, listed once at its start: the margin covers
+    # the turn at the starting rate with room to spare; a stage that turns further is
+    # evaluated with lists of its own (``_stage``), so the result never depends on the margin.
+    margin = (_MARGIN_TURNS * h * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+              + _MARGIN_RAD)
+    wide = cutoff + margin
+    R = _rotation(qb)
+    T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
+                      np.cos(wide) if wide < np.pi else -2.0, *pairs)
+    # The first stage is the same for any number of sub-steps: its rate and acceleration
+    # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
+    k1w = _dynamics(R, T, wb, d, rotor)
+    rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+            + h * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
+    n_sub = max(substeps, int(np.ceil(h * rate / max_angle)))
+    hs = h / n_sub
+    turned = 0.0  # rad, a bound on the rotation from the step's start to qb
+    for s in range(n_sub):
+        # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
+        if s > 0:
+            k1w = _stage(qb, (0.0, 0.0, 0.0), turned, margin, wb, cur, d, pairs, rotor,
+                         coils, magnets, gain)
+        k1p = wb
+        phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
+        ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
+        k2w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain)
+        k2p = _dexpinv(phi, ws)
+        phi = (0.5 * hs * k2p[0], 0.5 * hs * k2p[1], 0.5 * hs * k2p[2])
+        ws = (wb[0] + 0.5 * hs * k2w[0], wb[1] + 0.5 * hs * k2w[1], wb[2] + 0.5 * hs * k2w[2])
+        k3w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain)
+        k3p = _dexpinv(phi, ws)
+        phi = (hs * k3p[0], hs * k3p[1], hs * k3p[2])
+        ws = (wb[0] + hs * k3w[0], wb[1] + hs * k3w[1], wb[2] + hs * k3w[2])
+        k4w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain)
+        k4p = _dexpinv(phi, ws)
+        c = hs / 6.0
+        phi = (c * (k1p[0] + 2.0 * k2p[0] + 2.0 * k3p[0] + k4p[0]),
+               c * (k1p[1] + 2.0 * k2p[1] + 2.0 * k3p[1] + k4p[1]),
+               c * (k1p[2] + 2.0 * k2p[2] + 2.0 * k3p[2] + k4p[2]))
+        wb = (wb[0] + c * (k1w[0] + 2.0 * k2w[0] + 2.0 * k3w[0] + k4w[0]),
+              wb[1] + c * (k1w[1] + 2.0 * k2w[1] + 2.0 * k3w[1] + k4w[1]),
+              wb[2] + c * (k1w[2] + 2.0 * k2w[2] + 2.0 * k3w[2] + k4w[2]))
+        turned += np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+        qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
+        n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
+        qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
+    return qb, wb, 4 * n_sub
+
+
 @njit(cache=True)
 def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets,
                        gain, scal, max_angle=SUBSTEP_ANGLE_RAD):
@@ -310,63 +368,13 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     cutoff = np.arccos(scal[3])  # rad, the windows' cut-off angle phi_c
     for b in range(B):
-        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
-        wb = (omega[b, 0], omega[b, 1], omega[b, 2])
-        cur = currents[b]
-        d = (dist[b, 0], dist[b, 1], dist[b, 2])
-        # The pairs that can open during the step, listed once at its start: the margin
-        # covers the turn at the starting rate with room to spare; a stage that turns
-        # further is evaluated with lists of its own (``_stage``), so the result never
-        # depends on the margin.
-        margin = (_MARGIN_TURNS * h[b] * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
-                  + _MARGIN_RAD)
-        wide = cutoff + margin
-        R = _rotation(qb)
-        T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
-                          np.cos(wide) if wide < np.pi else -2.0, *pairs)
-        # The first stage is the same for any number of sub-steps: its rate and acceleration
-        # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
-        k1w = _dynamics(R, T, wb, d, rotor)
-        rate = (np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
-                + h[b] * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
-        n_sub = max(substeps, int(np.ceil(h[b] * rate / max_angle)))
-        hs = h[b] / n_sub
-        turned = 0.0  # rad, a bound on the rotation from the step's start to qb
-        for s in range(n_sub):
-            # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
-            if s > 0:
-                k1w = _stage(qb, (0.0, 0.0, 0.0), turned, margin, wb, cur, d, pairs, rotor,
-                             coils, magnets, gain)
-            k1p = wb
-            phi = (0.5 * hs * k1p[0], 0.5 * hs * k1p[1], 0.5 * hs * k1p[2])
-            ws = (wb[0] + 0.5 * hs * k1w[0], wb[1] + 0.5 * hs * k1w[1], wb[2] + 0.5 * hs * k1w[2])
-            k2w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
-                         gain)
-            k2p = _dexpinv(phi, ws)
-            phi = (0.5 * hs * k2p[0], 0.5 * hs * k2p[1], 0.5 * hs * k2p[2])
-            ws = (wb[0] + 0.5 * hs * k2w[0], wb[1] + 0.5 * hs * k2w[1], wb[2] + 0.5 * hs * k2w[2])
-            k3w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
-                         gain)
-            k3p = _dexpinv(phi, ws)
-            phi = (hs * k3p[0], hs * k3p[1], hs * k3p[2])
-            ws = (wb[0] + hs * k3w[0], wb[1] + hs * k3w[1], wb[2] + hs * k3w[2])
-            k4w = _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets,
-                         gain)
-            k4p = _dexpinv(phi, ws)
-            c = hs / 6.0
-            phi = (c * (k1p[0] + 2.0 * k2p[0] + 2.0 * k3p[0] + k4p[0]),
-                   c * (k1p[1] + 2.0 * k2p[1] + 2.0 * k3p[1] + k4p[1]),
-                   c * (k1p[2] + 2.0 * k2p[2] + 2.0 * k3p[2] + k4p[2]))
-            wb = (wb[0] + c * (k1w[0] + 2.0 * k2w[0] + 2.0 * k3w[0] + k4w[0]),
-                  wb[1] + c * (k1w[1] + 2.0 * k2w[1] + 2.0 * k3w[1] + k4w[1]),
-                  wb[2] + c * (k1w[2] + 2.0 * k2w[2] + 2.0 * k3w[2] + k4w[2]))
-            turned += np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-            qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
-            n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
-            qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
+        qb, wb, n_eval = _step_row(
+            (q[b, 0], q[b, 1], q[b, 2], q[b, 3]), (omega[b, 0], omega[b, 1], omega[b, 2]),
+            currents[b], h[b], (dist[b, 0], dist[b, 1], dist[b, 2]), substeps, rotor, coils,
+            magnets, gain, cutoff, pairs, max_angle)
         q_out[b, 0], q_out[b, 1], q_out[b, 2], q_out[b, 3] = qb
         w_out[b, 0], w_out[b, 1], w_out[b, 2] = wb
-        evaluations[b] = 4 * n_sub
+        evaluations[b] = n_eval
     return q_out, w_out, evaluations
 
 
