@@ -5,8 +5,9 @@ On the default measurement-model scenario with PID and the per-frame least-squar
 
 * aggregate simulated seconds per wall second of the batched engine (``latency.batched``) for
   B = 1, 2, 4, ..., 1024 runs (different seeds) advanced together, and of the event loop
-  (``ClosedLoop.run``) in the same process: ``batched_B<B>_realtime_factor``,
-  ``event_loop_realtime_factor`` and their ratio at B = 256;
+  (``ClosedLoop.run``) in the same process: ``batched_B<B>_realtime_factor`` (every result with
+  its tables), ``batched_summaries_B<B>_realtime_factor`` (summaries only, as a sweep keeps
+  them), ``event_loop_realtime_factor`` and the ratio at B = 256;
 * the compiled physics step alone (``plant.rigid_body.RigidBody.step``), wall time per rotor
   and physics step over B = 1, 256 and 1024 rotors, and the CasADi twin's step for one rotor:
   ``physics_step_{compiled,casadi}_B<B>_s_per_rotor``;
@@ -58,10 +59,11 @@ def _wall(fn) -> float:
     return time.perf_counter() - t0
 
 
-def throughput(batch: int, duration_s: float) -> float:
-    """Aggregate simulated s per wall s of ``batch`` runs on the batched engine."""
+def throughput(batch: int, duration_s: float, tables: bool = True) -> float:
+    """Aggregate simulated s per wall s of ``batch`` runs on the batched engine, with their
+    tables or (``tables=False``) their summaries only, as a sweep keeps them."""
     loops = [build_loop(Scenario.model_validate(c)) for c in _configs(batch, duration_s)]
-    return batch * duration_s / _wall(lambda: run_batched(loops))
+    return batch * duration_s / _wall(lambda: run_batched(loops, tables=tables))
 
 
 def event_loop_speed(duration_s: float) -> float:
@@ -143,6 +145,7 @@ def main() -> None:
     if "throughput" in parts:
         for b in sizes:
             figures[f"batched_B{b}_realtime_factor"] = throughput(b, duration)
+            figures[f"batched_summaries_B{b}_realtime_factor"] = throughput(b, duration, False)
         figures["event_loop_realtime_factor"] = event_loop_speed(duration)
         for b in (1, 256, 1024):
             for name, wall in physics_kernel_times(b).items():

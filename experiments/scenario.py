@@ -624,17 +624,20 @@ def run(s: Scenario, progress: bool = False, engine: Engine | None = None) -> Lo
 
 
 def run_many(
-    scenarios: list[Scenario], progress: bool = False, engine: Engine | None = None
+    scenarios: list[Scenario], progress: bool = False, engine: Engine | None = None,
+    tables: bool = True,
 ) -> list[LoopResult]:
     """Run scenarios, in order: those on the batched engine together, the others one by one
-    on the event loop. ``engine`` None: each scenario's ``default_engine``."""
+    on the event loop. ``engine`` None: each scenario's ``default_engine``. ``tables=False``
+    allows results without their steps and frames tables (``latency.batched.run_batched``)
+    where only the summaries are wanted."""
     engines = [engine or default_engine(s) for s in scenarios]
     for s, e in zip(scenarios, engines, strict=True):
         check_engine(s, e)
     out: list[LoopResult | None] = [None] * len(scenarios)
     batched = [i for i, e in enumerate(engines) if e == "batched"]
     for i, res in zip(batched, run_batched([build_loop(scenarios[i]) for i in batched],
-                                           progress), strict=True):
+                                           progress, tables), strict=True):
         out[i] = res
     for i, e in enumerate(engines):
         if e == "event":
@@ -660,5 +663,5 @@ def run_summaries(configs: list[dict]) -> list[dict | Exception]:
             out.append({})
         except ValidationError as exc:
             out.append(exc)
-    results = iter(run_many(scenarios))
+    results = iter(run_many(scenarios, tables=False))
     return [o if isinstance(o, Exception) else next(results).summary for o in out]

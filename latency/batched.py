@@ -122,13 +122,17 @@ class _RunPlant:
         raise ValueError("the batched engine has no MuJoCo sensors; use the event loop")
 
 
-def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[LoopResult]:
+def run_batched(
+    loops: Sequence[ClosedLoop], progress: bool = False, tables: bool = True
+) -> list[LoopResult]:
     """Run the closed loops together and return their results, in order.
 
     Runs of the default case (``latency.compiled.covers``) run whole in the compiled run loop,
     one after the other; the others advance together in lockstep, those with different
     ``PlantParams`` in separate batches, and a run alone in its batch runs on the event loop.
     Each result is what ``loop.run()`` returns (the same tables and ``summarize`` metrics).
+    ``tables=False`` lets the compiled run loop leave its results' steps and frames tables
+    empty (``latency.compiled.run``), for sweeps that keep the summaries only.
     """
     for lp in loops:
         if lp.config.mujoco_sensor_delay_s is not None:
@@ -138,7 +142,7 @@ def run_batched(loops: Sequence[ClosedLoop], progress: bool = False) -> list[Loo
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
     for i, lp in enumerate(loops):
         if compiled.covers(lp):  # the default case: the whole run in the compiled loop
-            results[i] = compiled.run(lp)
+            results[i] = compiled.run(lp, tables)
             bar.update(1)
         else:
             groups.setdefault(lp.params.model_dump_json(), []).append(i)

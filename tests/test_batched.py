@@ -176,6 +176,23 @@ def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
         run_many([image], engine="batched")
 
 
+def test_summary_only_runs_give_the_event_loops_summary_without_tables():
+    """A sweep's runs (``tables=False``) skip the steps and frames tables, not the metrics:
+    their summaries equal the event loop's, on a run with lost frames and one in contact
+    with the tilt stop."""
+    cases = [GRID["lost frames"], GRID["saturation and tilt stop"]]
+    light = run_many(cases, tables=False)
+    for s, res in zip(cases, light, strict=True):
+        assert compiled.covers(build_loop(s))
+        assert res.steps.empty and res.frames.empty
+        ref = build_loop(s).run().summary
+        assert res.summary.keys() == ref.keys()
+        for key, value in ref.items():
+            assert res.summary[key] == pytest.approx(value, rel=1e-9, abs=1e-12, nan_ok=True)
+    assert light[1].summary["longest_tilt_stop_s"] > 0
+    assert light[0].summary["lost_frame_fraction"] > 0
+
+
 def test_cli_engine_option(tmp_path):
     """``--engine event`` and the default (batched) give the same summary; batched on an image
     scenario is a configuration error (exit status 2, the reason named)."""
