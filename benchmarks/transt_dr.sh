@@ -1,27 +1,33 @@
 #!/bin/sh
-# The domain-randomised TransT fine-tuning (docs/transt.md "Domain randomisation"), two stages
-# from the repository root: DR (randomised scenes, from the shipped weights), then ABSENT (the
-# same data with 20 % of the searches target-absent, from the DR stage's export).
+# The domain-randomised TransT fine-tuning (docs/transt.md "Domain randomisation"), three stages
+# from the repository root: DR (randomised scenes, from the shipped weights), ABSENT (the
+# same data with 20 % of the searches target-absent, from the DR stage's export), then TRACK
+# (new randomised pairs whose search is centred near the target, as in tracking, from the
+# ABSENT stage's export).
 #
 #   sh benchmarks/transt_dr.sh start dr       # train a stage in the background (resumes from its last.pt)
 #   sh benchmarks/transt_dr.sh train dr       # the same in the foreground
 #   sh benchmarks/transt_dr.sh export dr      # DR best checkpoint -> runs/transt_train_dr/transt_small_dr.pt
 #   sh benchmarks/transt_dr.sh start absent   # needs the DR export
-#   sh benchmarks/transt_dr.sh export absent  # last checkpoint -> shipped weights, SHA-256, card
-#   sh benchmarks/transt_dr.sh progress dr|absent
-#   sh benchmarks/transt_dr.sh stop dr|absent
+#   sh benchmarks/transt_dr.sh export absent  # last checkpoint -> runs/transt_train_absent/transt_small_absent.pt
+#   sh benchmarks/transt_dr.sh start track    # needs the ABSENT export
+#   sh benchmarks/transt_dr.sh export track   # last checkpoint -> shipped weights, SHA-256, card
+#   sh benchmarks/transt_dr.sh progress dr|absent|track
+#   sh benchmarks/transt_dr.sh stop dr|absent|track
 #   sh benchmarks/transt_dr.sh evaluate       # tests of the network and trust rule, benchmark
 #
 # PYTHON defaults to the project's virtual environment; CKPT (export) to the DR stage's best.pt
-# (lowest validation median centre error) and the ABSENT stage's last.pt (the end of its
-# schedule: its best validation-pair checkpoint, step 200, tracked the validation sequences at
-# 7.4 px against 3.7 px at the end, docs/transt.md).
+# (lowest validation median centre error) and the ABSENT and TRACK stages' last.pt (the end of
+# their schedules: the ABSENT stage's best validation-pair checkpoint, step 200, tracked the
+# validation sequences at 7.4 px against 3.7 px at the end, docs/transt.md; the validation
+# pairs keep TransT's wide jitter, which is not the regime the TRACK stage trains).
 set -eu
 PYTHON=${PYTHON:-.venv/bin/python}
 export PYTHONPATH=${PYTHONPATH:-.} OMP_WAIT_POLICY=PASSIVE
 DATA="--randomise --yellow-fraction 0.5 --train-seed 11 --val-seed 12 --train-pairs 16000 \
  --val-pairs 512 --threads 1 --render-workers 1 --cache runs/transt_cache"
 DR_WEIGHTS=runs/transt_train_dr/transt_small_dr.pt
+ABSENT_WEIGHTS=runs/transt_train_absent/transt_small_absent.pt
 case "${2:-}" in
 dr)
     OUT=runs/transt_train_dr
@@ -32,10 +38,18 @@ dr)
  --steps 2000 --lr 2e-4 --warmup 50 --out $OUT" ;;
 absent)
     OUT=runs/transt_train_absent
-    EXPORT=observer/transt/weights/transt_small.pt
+    EXPORT=$ABSENT_WEIGHTS
     BEST=last.pt
     TRAIN="-m observer.transt.train $DATA --init-from $DR_WEIGHTS --absent-prob 0.2 \
  --steps 600 --lr 1e-4 --warmup 20 --out $OUT" ;;
+track)
+    OUT=runs/transt_train_track
+    EXPORT=observer/transt/weights/transt_small.pt
+    BEST=last.pt
+    TRAIN="-m observer.transt.train --randomise --yellow-fraction 0.5 --train-seed 13 \
+ --val-seed 12 --train-pairs 8000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
+ --cache runs/transt_cache --centre-jitter 1 --init-from $ABSENT_WEIGHTS --absent-prob 0.2 \
+ --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;
 *)
     OUT="" ;;
 esac

@@ -122,7 +122,8 @@ class PairSpec(BaseModel):
 
     @classmethod
     def for_config(
-        cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False
+        cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False,
+        centre_jitter: float = 3.0,
     ) -> PairSpec:
         return cls(
             template_size=config.template_size,
@@ -132,6 +133,7 @@ class PairSpec(BaseModel):
             yellow_fraction=yellow_fraction,
             randomise=randomise,
             occlusion_prob=0.35 if randomise else 0.25,
+            centre_jitter=centre_jitter,
         )
 
 
