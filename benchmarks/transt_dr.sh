@@ -2,8 +2,8 @@
 # The domain-randomised TransT fine-tuning (docs/transt.md "Domain randomisation"), three stages
 # from the repository root: DR (randomised scenes, from the shipped weights), ABSENT (the
 # same data with 20 % of the searches target-absent, from the DR stage's export), then TRACK
-# (new randomised pairs whose search is centred near the target, as in tracking, from the
-# ABSENT stage's export).
+# (new randomised pairs, half of whose searches are centred near the target as in tracking,
+# from the ABSENT stage's export).
 #
 #   sh benchmarks/transt_dr.sh start dr       # train a stage in the background (resumes from its last.pt)
 #   sh benchmarks/transt_dr.sh train dr       # the same in the foreground
@@ -47,8 +47,8 @@ track)
     EXPORT=observer/transt/weights/transt_small.pt
     BEST=last.pt
     TRAIN="-m observer.transt.train --randomise --yellow-fraction 0.5 --train-seed 13 \
- --val-seed 12 --train-pairs 8000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
- --cache runs/transt_cache --centre-jitter 1 --init-from $ABSENT_WEIGHTS --absent-prob 0.2 \
+ --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
+ --cache runs/transt_cache --tracking-fraction 0.5 --init-from $ABSENT_WEIGHTS --absent-prob 0.2 \
  --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;
 *)
     OUT="" ;;

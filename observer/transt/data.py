@@ -101,6 +101,17 @@ class PairSpec(BaseModel):
     template_factor: float = Field(2.0, description="TransT: template context factor 2.")
     search_factor: float = Field(4.0, description="TransT: search context factor 4.")
     centre_jitter: float = Field(3.0, description="TransT: search centre jitter factor 3.")
+    tracking_fraction: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="Our choice: fraction of the searches cut with ``tracking_jitter`` instead "
+        "of ``centre_jitter``, the regime of tracking, where the search is centred on a "
+        "prediction near the target (0: every search with TransT's jitter).",
+    )
+    tracking_jitter: float = Field(
+        1.0, gt=0.0, description="Search centre jitter factor of the tracking-regime searches: "
+        "the target within ±0.5 box sizes of the crop centre.")
     scale_jitter: float = Field(0.25, description="TransT: search scale jitter 0.25.")
     template_jitter: float = Field(0.05, description="Our choice: template centre jitter.")
     occlusion_prob: float = Field(0.25, description="Our choice: partial occlusions.")
@@ -123,7 +134,7 @@ class PairSpec(BaseModel):
     @classmethod
     def for_config(
         cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False,
-        centre_jitter: float = 3.0,
+        tracking_fraction: float = 0.0,
     ) -> PairSpec:
         return cls(
             template_size=config.template_size,
@@ -133,7 +144,7 @@ class PairSpec(BaseModel):
             yellow_fraction=yellow_fraction,
             randomise=randomise,
             occlusion_prob=0.35 if randomise else 0.25,
-            centre_jitter=centre_jitter,
+            tracking_fraction=tracking_fraction,
         )
 
 
@@ -323,7 +334,12 @@ def render_scene(
         if spec.randomise:
             _near_target(img, box1, rng)
         size = box1[2:] * np.exp(rng.normal(0.0, 1.0, 2) * spec.scale_jitter)
-        off = (rng.uniform(size=2) - 0.5) * math.sqrt(size[0] * size[1]) * spec.centre_jitter
+        jitter = spec.centre_jitter
+        # (no draw when the fraction is 0, so caches without tracking-regime searches are
+        # unchanged by this option)
+        if spec.tracking_fraction > 0 and rng.uniform() < spec.tracking_fraction:
+            jitter = spec.tracking_jitter
+        off = (rng.uniform(size=2) - 0.5) * math.sqrt(size[0] * size[1]) * jitter
         sc = box1[:2] + box1[2:] / 2 + off
         sside = context_side(size, spec.search_factor)
         search = crop_square(img, sc, sside, spec.search_size, f0.image.reshape(-1, 3).mean(0))

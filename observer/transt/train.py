@@ -70,8 +70,6 @@ VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
 VALIDATION_SEQUENCE_FRAMES = 150
 #: Seed of the target removal in the validation pairs' absent copies.
 VALIDATION_ABSENT_SEED = 1004
-#: TransT's search-centre jitter factor, the pair caches' default.
-DEFAULT_CENTRE_JITTER = float(PairSpec.model_fields["centre_jitter"].default)
 
 
 def lr_factor(step: int, total: int, warmup: int = 30, floor: float = 0.1) -> float:
@@ -217,7 +215,7 @@ def _randomisation_lines() -> list[str]:
 def _same_caches(a: dict, b: dict) -> bool:
     """Two runs read the same pair caches (a later stage reusing its predecessor's)."""
     keys = ("train_seed", "train_pairs", "val_seed", "yellow_fraction", "randomise",
-            "centre_jitter")
+            "tracking_fraction")
     return all(a.get(k) == b.get(k) for k in keys)
 
 
@@ -226,10 +224,10 @@ def _stage_lines(meta: dict, reused_caches: bool = False) -> list[str]:
     rendered for the stage before, so their time is not counted again)."""
     y = float(meta.get("yellow_fraction", 0.0) or 0.0)
     target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
-    cj = float(meta.get("centre_jitter", DEFAULT_CENTRE_JITTER))
-    jitter = ("" if cj == DEFAULT_CENTRE_JITTER else
-              f", search-centre jitter factor {cj:g}: the target within ±{cj / 2:g} box sizes "
-              "of the crop centre, the regime of tracking")
+    tf = float(meta.get("tracking_fraction", 0.0) or 0.0)
+    jitter = ("" if tf == 0 else
+              f"; {tf:.0%} of the searches in the regime of tracking, the target within ±0.5 box "
+              "sizes of the crop centre (search-centre jitter factor 1 instead of 3)")
     return [
         f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target}"
         f"{jitter})"
@@ -385,10 +383,9 @@ def _parser() -> argparse.ArgumentParser:
         "labelled all background",
     )
     ap.add_argument(
-        "--centre-jitter", type=float, default=DEFAULT_CENTRE_JITTER,
-        help="search-centre jitter factor of the training pairs (TransT's 3: the target up to "
-        "1.5 box sizes off the crop centre; a smaller factor trains the regime of tracking, "
-        "where the search is centred on a prediction near the target); validation keeps 3",
+        "--tracking-fraction", type=float, default=0.0,
+        help="fraction of the training searches centred near the target (search-centre jitter "
+        "factor 1 instead of TransT's 3), the regime of tracking; validation keeps 3",
     )
     ap.add_argument(
         "--export-from", default=None,
@@ -400,13 +397,13 @@ def _parser() -> argparse.ArgumentParser:
 
 def _caches(a: argparse.Namespace, config: TransTConfig) -> tuple[CropPairs, CropPairs, float]:
     """The training and validation pair caches (rendered if missing) and the render time, s."""
-    spec = PairSpec.for_config(config, a.yellow_fraction, a.randomise, a.centre_jitter)
+    spec = PairSpec.for_config(config, a.yellow_fraction, a.randomise, a.tracking_fraction)
     t_cache = time.perf_counter()
     tag = f"_y{a.yellow_fraction:g}" if a.yellow_fraction > 0 else ""
     dr = "_dr" if a.randomise else ""
     tag += dr
-    if a.centre_jitter != DEFAULT_CENTRE_JITTER:
-        tag += f"_cj{a.centre_jitter:g}"
+    if a.tracking_fraction > 0:
+        tag += f"_tr{a.tracking_fraction:g}"
     train_dir = generate_cache(
         Path(a.cache) / f"train_s{a.train_seed}{tag}", a.train_pairs, a.train_seed, spec,
         workers=a.render_workers,
@@ -600,7 +597,7 @@ def main(argv: list[str] | None = None) -> None:
             "metrics": metrics,
             "randomise": a.randomise,
             "absent_prob": a.absent_prob,
-            "centre_jitter": a.centre_jitter,
+            "tracking_fraction": a.tracking_fraction,
             "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
         }
         export = Path(a.export)
