@@ -140,20 +140,17 @@ def test_randomised_crop_pairs_label_the_target(tmp_path):
 def test_tracking_regime_searches_hold_the_target_near_the_crop_centre(tmp_path):
     """With TransT's jitter (factor 3) a search may put the target up to 1.5 box sizes off the
     centre, about 0.375 of a context-4 crop; the tracking-regime searches (factor 1) keep it
-    within 0.125. A fraction of 0 draws nothing more: the default cache is unchanged."""
-    base = PairSpec.for_config(SMALL, randomise=True)
-    wide = CropPairs(generate_cache(tmp_path / "w", 16, seed=5, spec=base, progress=False))
-    same = CropPairs(generate_cache(
-        tmp_path / "s", 16, seed=5, spec=base.model_copy(update={"tracking_fraction": 0.0}),
-        progress=False))
+    within 0.125."""
+    base = PairSpec.for_config(SMALL)
+    wide = CropPairs(generate_cache(tmp_path / "w", 8, seed=5, spec=base, progress=False))
     near = CropPairs(generate_cache(
-        tmp_path / "n", 16, seed=5, spec=base.model_copy(update={"tracking_fraction": 1.0}),
+        tmp_path / "n", 8, seed=5, spec=base.model_copy(update={"tracking_fraction": 1.0}),
         progress=False))
-    np.testing.assert_array_equal(wide.box, same.box)
     off_wide = np.abs(wide.box[:, :2] - 0.5).max(axis=1)
     off_near = np.abs(near.box[:, :2] - 0.5).max(axis=1)
     assert off_near.max() <= 0.125 * 1.05  # the crop side follows the jittered size
     assert (off_wide > 0.15).sum() >= 3
+
 
 def test_hard_case_finger_hides_the_red_marker_then_leaves():
     img = np.full((512, 612, 3), 30, np.uint8)
