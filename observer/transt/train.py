@@ -225,9 +225,11 @@ def _stage_lines(meta: dict, reused_caches: bool = False) -> list[str]:
     y = float(meta.get("yellow_fraction", 0.0) or 0.0)
     target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
     tf = float(meta.get("tracking_fraction", 0.0) or 0.0)
+    near, wide = (PairSpec.model_fields[k].default for k in ("tracking_jitter", "centre_jitter"))
     jitter = ("" if tf == 0 else
-              f"; {tf:.0%} of the searches in the regime of tracking, the target within ±0.5 box "
-              "sizes of the crop centre (search-centre jitter factor 1 instead of 3)")
+              f"; {tf:.0%} of the searches in the regime of tracking, the target within "
+              f"±{near / 2:g} box sizes of the crop centre (search-centre jitter factor {near:g} "
+              f"instead of {wide:g})")
     return [
         f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target}"
         f"{jitter})"
