@@ -629,7 +629,7 @@ def run_many(
 ) -> list[LoopResult]:
     """Run scenarios, in order: those on the batched engine together, the others one by one
     on the event loop. ``engine`` None: each scenario's ``default_engine``. ``tables=False``
-    allows results without their steps and frames tables (``latency.batched.run_batched``)
+    allows results without their steps, frames and events tables (``latency.batched.run_batched``)
     where only the summaries are wanted."""
     engines = [engine or default_engine(s) for s in scenarios]
     for s, e in zip(scenarios, engines, strict=True):

@@ -131,8 +131,8 @@ def run_batched(
     one after the other; the others advance together in lockstep, those with different
     ``PlantParams`` in separate batches, and a run alone in its batch runs on the event loop.
     Each result is what ``loop.run()`` returns (the same tables and ``summarize`` metrics).
-    ``tables=False`` lets the compiled run loop leave its results' steps and frames tables
-    empty (``latency.compiled.run``), for sweeps that keep the summaries only.
+    ``tables=False`` lets the compiled run loop leave its results' steps, frames and events
+    tables empty (``latency.compiled.run``), for sweeps that keep the summaries only.
     """
     for lp in loops:
         if lp.config.mujoco_sensor_delay_s is not None:

@@ -37,6 +37,7 @@ covers), and the arithmetic of a few small products is ordered differently (roun
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import heapq
 import inspect
@@ -78,6 +79,7 @@ from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.pixel_observer import PixelKalmanObserver, SolverObserver
 from plant import rigid_body, torque
+from plant.params import PlantParams
 from plant.rigid_body import (
     PHYSICS_SUBSTEPS,
     SUBSTEP_ANGLE_RAD,
@@ -771,9 +773,9 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     """Run ``loop`` (``covers(loop)`` must hold) and return what ``loop.run()`` returns: the
     same tables and ``summarize`` metrics (module docstring: where they differ).
 
-    ``tables=False`` leaves the steps and frames tables of the result empty: the summary is
-    computed from the same columns, without building their DataFrames (for sweeps that keep
-    the summaries only)."""
+    ``tables=False`` leaves the steps, frames and events tables of the result empty: the
+    summary is computed from the same columns, without building their DataFrames or the
+    events' texts (for sweeps that keep the summaries only)."""
     if not covers(loop):
         raise ValueError("the compiled run loop does not cover this run; use the event loop")
     c, p = loop.config, loop.params
@@ -782,8 +784,7 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     ref_grid = np.ascontiguousarray(
         loop.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q)
     ref = loop.reference.sample_many(ev_t)
-    body = RigidBody(p)
-    tm = TorqueMap(p.motor)
+    body_consts, tm = _plant_parts(p)
     solver = _solver_observer(loop).solver  # type: ignore[union-attr]
     par = _settings(loop)
     st = np.zeros(_N_STATE)
@@ -798,7 +799,7 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     fr = np.full((len(frames), _N_FR), np.nan)
     evs = np.zeros((4 * len(frames) + n_steps + 8, 6))
     args = (ev_t, ev_kind, ev_idx, frames, ref_grid, np.ascontiguousarray(ref.q),
-            np.ascontiguousarray(ref.omega), np.ascontiguousarray(ref.alpha), par, *body.consts,
+            np.ascontiguousarray(ref.omega), np.ascontiguousarray(ref.alpha), par, *body_consts,
             _model_arrays(CorModel.nominal(p)), _model_arrays(solver.model),
             p.motor.k_T_Nm_per_A * tm.s, loop.front_end.rng, st, log.a, fr, evs)
     e, ready = 0, False
@@ -810,13 +811,24 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
         st[_ALLOC_SAT], ready = float(alloc.saturated), True
     steps = log.columns(int(st[_K]) + 1)
     frames_cols = _frames_columns(fr, solver)
-    events = _events_table(evs[: int(st[_N_EV])], frames_cols)
+    evs = evs[: int(st[_N_EV])]
     stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
-    summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
     if not tables:
-        steps, frames_cols = {}, {}
+        # The summary reads the events table's length only: its texts are not written.
+        summary = summarize(steps, frames_cols, {"t_s": evs[:, 0]}, c.duration_s, stopped)
+        return LoopResult(pd.DataFrame(), pd.DataFrame(), _NO_EVENTS.copy(), summary,
+                          c.model_dump(mode="json"))
+    events = _events_table(evs, frames_cols)
+    summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
     return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
                       c.model_dump(mode="json"))
+
+
+@functools.lru_cache(maxsize=16)
+def _plant_parts(params: PlantParams) -> tuple[tuple, TorqueMap]:
+    """The physics kernel's constants (``RigidBody.consts``) and the torque map of a plant,
+    made once per parameter set (a sweep's runs share it; ``PlantParams`` is frozen)."""
+    return RigidBody(params).consts, TorqueMap(params.motor)
 
 
 def _model_arrays(model: CorModel) -> tuple[NDArray, NDArray, NDArray]:
@@ -883,6 +895,11 @@ def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDA
         data["latency_s"] = fr[:, _F_LATENCY]
         data["controller_compute_s"] = np.full(len(fr), np.nan)  # not timed per call
     return data
+
+
+#: The events table without rows (built once: an empty frame costs pandas 0.1 ms).
+_NO_EVENTS = pd.DataFrame({"t_s": np.zeros(0), "kind": np.zeros(0, dtype=object),
+                           "detail": np.zeros(0, dtype=object)})
 
 
 def _events_table(evs: NDArray[np.float64], frames: dict[str, NDArray]) -> pd.DataFrame:

@@ -656,7 +656,7 @@ Columns = pd.DataFrame | Mapping[str, NDArray]
 def summarize(
     steps: Columns,
     frames: Columns,
-    events: pd.DataFrame,
+    events: Columns,
     duration_s: float,
     stopped: str = "",
 ) -> dict[str, float]:
@@ -678,8 +678,8 @@ def summarize(
       ``stopped`` non-empty);
     * ``loss_of_control`` (1.0 or 0.0) and its criteria (:func:`loss_of_control`).
 
-    ``steps`` and ``frames`` are the run's tables (``LoopResult``), as frames or as their
-    columns (``Columns``): the metrics read arrays only.
+    ``steps``, ``frames`` and ``events`` are the run's tables (``LoopResult``), as frames or as
+    their columns (``Columns``): the metrics read arrays only (of ``events``, its length).
     """
     t = np.asarray(steps["t_s"])
     dt = np.diff(t, prepend=t[0])
@@ -720,8 +720,15 @@ def summarize(
         known = latency[~np.isnan(latency)]
         out["mean_latency_s"] = float(known.mean()) if len(known) else float("nan")
     out.update(loss_of_control(steps, frames, bool(stopped)))
-    out["n_events"] = float(len(events))
+    out["n_events"] = float(n_rows(events))
     return out
+
+
+def n_rows(table: Columns) -> int:
+    """The number of rows of a table given as a frame or as its columns."""
+    if isinstance(table, pd.DataFrame):
+        return len(table)
+    return len(next(iter(table.values()))) if len(table) else 0
 
 
 def _processed_lost(frames: Columns, processed: NDArray[np.bool_]) -> NDArray[np.bool_]:

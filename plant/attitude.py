@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 #: A quaternion whose norm differs from 1 by more than this is rejected, not normalised.
@@ -69,10 +70,14 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
     if p.shape == (4,) and q.shape == (4,):  # one product: plain floats, as in ``normalize``
-        return np.array(_hamilton(*p.tolist(), *q.tolist()))
-    return np.stack(_hamilton(*np.moveaxis(p, -1, 0), *np.moveaxis(q, -1, 0)), axis=-1)
+        return np.array(_hamilton.py_func(*p.tolist(), *q.tolist()))
+    return np.stack(_hamilton.py_func(*np.moveaxis(p, -1, 0), *np.moveaxis(q, -1, 0)), axis=-1)
 
 
+# The formulas below are compiled for the row kernels (``_geodesic_rows``, ``_zyz_rows``); the
+# numpy paths call their Python functions (``py_func``) on floats or arrays, so each formula is
+# written once.
+@njit(cache=True)
 def _hamilton(pw, px, py, pz, qw, qx, qy, qz) -> tuple:
     """Components (w, x, y, z) of ``p ⊗ q`` from the components of p and q (floats or arrays)."""
     return (
@@ -92,24 +97,19 @@ def conjugate(q: ArrayLike) -> NDArray[np.float64]:
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrix R(q) (3x3, or (..., 3, 3)) with ``v_stator = R @ v_rotor``."""
     q = normalize(q)
-    if q.ndim == 1:  # fast path for one attitude (the physics loop calls this every step)
-        w, x, y, z = (float(v) for v in q)
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-            ]
-        )
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    if q.ndim == 1:  # one attitude: plain floats
+        return np.array(_matrix_elements.py_func(*q.tolist())).reshape(3, 3)
+    return np.stack(_matrix_elements.py_func(*np.moveaxis(q, -1, 0)), axis=-1).reshape(
+        q.shape[:-1] + (3, 3))
+
+
+@njit(cache=True)
+def _matrix_elements(w, x, y, z) -> tuple:
+    """R(q) row by row (R00, R01, ..., R22) from the components of a unit q (floats or
+    arrays)."""
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
 def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
@@ -193,33 +193,76 @@ def to_zyz(q: ArrayLike) -> tuple[float, float, float]:
     q = np.asarray(q, dtype=float)
     if q.shape != (4,):
         raise ValueError(f"q must have shape (4,) as (w, x, y, z), got {q.shape}")
-    # one attitude: to_matrix's scalar path, the same arithmetic as the array path
-    alpha, beta, gamma = _zyz_of_matrix(to_matrix(q))
+    alpha, beta, gamma = _zyz_rows(_unit_rows(q, "q"))[0]
     return float(alpha), float(beta), float(gamma)
 
 
 def to_zyz_array(q: ArrayLike) -> NDArray[np.float64]:
     """(N, 3) array of (spin, tilt, yaw), rad, for (N, 4) quaternions (see ``to_zyz``)."""
-    return np.stack(_zyz_of_matrix(to_matrix(q)), axis=-1)
+    q = np.asarray(q, dtype=float)
+    return _zyz_rows(_unit_rows(q, "q")).reshape(q.shape[:-1] + (3,))
 
 
-def _zyz_of_matrix(R: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
-    """(spin, tilt, yaw), rad, of rotation matrices (..., 3, 3) (see ``to_zyz``)."""
-    s_beta = np.hypot(R[..., 0, 2], R[..., 1, 2])
-    beta = np.arctan2(s_beta, R[..., 2, 2])
-    regular = s_beta > _SINGULAR_SIN_BETA
-    up = R[..., 2, 2] > 0
+@njit(cache=True)
+def _zyz_of_matrix(R00, R01, R02, R10, R11, R12, R20, R21, R22) -> tuple:
+    """(spin, tilt, yaw), rad, of the rotation matrix with these elements (see ``to_zyz``)."""
+    s_beta = math.hypot(R02, R12)
+    beta = math.atan2(s_beta, R22)
+    two_pi = 2.0 * math.pi
+    if s_beta > _SINGULAR_SIN_BETA:
+        return math.atan2(R21, -R20) % two_pi, beta, math.atan2(R12, R02) % two_pi
     # beta = 0: R = Rz(alpha + gamma); beta = pi: R = Ry(pi) Rz(alpha); both with gamma = 0.
-    alpha = np.where(
-        regular,
-        np.arctan2(R[..., 2, 1], -R[..., 2, 0]),
-        np.where(
-            up, np.arctan2(R[..., 1, 0], R[..., 0, 0]), np.arctan2(R[..., 1, 0], R[..., 1, 1])
-        ),
-    )
-    gamma = np.where(regular, np.arctan2(R[..., 1, 2], R[..., 0, 2]), 0.0)
-    two_pi = 2.0 * np.pi
-    return np.mod(alpha, two_pi), beta, np.mod(gamma, two_pi)
+    alpha = math.atan2(R10, R00) if R22 > 0 else math.atan2(R10, R11)
+    return alpha % two_pi, beta, 0.0
+
+
+@njit(cache=True)
+def _zyz_rows(q):
+    """(N, 3) Z-Y-Z angles, rad, of the (N, 4) quaternions q, each normalised."""
+    out = np.empty((q.shape[0], 3))
+    for i in range(q.shape[0]):
+        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        out[i, 0], out[i, 1], out[i, 2] = _zyz_of_matrix(
+            *_matrix_elements(w / n, x / n, y / n, z / n))
+    return out
+
+
+@njit(cache=True)
+def _geodesic_rows(a, b):
+    """(N,) angles, rad, of the rotations taking the (N, 4) quaternions a to b:
+    2 atan2(|vec(d)|, |d_w|) with d = conj(a) ⊗ b, which does not depend on their norms."""
+    out = np.empty(a.shape[0])
+    for i in range(a.shape[0]):
+        dw, dx, dy, dz = _hamilton(a[i, 0], -a[i, 1], -a[i, 2], -a[i, 3],
+                                   b[i, 0], b[i, 1], b[i, 2], b[i, 3])
+        out[i] = 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
+    return out
+
+
+@njit(cache=True)
+def _norm_deviation(q):
+    """The largest |‖q_i‖ − 1| over the rows of the (N, 4) array q; inf if any is not finite."""
+    worst = 0.0
+    for i in range(q.shape[0]):
+        n = math.sqrt(q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2]
+                      + q[i, 3] * q[i, 3])
+        d = abs(n - 1.0)
+        if not d <= worst:  # NaN compares false: it stays
+            worst = d if math.isfinite(d) else math.inf
+    return worst
+
+
+def _unit_rows(q: ArrayLike, name: str) -> NDArray[np.float64]:
+    """q as a C-contiguous (N, 4) float array of quaternions within ``UNIT_TOLERANCE`` of unit
+    norm (not rescaled); otherwise ``normalize``'s error, naming ``name``."""
+    rows = np.ascontiguousarray(q, dtype=float)
+    if rows.shape[-1:] != (4,):
+        normalize(rows, name)  # raises: the shape
+    rows = rows.reshape(-1, 4)
+    if not _norm_deviation(rows) <= UNIT_TOLERANCE:
+        normalize(rows, name)  # raises: the norm, or a value that is not finite
+    return rows
 
 
 def tilt(q: ArrayLike) -> float:
@@ -237,9 +280,9 @@ def geodesic_angle(q1: ArrayLike, q2: ArrayLike) -> float | NDArray[np.float64]:
     This is the attitude error without the Euler singularity. Broadcasts over leading axes of
     (..., 4) arrays (then returns an array).
     """
-    d = multiply(conjugate(normalize(q1, "q1")), normalize(q2, "q2"))
-    angle = 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
-    return float(angle) if np.ndim(angle) == 0 else angle
+    a, b = np.broadcast_arrays(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
+    angle = _geodesic_rows(_unit_rows(a, "q1"), _unit_rows(b, "q2")).reshape(a.shape[:-1])
+    return float(angle[()]) if angle.ndim == 0 else angle
 
 
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:

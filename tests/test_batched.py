@@ -177,14 +177,14 @@ def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
 
 
 def test_summary_only_runs_give_the_event_loops_summary_without_tables():
-    """A sweep's runs (``tables=False``) skip the steps and frames tables, not the metrics:
-    their summaries equal the event loop's, on a run with lost frames and one in contact
-    with the tilt stop."""
+    """A sweep's runs (``tables=False``) skip the steps, frames and events tables, not the
+    metrics (the event count included): their summaries equal the event loop's, on a run
+    with lost frames and one in contact with the tilt stop."""
     cases = [GRID["lost frames"], GRID["saturation and tilt stop"]]
     light = run_many(cases, tables=False)
     for s, res in zip(cases, light, strict=True):
         assert compiled.covers(build_loop(s))
-        assert res.steps.empty and res.frames.empty
+        assert res.steps.empty and res.frames.empty and res.events.empty
         ref = build_loop(s).run().summary
         assert res.summary.keys() == ref.keys()
         for key, value in ref.items():
