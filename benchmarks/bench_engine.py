@@ -10,7 +10,10 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   them), ``event_loop_realtime_factor`` and the ratio at B = 256;
 * the compiled physics step alone (``plant.rigid_body.RigidBody.step``), wall time per rotor
   and physics step over B = 1, 256 and 1024 rotors, and the CasADi twin's step for one rotor:
-  ``physics_step_{compiled,casadi}_B<B>_s_per_rotor``;
+  ``physics_step_{compiled,casadi}_B<B>_s_per_rotor``; and the same step as the compiled run
+  loop takes it, 256 rotors each stepped ``REUSE_STEPS`` times, its pair lists made again at
+  every step or kept while they cover its turn:
+  ``physics_step_{fresh,reused}_lists_B256_s_per_rotor``;
 * wall time of the study's closed-loop sweep (``experiments.study.sweep_configs``), of a small
   ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
   loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
@@ -44,6 +47,8 @@ from latency.batched import run_batched  # noqa: E402
 CASE = {"observer": {"kind": "solver"}}
 #: Event-loop runs timed for the 10,000-run sweep's extrapolated figure.
 EVENT_SAMPLE_RUNS = 100
+#: Physics steps per rotor of the reused-lists figure (the compiled run loop's way).
+REUSE_STEPS = 50
 #: The benchmark's parts: the throughput curve over B, the study's sweep, tune-kalman, and the
 #: 10,000-run sweep.
 PARTS = ("throughput", "study", "tune", "sweep")
@@ -109,7 +114,7 @@ def physics_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
 
     from plant import attitude
     from plant.params import PlantParams
-    from plant.rigid_body import RigidBody
+    from plant.rigid_body import RigidBody, _step_series
     from plant.twin import CasadiTwin
 
     p = PlantParams()
@@ -120,6 +125,13 @@ def physics_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
     h = p.physics_dt_s
     out = {"compiled": min(_wall(lambda: body.step(q, w, cur, h)) for _ in range(repeats))
            / batch}
+    if batch == 256:
+        curs = np.repeat(cur[:, None], REUSE_STEPS, axis=1)
+        dist = np.zeros((batch, REUSE_STEPS, 3))
+        for fresh in (True, False):
+            out["fresh_lists" if fresh else "reused_lists"] = min(
+                _wall(lambda f=fresh: _step_series(q, w, curs, h, dist, f, *body.consts))
+                for _ in range(repeats)) / (batch * REUSE_STEPS)
     if batch == 1:
         step, x = CasadiTwin(p).step, np.r_[q[0], w[0]]
         out["casadi"] = min(_wall(lambda: step(x, cur[0])) for _ in range(repeats))

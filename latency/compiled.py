@@ -81,6 +81,7 @@ from observer.pixel_observer import PixelKalmanObserver, SolverObserver
 from plant import rigid_body, torque
 from plant.params import PlantParams
 from plant.rigid_body import (
+    PAIR_REUSE_RAD,
     PHYSICS_SUBSTEPS,
     SUBSTEP_ANGLE_RAD,
     RigidBody,
@@ -609,20 +610,19 @@ def _record(st, k, ref_grid, log, evs, par):
 
 @njit(cache=True)
 def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets, gain,
-             scal):
+             scal, pairs):
     """``latency.loop._advance_segment`` on the run's state: to the next grid point or the
     target, whichever is first (whole steps, a shortened last one, the coils' first-order
     lag exact at each step's start), recording each grid point, until within 1e-12 s of the
     target."""
     h, tau_l, n_steps = par[_P_H], par[_P_TAU_L], int(par[_P_N_STEPS])
-    # one rotor's state as tuples and its scratch pair lists, stepped by the physics kernel's
-    # per-row function (no array per step)
+    # one rotor's state as tuples, stepped by the physics kernel's per-row function with the
+    # run's pair lists ``pairs`` (no array per step)
     q = (st[_Q], st[_Q + 1], st[_Q + 2], st[_Q + 3])
     w = (st[_W], st[_W + 1], st[_W + 2])
     cur = st[_CUR : _CUR + N_COILS].copy()
     cmd = st[_CMD : _CMD + N_COILS]
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
-    pairs = _pair_lists(magnets.shape[0], coils.shape[0])
     cutoff = np.arccos(scal[3])
     t, k = st[_T], int(st[_K])
     while True:
@@ -667,11 +667,13 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
         st[_K] = 0.0
         _record(st, 0, ref_grid, log, evs, par)
     meas = np.empty((2, 2))
+    # the rotor's pair lists, kept from step to step while they cover its turn
+    pairs = _pair_lists(magnets.shape[0], coils.shape[0], PAIR_REUSE_RAD)
     while e < ev_t.shape[0]:
         target = min(ev_t[e], duration)
         if target > st[_T]:
             _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets,
-                     gain, scal)
+                     gain, scal, pairs)
         t = st[_T]
         i = ev_idx[e]
         f = fr[i]
@@ -764,7 +766,7 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
         e += 1
     if duration > st[_T]:
         _advance(st, duration, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets,
-                 gain, scal)
+                 gain, scal, pairs)
     return e
 
 

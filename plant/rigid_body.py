@@ -36,15 +36,19 @@ about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0
 Code: one numba-compiled loop over the batch rows (``_step_rows``), each row with its own step
 length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
 (``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). The cost is
-the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. At the step's
-start one scan lists, for each magnet, the coils whose window can open while the rotor turns by
-a margin (``_MARGIN_TURNS`` h |omega| + ``_MARGIN_RAD``), with each coil's current and gain
-folded in; the stages then visit only those pairs (about 40), and a stage that has turned
-further than the margin lists its own, so the result does not depend on the margin (equal to
-the full sum to rounding, tests/test_rigid_body.py). The rotor's constants travel as tuples of
-floats, and the exponential map and the Bortz coefficient use their series below 0.05 rad.
-numba caches the machine code on disk (``cache=True``): the first call in a fresh process loads
-it (about 0.4 s measured under load) or, without a cache, compiles it (4-8 s under load).
+the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. One scan lists,
+for each magnet, the coils whose window can open while the rotor turns by a margin
+(``_MARGIN_TURNS`` h |omega| + ``_MARGIN_RAD``), with each magnet's gain folded in; the stages
+then visit only those pairs (about 40), each with its coil's current of the step, and a stage
+that has turned further than the margin lists its own, so the result does not depend on the
+margin (equal to the full sum to rounding, tests/test_rigid_body.py). The lists do not depend
+on the currents: a rotor stepped over and over (the compiled run loop, ``_step_series``) keeps
+them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since they were made could
+leave it, which saves most scans (a scan costs about as much as two stages). The rotor's
+constants travel as tuples of floats, and the exponential map and the Bortz coefficient use
+their series below 0.05 rad. numba caches the machine code on disk (``cache=True``): the
+first call in a fresh process loads it (about 0.4 s measured under load) or, without a cache,
+compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
@@ -76,6 +80,10 @@ SUBSTEP_ANGLE_RAD = 0.016
 #: list their own pairs. The results do not depend on it.
 _MARGIN_TURNS = 1.5
 _MARGIN_RAD = 0.005
+#: The margin added to the pair lists of a rotor stepped over and over (the compiled run loop),
+#: rad: its lists then serve the steps until the rotor has turned by about this much (a scan
+#: of the 288 pairs costs about as much as the four stages together). Our choice, measured.
+PAIR_REUSE_RAD = 0.02
 #: Time constant of the tilt stop's critically damped contact, s: our choice, two default physics
 #: steps (stiff enough to hold 0.5 N·m within 0.01°, well inside RK4's stability limit).
 STOP_TIMECONST_S = 0.002
@@ -150,15 +158,15 @@ def _rotation(q):
 
 
 @njit(cache=True, inline="always")
-def _magnet_torque(r0, r1, r2, cv, lo, hi, cut):
+def _magnet_torque(r0, r1, r2, cv, coil, cur, lo, hi, cut):
     """The torque a x r, N·m (stator frame), of the magnet with axis r = (r0, r1, r2) in the
-    stator frame on the listed coils ``cv[lo:hi]`` (``_window_pairs``):
-    a = sum_i g_j I_i w(c_i . r) c_i, the window w = max(x, 0)^2 without a branch (a listed pair
-    near its cut-off opens and closes unpredictably)."""
+    stator frame on the listed coils ``cv[lo:hi]`` (``_window_pairs``) with the coil currents
+    ``cur``: a = sum_i g_j I_i w(c_i . r) c_i, the window w = max(x, 0)^2 without a branch (a
+    listed pair near its cut-off opens and closes unpredictably)."""
     a0 = a1 = a2 = 0.0
     for k in range(lo, hi):
         x = max(cv[k, 0] * r0 + cv[k, 1] * r1 + cv[k, 2] * r2 - cut, 0.0)
-        x2 = x * x
+        x2 = x * x * cur[coil[k]]
         a0 += x2 * cv[k, 3]
         a1 += x2 * cv[k, 4]
         a2 += x2 * cv[k, 5]
@@ -166,17 +174,18 @@ def _magnet_torque(r0, r1, r2, cv, lo, hi, cut):
 
 
 @njit(cache=True)
-def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv):
-    """List the coil-magnet pairs whose window can be open for the rotor at R (9-tuple) with
-    the coil currents ``cur`` (16,), A, and return K(q) I there (3-tuple, N·m, stator frame).
+def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv, coil):
+    """List the coil-magnet pairs whose window can be open for the rotor at R (9-tuple), and
+    return K(q) I there (3-tuple, N·m, stator frame) with the coil currents ``cur`` (16,), A.
 
-    For each magnet j, the coils i with a current and ``c_i . R m_j > cos_wide`` go to
-    ``cv[start[j]:start[j + 1]]`` in increasing i, as (c_i, g_j I_i c_i) (the window's scale
-    folded into ``gain``). With ``cos_wide = cos(phi_c + M)`` the list holds every pair that can
-    open while the rotor turns by at most M rad from R (a rotation by M moves each axis by at
-    most M); ``cut = cos(phi_c)``. K(q) I = sum_j a_j x r_j with r_j the magnet axis in the
-    stator frame and a_j = sum_i g_ij I_i c_i, g_ij = k_T s_j w(c_i . r_j)
-    (``plant.torque.TorqueMap``)."""
+    For each magnet j, the coils i with ``c_i . R m_j > cos_wide`` go to
+    ``cv[start[j]:start[j + 1]]`` in increasing i, as (c_i, g_j c_i) (the window's scale folded
+    into ``gain``), with ``coil`` = i. The lists do not depend on the currents, so they serve
+    every step while the rotor stays within their margin. With ``cos_wide = cos(phi_c + M)``
+    they hold every pair that can open while the rotor turns by at most M rad from R (a
+    rotation by M moves each axis by at most M); ``cut = cos(phi_c)``. K(q) I = sum_j a_j x r_j
+    with r_j the magnet axis in the stator frame and a_j = sum_i g_ij I_i c_i,
+    g_ij = k_T s_j w(c_i . r_j) (``plant.torque.TorqueMap``)."""
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
     n = 0
     T0 = T1 = T2 = 0.0
@@ -187,23 +196,25 @@ def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv):
         r1 = R10 * m0 + R11 * m1 + R12 * m2
         r2 = R20 * m0 + R21 * m1 + R22 * m2
         for i in range(coils.shape[0]):
-            if cur[i] != 0.0 and coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
-                s = gain[j] * cur[i]
+            if coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
+                s = gain[j]
                 cv[n, 0], cv[n, 1], cv[n, 2] = coils[i, 0], coils[i, 1], coils[i, 2]
                 cv[n, 3], cv[n, 4], cv[n, 5] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
+                coil[n] = i
                 n += 1
         if n > start[j]:
-            t = _magnet_torque(r0, r1, r2, cv, start[j], n, cut)
+            t = _magnet_torque(r0, r1, r2, cv, coil, cur, start[j], n, cut)
             T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
     start[magnets.shape[0]] = n
     return T0, T1, T2
 
 
 @njit(cache=True, inline="always")
-def _coil_torque(R, start, cv, magnets, cut):
-    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) from the pair lists of
-    ``_window_pairs`` made at an attitude within their margin of R: only the listed pairs can
-    be inside their window, and a magnet without any adds nothing."""
+def _coil_torque(R, cur, start, cv, coil, magnets, cut):
+    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) with the coil currents
+    ``cur`` from the pair lists of ``_window_pairs`` made at an attitude within their margin of
+    R: only the listed pairs can be inside their window, and a magnet without any adds
+    nothing."""
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
     T0 = T1 = T2 = 0.0
     for j in range(magnets.shape[0]):
@@ -211,7 +222,8 @@ def _coil_torque(R, start, cv, magnets, cut):
             continue
         m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
         t = _magnet_torque(R00 * m0 + R01 * m1 + R02 * m2, R10 * m0 + R11 * m1 + R12 * m2,
-                           R20 * m0 + R21 * m1 + R22 * m2, cv, start[j], start[j + 1], cut)
+                           R20 * m0 + R21 * m1 + R22 * m2, cv, coil, cur, start[j],
+                           start[j + 1], cut)
         T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
     return T0, T1, T2
 
@@ -268,18 +280,22 @@ def _dynamics(R, T, w, d, rotor):
 
 
 @njit(cache=True)
-def _acceleration(q, w, d, pairs, rotor, magnets):
+def _acceleration(q, w, cur, d, pairs, rotor, magnets):
     """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
-    (3-tuple) with the body torque d (3-tuple), N·m, the coil currents in ``pairs`` (the
-    ``_window_pairs`` lists (start, cv) of an attitude within their margin of q)."""
+    (3-tuple) with the coil currents ``cur``, A, and the body torque d (3-tuple), N·m, from
+    ``pairs`` (``_pair_lists`` made at an attitude within their margin of q)."""
     R = _rotation(q)
-    return _dynamics(R, _coil_torque(R, pairs[0], pairs[1], magnets, rotor[4][3]), w, d, rotor)
+    return _dynamics(R, _coil_torque(R, cur, pairs[0], pairs[1], pairs[2], magnets,
+                                     rotor[4][3]), w, d, rotor)
 
 
 @njit(cache=True)
-def _pair_lists(n_magnets, n_coils):
-    """Empty ``_window_pairs`` lists (start, cv) for every pair of a rotor."""
-    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty((n_magnets * n_coils, 6)))
+def _pair_lists(n_magnets, n_coils, reuse_rad=0.0):
+    """Empty ``_window_pairs`` lists (start, cv, coil) for every pair of a rotor, and their
+    state (margin M, rad; bound on the rotation since they were made, rad (inf: not made yet);
+    ``reuse_rad``, the margin added so that the lists last over several steps)."""
+    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty((n_magnets * n_coils, 6)),
+            np.empty(n_magnets * n_coils, dtype=np.int64), np.array([0.0, np.inf, reuse_rad]))
 
 
 @njit(cache=True, inline="always")
@@ -292,9 +308,9 @@ def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, ga
         own = _pair_lists(magnets.shape[0], coils.shape[0])
         R = _rotation(qs)
         cut = rotor[4][3]
-        return _dynamics(R, _window_pairs(R, cur, coils, magnets, gain, cut, cut, *own), ws, d,
-                         rotor)
-    return _acceleration(qs, ws, d, pairs, rotor, magnets)
+        return _dynamics(R, _window_pairs(R, cur, coils, magnets, gain, cut, cut, own[0],
+                                          own[1], own[2]), ws, d, rotor)
+    return _acceleration(qs, ws, cur, d, pairs, rotor, magnets)
 
 
 @njit(cache=True, inline="always")
@@ -303,18 +319,27 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
     """Advance one rotor, at attitude qb (4-tuple) and body rate wb (3-tuple, rad/s), by h s
     with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple, N·m) held: RKMK4
     sub-steps as ``_step_rows`` says. ``rotor`` holds the constants (``_rotor_tuples``),
-    ``cutoff`` is the windows' cut-off angle phi_c, rad, and ``pairs`` the scratch lists of
-    ``_pair_lists`` (overwritten). Returns (q, omega, acceleration evaluations)."""
+    ``cutoff`` is the windows' cut-off angle phi_c, rad, and ``pairs`` the lists of
+    ``_pair_lists``: kept while they cover the step, else made again at its start. Returns
+    (q, omega, acceleration evaluations)."""
     scal = rotor[4]
-    # The pairs that can open during the step, listed once at its start: the margin covers
-    # the turn at the starting rate with room to spare; a stage that turns further is
-    # evaluated with lists of its own (``_stage``), so the result never depends on the margin.
-    margin = (_MARGIN_TURNS * h * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
-              + _MARGIN_RAD)
-    wide = cutoff + margin
+    state = pairs[3]
+    # The pairs that can open during the step: the lists cover a turn of M = state[0] rad
+    # from where they were made, the rotor has turned by at most state[1] since, and this
+    # step turns it by about h |omega| (with room to spare). If that does not fit, they are
+    # listed again here, with a margin of the turn at the starting rate plus the reuse margin
+    # state[2]. A stage that turns beyond the margin is evaluated with lists of its own
+    # (``_stage``), so the result never depends on the margin.
+    turn = _MARGIN_TURNS * h * np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
     R = _rotation(qb)
-    T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
-                      np.cos(wide) if wide < np.pi else -2.0, *pairs)
+    if state[1] + turn > state[0]:
+        wide = cutoff + turn + _MARGIN_RAD + state[2]
+        T = _window_pairs(R, cur, coils, magnets, gain, scal[3],
+                          np.cos(wide) if wide < np.pi else -2.0, pairs[0], pairs[1], pairs[2])
+        state[0], state[1] = turn + _MARGIN_RAD + state[2], 0.0
+    else:
+        T = _coil_torque(R, cur, pairs[0], pairs[1], pairs[2], magnets, scal[3])
+    margin = state[0]
     # The first stage is the same for any number of sub-steps: its rate and acceleration
     # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
     k1w = _dynamics(R, T, wb, d, rotor)
@@ -322,7 +347,7 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
             + h * np.sqrt(k1w[0] * k1w[0] + k1w[1] * k1w[1] + k1w[2] * k1w[2]))
     n_sub = max(substeps, int(np.ceil(h * rate / max_angle)))
     hs = h / n_sub
-    turned = 0.0  # rad, a bound on the rotation from the step's start to qb
+    turned = state[1]  # rad, a bound on the rotation from where the lists were made to qb
     for s in range(n_sub):
         # stage 1 at (q, w); stages 2-4 at q ⊗ exp(phi), phi from the previous stage
         if s > 0:
@@ -352,6 +377,7 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
         qn = _qmul(qb, _quat_exp(phi[0], phi[1], phi[2]))
         n = np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
         qb = (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n)
+    state[1] = turned
     return qb, wb, 4 * n_sub
 
 
@@ -368,6 +394,7 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     cutoff = np.arccos(scal[3])  # rad, the windows' cut-off angle phi_c
     for b in range(B):
+        pairs[3][1] = np.inf  # another rotor: its lists are made at its step's start
         qb, wb, n_eval = _step_row(
             (q[b, 0], q[b, 1], q[b, 2], q[b, 3]), (omega[b, 0], omega[b, 1], omega[b, 2]),
             currents[b], h[b], (dist[b, 0], dist[b, 1], dist[b, 2]), substeps, rotor, coils,
@@ -391,6 +418,34 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
 
 
 @njit(cache=True)
+def _step_series(q, omega, currents, h, dist, fresh, J, J_inv, com, m_g, coils, magnets, gain,
+                 scal):
+    """Step each rotor b of a batch n times as the compiled run loop does (``_step_row`` with
+    one set of pair lists kept while they cover its turn, ``PAIR_REUSE_RAD``; with ``fresh``
+    made again at every step), with the currents ``currents[b, k]`` (B, n, 16), A, and the body
+    torque ``dist[b, k]`` (B, n, 3), N·m, of step k held. Returns the attitudes (B, n, 4) and
+    rates (B, n, 3) after each step."""
+    B, n = currents.shape[0], currents.shape[1]
+    rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
+    cutoff = np.arccos(scal[3])
+    q_out, w_out = np.empty((B, n, 4)), np.empty((B, n, 3))
+    for b in range(B):
+        pairs = _pair_lists(magnets.shape[0], coils.shape[0], PAIR_REUSE_RAD)
+        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
+        wb = (omega[b, 0], omega[b, 1], omega[b, 2])
+        for k in range(n):
+            if fresh:
+                pairs[3][1] = np.inf
+            qb, wb, _ = _step_row(qb, wb, currents[b, k], h,
+                                  (dist[b, k, 0], dist[b, k, 1], dist[b, k, 2]),
+                                  PHYSICS_SUBSTEPS, rotor, coils, magnets, gain, cutoff, pairs,
+                                  SUBSTEP_ANGLE_RAD)
+            q_out[b, k, 0], q_out[b, k, 1], q_out[b, k, 2], q_out[b, k, 3] = qb
+            w_out[b, k, 0], w_out[b, k, 1], w_out[b, k, 2] = wb
+    return q_out, w_out
+
+
+@njit(cache=True)
 def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magnets, gain, scal):
     """omega_dot (B, 3), rad/s², for every row of a batch (``_dynamics``)."""
     out = np.empty((q.shape[0], 3))
@@ -398,7 +453,8 @@ def _acceleration_rows(q, omega, currents, dist, J, J_inv, com, m_g, coils, magn
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     for b in range(q.shape[0]):
         R = _rotation((q[b, 0], q[b, 1], q[b, 2], q[b, 3]))
-        T = _window_pairs(R, currents[b], coils, magnets, gain, scal[3], scal[3], *pairs)
+        T = _window_pairs(R, currents[b], coils, magnets, gain, scal[3], scal[3], pairs[0],
+                          pairs[1], pairs[2])
         out[b] = _dynamics(R, T, (omega[b, 0], omega[b, 1], omega[b, 2]),
                            (dist[b, 0], dist[b, 1], dist[b, 2]), rotor)
     return out
