@@ -230,12 +230,17 @@ def _zyz_rows(q):
 
 @njit(cache=True)
 def _geodesic_rows(a, b):
-    """(N,) angles, rad, of the rotations taking the (N, 4) quaternions a to b:
-    2 atan2(|vec(d)|, |d_w|) with d = conj(a) ⊗ b, which does not depend on their norms."""
+    """(N,) angles, rad, of the rotations taking the (N, 4) quaternions a to b, each
+    normalised: 2 atan2(|vec(d)|, |d_w|) with d = conj(a) ⊗ b (normalised first, so that a
+    quaternion and a rescaled copy of it give exactly 0)."""
     out = np.empty(a.shape[0])
     for i in range(a.shape[0]):
-        dw, dx, dy, dz = _hamilton(a[i, 0], -a[i, 1], -a[i, 2], -a[i, 3],
-                                   b[i, 0], b[i, 1], b[i, 2], b[i, 3])
+        na = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
+                       + a[i, 3] * a[i, 3])
+        nb = math.sqrt(b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2]
+                       + b[i, 3] * b[i, 3])
+        dw, dx, dy, dz = _hamilton(a[i, 0] / na, -a[i, 1] / na, -a[i, 2] / na, -a[i, 3] / na,
+                                   b[i, 0] / nb, b[i, 1] / nb, b[i, 2] / nb, b[i, 3] / nb)
         out[i] = 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
     return out
 
