@@ -5,7 +5,8 @@ against their drawn centres; rendered hard-case sequences (``experiments.sequenc
 development seed) check that GK-TransT with the shipped network does not report a wrong box as
 measured, flags what it cannot measure, and re-acquires: a skin-coloured finger over the red
 marker, a glare on both markers, a red disc beside the pair, and a jump of the markers beyond
-the Kalman gate. Truth is ``Frame.marker_px`` of the renderer. The tests use the weights as
+the Kalman gate; and the plate's edges holding the hidden red marker. Truth is
+``Frame.marker_px`` of the renderer. The tests use the weights as
 shipped, whatever their training: the rule must hold for any network.
 """
 
@@ -176,6 +177,18 @@ def test_gk_transt_flags_the_frames_a_finger_hides(skin):
     # flagged, so most of them are not measured
     assert np.mean(run.measured[hidden, 0]) < 0.5
     assert np.all(e[hidden][run.measured[hidden, 0], 0] <= PRECISION_PX)
+
+
+def test_the_plate_holds_the_red_marker_the_finger_hides(network, skin):
+    """While the finger hides the red marker, the VFC plate's edges (``observer.gk.plate``)
+    place it: every hidden frame within 20 px of the truth, flagged as not measured. Without
+    the plate, the Kalman prediction drifts past 20 px on this seed."""
+    seq, run, e = skin
+    hidden = np.flatnonzero(seq.occluded)
+    assert np.all(e[hidden, 0] <= PRECISION_PX), e[hidden, 0].max()
+    assert np.mean(run.measured[hidden, 0]) < 0.5
+    _, _, drift = _run("occluder_skin", network, seq=seq, plate=None)
+    assert np.any(drift[hidden, 0] > PRECISION_PX)
 
 
 def test_the_seed_gate_alone_follows_the_finger(network, skin):

@@ -69,7 +69,7 @@ from observer.gk.scale import PixelScaleEMA, ScaleEMAConfig, scale_from_camera
 from observer.gk.subpixel import SubpixelConfig, SubpixelResult, refine_in_box
 from plant.params import PlantParams
 
-RedSource = Literal["measurement", "prediction", "none"]
+RedSource = Literal["measurement", "inferred", "prediction", "none"]
 
 
 class GKConfig(BaseModel):
@@ -132,12 +132,22 @@ class JudgedObservation:
     ratio : the colour ratio reported as ``GKResult.confidence``, in [0, 1].
     refined : the centre is a circle-fit centre.
     reason : why nothing is trusted, or how the centre was obtained ("" for the network's).
+    stand_in_sensor_px : with nothing trusted, where another cue puts the hidden marker (e.g.
+        the VFC plate, ``observer.gk.plate``), sensor px, or None: it then stands in for the
+        Kalman prediction and updates the filter with R + stand_in_sigma_px²·I2, the frame
+        still not measured.
+    stand_in_sigma_px : standard deviation of the stand-in beyond R, sensor px.
+    yellow_stand_in_sensor_px : where the same cue puts the yellow marker, sensor px, or None:
+        it replaces P_red + V_rel when the yellow marker is not measured.
     """
 
     centre_sensor_px: NDArray[np.float64] | None
     ratio: float
     refined: bool = False
     reason: str = ""
+    stand_in_sensor_px: NDArray[np.float64] | None = None
+    stand_in_sigma_px: float = 0.0
+    yellow_stand_in_sensor_px: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -147,9 +157,11 @@ class GKResult:
     Attributes
     ----------
     red_px, yellow_px : (2,) centres (u, v), full-sensor px (NaN when ``*_source == "none"``).
-    red_source : "measurement" (confident observation), "prediction" (the Kalman prior stood in)
-        or "none".
-    yellow_source : "measurement", "fallback" (P_red + V_rel) or "none".
+    red_source : "measurement" (confident observation), "inferred" (a judged observation's
+        stand-in, e.g. from the plate, stood in; not measured), "prediction" (the Kalman prior
+        stood in) or "none".
+    yellow_source : "measurement", "fallback" (P_red + V_rel), "inferred" (the judged
+        observation's yellow stand-in; not measured) or "none".
     confidence : red valid-pixel ratio in the tracker's box (seed 000 §3.2.1), in [0, 1].
     confident : the red observation passed the gate (and the score threshold, if set).
     lost : no usable main-marker track (see the module docstring); ``reason`` says why.
@@ -356,9 +368,16 @@ class GKAssist:
             source: RedSource = "measurement"
         else:
             red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
+            if source == "prediction" and judged is not None \
+                    and judged.stand_in_sensor_px is not None:
+                red, red_cov, source = self._stand_in(judged, reasons)
 
         # 4. the auxiliary point
         aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
+        if aux.source == "fallback" and judged is not None \
+                and judged.yellow_stand_in_sensor_px is not None:
+            aux = AuxResult(np.asarray(judged.yellow_stand_in_sensor_px, dtype=float),
+                            "inferred", reason=f"{aux.reason}; position inferred")
         if aux.source != "measurement" and source != "none":
             reasons.append(f"yellow: {aux.reason}")
 
@@ -449,6 +468,18 @@ class GKAssist:
         elif self._lost:
             reasons.append("track lost earlier; waiting for a confident observation")
         return prior, prior_cov, "prediction"
+
+    def _stand_in(self, judged: JudgedObservation, reasons: list[str]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], RedSource]:
+        """A coasting frame (``_coast_on`` has counted it) with a stand-in for the hidden
+        marker: it updates the filter, so that its prediction follows the cue, and is reported
+        as "inferred"."""
+        z = np.asarray(judged.stand_in_sensor_px, dtype=float)
+        var = judged.stand_in_sigma_px ** 2
+        self.kalman.update(z, var)
+        reasons.append(f"red position inferred ({judged.reason})" if judged.reason
+                       else "red position inferred")
+        return z, np.asarray(self.config.kalman.R, dtype=float) + var * np.eye(2), "inferred"
 
     def _auxiliary(
         self, image: NDArray[np.uint8], b: int, bad_frame: str, red: NDArray[np.float64],

@@ -50,7 +50,7 @@ from observer.gk.hsv_gate import YELLOW, HSVRange, check_rgb_image, colour_mask
 from observer.gk.subpixel import SubpixelConfig, SubpixelResult, refine_marker_centre
 from plant.camera import image_to_sensor, sensor_to_image
 
-AuxSource = Literal["measurement", "fallback", "none"]
+AuxSource = Literal["measurement", "fallback", "inferred", "none"]
 
 
 class AuxLocatorConfig(BaseModel):
@@ -95,8 +95,9 @@ class AuxResult:
     Attributes
     ----------
     yellow_sensor_px : (2,) centre (u, v), full-sensor px; NaN when ``source == "none"``.
-    source : "measurement" (a candidate passed E < E_max), "fallback" (P_red + V_rel) or
-        "none" (no measurement and no V_rel yet, or no usable P_red).
+    source : "measurement" (a candidate passed E < E_max), "fallback" (P_red + V_rel),
+        "inferred" (not measured; another cue's position, e.g. the VFC plate's, given to
+        ``GKAssist.step``) or "none" (no measurement and no V_rel yet, or no usable P_red).
     D_det_px, D_exp_px, E : detected and expected distance (sensor px) and relative error of the
         chosen candidate (NaN when there is none).
     n_candidates : yellow regions found within the search radius.

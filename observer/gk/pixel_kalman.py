@@ -204,8 +204,9 @@ class PixelKalman:
         self.kf.predict()
         return self.position
 
-    def update(self, z: ArrayLike) -> bool:
-        """Measurement update with the observed centre z (u, v), sensor px.
+    def update(self, z: ArrayLike, extra_var_px2: float = 0.0) -> bool:
+        """Measurement update with the observed centre z (u, v), sensor px, whose noise is
+        R + ``extra_var_px2``·I2 (sensor px²; an observation less certain than R says).
 
         Initialises the filter if it is not yet. Returns False and coasts (no update) if z is not
         a finite (2,) vector, so a bad observation never raises inside a tracking loop.
@@ -217,7 +218,8 @@ class PixelKalman:
         if not self.initialised:
             self.initialise(zz)
             return True
-        self.kf.update(zz.reshape(2, 1))
+        R = self.kf.R + float(extra_var_px2) * np.eye(2) if extra_var_px2 > 0.0 else None
+        self.kf.update(zz.reshape(2, 1), R=R)
         return True
 
     def coast(self) -> None:

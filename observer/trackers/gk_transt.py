@@ -21,6 +21,15 @@ Kalman innovation, the network's score and the two-marker geometry; when the tra
 the geometry is violated it searches the whole frame and restarts the filter
 (``docs/tracking.md``). ``trust=None`` runs the seed's gate alone.
 
+With ``plate`` (default ``PlateConfig()``, and the trust rule on), ``observer.gk.plate`` follows
+the VFC plate's four edges from frame to frame. When nothing is trusted for the red marker, the
+plate maps the last red centre measured together with the yellow one into the frame, and that
+position stands in for the Kalman prediction (``red_source`` "inferred", not measured; the
+filter is updated with it, so the prediction follows the plate); likewise the yellow marker
+when it is not measured (``yellow_source`` "inferred" instead of P_red + V_rel). The plate is
+believed only while a measured marker lies where the plate maps it, when the other is
+inferred; it is started again on the next frame with both markers measured.
+
 After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
 prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
 ``GKAssist`` flags the track lost after ``max_coast_frames`` frames without a confident box. Only
@@ -50,6 +59,7 @@ from numpy.typing import NDArray
 
 from observer.gk.assist import GKAssist, GKConfig, GKResult
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
+from observer.gk.plate import PlateConfig, PlateTracker
 from observer.gk.trust import MarkerTrust, TrustConfig, TrustDecision
 from observer.trackers import MarkerPairTracker, box_around
 from observer.tracking import PairResult, SingleObjectTracker
@@ -78,6 +88,9 @@ class GKTransTPairTracker(MarkerPairTracker):
     trust : TrustConfig or None, optional
         The per-frame trust rule and whole-frame re-detection (``observer.gk.trust``; default
         on with ``TrustConfig()``); None runs the seed's gate alone.
+    plate : PlateConfig or None, optional
+        The VFC plate as the hidden red marker's stand-in (``observer.gk.plate``; default on,
+        used with the trust rule); None coasts on the Kalman prediction alone.
     name : str
     """
 
@@ -90,6 +103,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         guide_search: bool = True,
         restart_on_prediction: bool = False,
         trust: TrustConfig | None = TrustConfig(),  # noqa: B008 - frozen pydantic model
+        plate: PlateConfig | None = PlateConfig(),  # noqa: B008 - frozen pydantic model
         name: str = "gk_transt",
     ) -> None:
         cfg = gk_config or GKConfig()
@@ -107,12 +121,15 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.last_gk: GKResult | None = None
         self.trust = None if trust is None else MarkerTrust(self.gk, trust)
         self.last_trust: TrustDecision | None = None
+        self.plate = None if plate is None or trust is None else PlateTracker(self.params, plate)
 
     def reset(self) -> None:
         """Forget the track and the GK assistance's state."""
         super().reset()
         self.gk.reset()
         self.last_gk = None
+        if self.plate is not None:
+            self.plate.lose()
 
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
@@ -125,6 +142,10 @@ class GKTransTPairTracker(MarkerPairTracker):
             self.gk.aux.V_rel = centres[1] - centres[0]
         if self.trust is not None:
             self.trust.start(image, self.binning, boxes_sensor_px[0])
+        if self.plate is not None:
+            centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
+            found = self.last_gk.marker_px
+            self.plate.start(image, self.binning, *np.where(np.isfinite(found), found, centres))
 
     def search_centre_image_px(self) -> NDArray[np.float64] | None:
         """The Kalman prediction of the red centre for the next frame in image px, clipped to
@@ -166,15 +187,45 @@ class GKTransTPairTracker(MarkerPairTracker):
         if self.trust is not None:
             decision = self._judge(image, box, score)
             judged, self.last_trust = decision.observation, decision
+        mapped = None
+        if self.plate is not None and self.plate.update(image):
+            mapped = self.plate.locate(self.binning)
+            if judged is not None and mapped is not None:
+                judged = replace(judged, yellow_stand_in_sensor_px=mapped[1])
+                if judged.centre_sensor_px is None:
+                    judged = replace(judged, stand_in_sensor_px=mapped[0],
+                                     stand_in_sigma_px=self.plate.config.stand_in_sigma_px,
+                                     reason=f"{judged.reason}; from the plate")
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
                            tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
         if self.trust is not None:
             self.trust.record(res.red_source == "measurement", res.yellow_source == "measurement")
+        self._plate_after(image, res, mapped)
         out = self._result(res, box, score, float(tr.compute_time_s))
-        if self.restart_on_prediction and res.red_source == "prediction":
+        if self.restart_on_prediction and res.red_source in ("prediction", "inferred"):
             out = self._restart(image, res, out)
         return out
+
+    def _plate_after(self, image: NDArray[np.uint8], res: GKResult,
+                     mapped: NDArray[np.float64] | None) -> None:
+        """The plate's bookkeeping after a frame: with both markers measured it keeps them as
+        its reference (or starts, if it was lost); with one marker inferred from it, the other,
+        measured, must lie where it maps it."""
+        if self.plate is None:
+            return
+        assert self.binning is not None
+        red_measured = res.red_source == "measurement"
+        yellow_measured = res.yellow_source == "measurement"
+        if red_measured and yellow_measured:
+            if self.plate.tracked:
+                self.plate.remember(res.red_px, res.yellow_px, self.binning)
+            else:
+                self.plate.start(image, self.binning, res.red_px, res.yellow_px)
+        elif mapped is not None and res.red_source == "inferred" and yellow_measured:
+            self.plate.check(mapped[1], res.yellow_px)
+        elif mapped is not None and res.yellow_source == "inferred" and red_measured:
+            self.plate.check(mapped[0], res.red_px)
 
     def _restart(self, image: NDArray[np.uint8], res: GKResult, out: PairResult) -> PairResult:
         """Restart the tracker where the prediction puts the red marker (see the module
@@ -218,4 +269,6 @@ class GKTransTPairTracker(MarkerPairTracker):
         assert self.binning is not None
         res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
         self.last_gk = res
+        if self.plate is not None:
+            self.plate.lose()  # not followed through this frame: started again later
         return self._result(res, None, float("nan"), 0.0)
