@@ -7,11 +7,13 @@ constant-velocity prediction drifts as soon as the rotor changes its motion. The
 edges usually stay visible around the occluder, and their image fixes the whole plane-to-image
 map. ``PlateTracker`` follows them from frame to frame:
 
-1. **Start** from the two measured markers: the plate's corners are P ± a u ± a v, with P the
-   markers' midpoint, u the unit red→yellow vector, v ⟂ u and a = (plate side / 2) / L · |V|
-   (L the marker spacing, V the red→yellow vector); then refined by the edge fit below.
+1. **Start** on a frame with both markers measured: the plate's corners are P ± a u ± a v,
+   with P the markers' midpoint, u the unit red→yellow vector, v ⟂ u and
+   a = (plate side / 2) / L · |V| (L the marker spacing, V the red→yellow vector); then refined
+   by the edge fit below. The markers' motion since the frame before (a similarity of the two
+   points) starts the corners' velocity.
 2. **Each frame**: the corners are predicted at constant velocity; along each predicted edge,
-   ``samples`` points are searched over ±``band_img_px`` along its normal for the strongest
+   ``samples`` lines are searched over ±``band_img_px`` along its normal for the strongest
    step of the plate's contrast sign (learned at start: dark plate, brighter rotor), and a line
    is fitted to them (Huber); the new corners are the lines' intersections. The fit is refused
    (the plate is lost until the next start) when a side has fewer than ``min_edge_points``
@@ -47,9 +49,9 @@ class PlateConfig(BaseModel):
     band_img_px: float = Field(12.0, gt=0.0, description="Search half-width along an edge's "
                                "normal, image px (the corners move up to ~15 px a frame on "
                                "fast development sequences; the prediction removes most).")
-    samples: int = Field(50, ge=8, description="Search lines per edge.")
-    min_gradient: float = Field(60.0, gt=0.0, description="Smallest Sobel step of the plate's "
-                                "contrast sign for an edge point (grey levels per px x 8).")
+    samples: int = Field(24, ge=8, description="Search lines per edge.")
+    min_step: float = Field(7.5, gt=0.0, description="Smallest step of the plate's contrast "
+                            "sign for an edge point, grey levels per px.")
     min_edge_points: int = Field(8, ge=3, description="Fewest edge points per side.")
     min_squareness: float = Field(0.8, gt=0.0, le=1.0, description="Shortest side over the "
                                   "longest (tilt foreshortens the square by cos 15° at most).")
@@ -88,8 +90,14 @@ class PlateTracker:
         self.corners_img = self._previous = self._reference = None
 
     def start(self, image: NDArray[np.uint8], binning: int, red_sensor_px: ArrayLike,
-              yellow_sensor_px: ArrayLike) -> bool:
-        """Find the plate from the two measured marker centres (sensor px); True if found."""
+              yellow_sensor_px: ArrayLike, markers_before_sensor_px: ArrayLike | None = None
+              ) -> bool:
+        """Find the plate from the two measured marker centres (sensor px); True if found.
+
+        ``markers_before_sensor_px`` (2, 2), the red and yellow centres of the frame before,
+        gives the plate's motion for the prediction into the next frame (the similarity that
+        takes those two points to these, applied once more); without it the plate is predicted
+        at rest."""
         self.lose()
         red = sensor_to_image(np.asarray(red_sensor_px, dtype=float), binning)
         yellow = sensor_to_image(np.asarray(yellow_sensor_px, dtype=float), binning)
@@ -109,6 +117,16 @@ class PlateTracker:
                 return False
             corners = fitted
         self.corners_img = self._previous = corners
+        if markers_before_sensor_px is not None:
+            before = sensor_to_image(np.asarray(markers_before_sensor_px, dtype=float), binning)
+            if np.all(np.isfinite(before)) and np.hypot(*(before[1] - before[0])) > 0.0:
+                # z_now = a z_before + b on complex coordinates; the previous corners are the
+                # current ones taken back by it
+                zb = before[:, 0] + 1j * before[:, 1]
+                zn = complex(red[0], red[1]), complex(yellow[0], yellow[1])
+                a = (zn[1] - zn[0]) / (zb[1] - zb[0])
+                back = (corners[:, 0] + 1j * corners[:, 1] - (zn[0] - a * zb[0])) / a
+                self._previous = np.column_stack([back.real, back.imag])
         self.remember(red_sensor_px, yellow_sensor_px, binning)
         return True
 
@@ -154,11 +172,10 @@ class PlateTracker:
         return True
 
 
-def _gradients(image: NDArray[np.uint8], corners: NDArray[np.float64], config: PlateConfig
-               ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float64]]:
-    """Sobel derivatives (x, y) of the smoothed grey frame in the plate's bounding box grown by
-    the search band (the rest of the frame is never searched), and the box's origin, image
-    px."""
+def _grey_box(image: NDArray[np.uint8], corners: NDArray[np.float64], config: PlateConfig
+              ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """The smoothed grey frame in the plate's bounding box grown by the search band (the rest
+    of the frame is never searched), and the box's origin, image px."""
     H, W = image.shape[:2]
     grow = config.band_img_px + 3.0
     x0, y0 = (max(int(v), 0) for v in np.floor(corners.min(axis=0) - grow))
@@ -168,62 +185,64 @@ def _gradients(image: NDArray[np.uint8], corners: NDArray[np.float64], config: P
     if crop.shape[0] < 3 or crop.shape[1] < 3:
         crop = np.zeros((3, 3, 3), np.uint8)
     grey = cv2.GaussianBlur(cv2.cvtColor(crop, cv2.COLOR_RGB2GRAY).astype(np.float32), (3, 3), 0)
-    return (cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3),
-            np.array([x0, y0], dtype=float))
+    return grey, np.array([x0, y0], dtype=float)
 
 
 def _edge_samples(image: NDArray[np.uint8], corners: NDArray[np.float64], config: PlateConfig
-                  ) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """Per side: the search points (samples, offsets, 2), image px, along its outward normal and
-    the outward derivative there (samples, offsets), sampled bilinearly (sub-pixel edges)."""
-    gx, gy, origin = _gradients(image, corners, config)
-    centre = corners.mean(axis=0)
-    offsets = np.arange(-config.band_img_px, config.band_img_px + 1e-9, 0.5)
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The search points (4 sides, samples, offsets, 2), image px, 1 px apart along each side's
+    outward normal, and the grey level's step there (4, samples, offsets), grey levels per px:
+    the difference of bilinear samples half a pixel outside and inside."""
+    grey, origin = _grey_box(image, corners, config)
+    offsets = np.arange(-config.band_img_px, config.band_img_px + 1e-9, 1.0)
+    ends = np.r_[offsets - 0.5, offsets[-1] + 0.5]
     s = np.linspace(0.1, 0.9, config.samples)
-    out = []
-    for k in range(4):
-        p0, p1 = corners[k], corners[(k + 1) % 4]
-        d = p1 - p0
-        t = d / max(float(np.hypot(*d)), 1e-12)
-        n = np.array([-t[1], t[0]])
-        if np.dot(n, 0.5 * (p0 + p1) - centre) < 0.0:
-            n = -n  # outward
-        pts = (p0 + s[:, None] * d)[:, None, :] + offsets[None, :, None] * n
-        mx = (pts[..., 0] - origin[0]).astype(np.float32)
-        my = (pts[..., 1] - origin[1]).astype(np.float32)
-        g = (cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) * n[0]
-             + cv2.remap(gy, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) * n[1])
-        out.append((pts, g.astype(float)))
-    return out
+    d = np.roll(corners, -1, axis=0) - corners  # side k runs from corner k to corner k + 1
+    t = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    n = np.column_stack([-t[:, 1], t[:, 0]])
+    mid = corners + 0.5 * d - corners.mean(axis=0)
+    n *= np.where(np.sum(n * mid, axis=1) < 0.0, -1.0, 1.0)[:, None]  # outward
+    base = corners[:, None, :] + s[None, :, None] * d[:, None, :] - origin  # (4, S, 2)
+    at = base[:, :, None, :] + ends[None, None, :, None] * n[:, None, None, :]
+    level = cv2.remap(grey, at[..., 0].reshape(-1, len(ends)).astype(np.float32),
+                      at[..., 1].reshape(-1, len(ends)).astype(np.float32), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE).reshape(4, len(s), len(ends))
+    pts = base[:, :, None, :] + origin + offsets[None, None, :, None] * n[:, None, None, :]
+    return pts, np.diff(level.astype(float), axis=2)
 
 
 def _contrast_sign(image: NDArray[np.uint8], corners: NDArray[np.float64],
                    config: PlateConfig) -> float:
-    """+1 when the plate is darker than its surroundings (the outward derivative's strongest
-    steps are positive), else -1."""
-    strongest = [g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)]
-                 for _, g in _edge_samples(image, corners, config)]
-    return 1.0 if float(np.median(np.concatenate(strongest))) >= 0.0 else -1.0
+    """+1 when the plate is darker than its surroundings (the outward steps' strongest are
+    positive), else -1."""
+    _, g = _edge_samples(image, corners, config)
+    strongest = np.take_along_axis(g, np.argmax(np.abs(g), axis=2)[..., None], axis=2)
+    return 1.0 if float(np.median(strongest)) >= 0.0 else -1.0
 
 
 def _fit_edges(image: NDArray[np.uint8], corners: NDArray[np.float64], sign: float,
                config: PlateConfig) -> NDArray[np.float64] | None:
     """The corners (4, 2), image px, from lines fitted to the edge points found around the
     predicted ``corners``; None when a side has too few points or two lines are parallel."""
+    pts, g = _edge_samples(image, corners, config)
+    g = sign * g
+    j = np.clip(np.argmax(g, axis=2), 1, g.shape[2] - 2)[..., None]
+    # the peak between the samples: the vertex of the parabola through the three around it
+    # (the samples are 1 px apart)
+    g0, g1, g2 = (np.take_along_axis(g, j + o, axis=2)[..., 0] for o in (-1, 0, 1))
+    curv = g0 - 2.0 * g1 + g2
+    frac = np.clip(np.where(curv < 0.0, 0.5 * (g0 - g2) / np.where(curv < 0.0, curv, -1.0),
+                            0.0), -0.5, 0.5)
+    p1 = np.take_along_axis(pts, j[..., None], axis=2)[:, :, 0]
+    p2 = np.take_along_axis(pts, (j + 1)[..., None], axis=2)[:, :, 0]
+    at = p1 + frac[..., None] * (p2 - p1)
+    ok = g1 > config.min_step
+    if np.any(ok.sum(axis=1) < config.min_edge_points):
+        return None
     lines = []
-    for pts, g in _edge_samples(image, corners, config):
-        g = sign * g
-        j = np.clip(np.argmax(g, axis=1), 1, g.shape[1] - 2)
-        rows = np.arange(len(g))
-        # the peak between the samples: the vertex of the parabola through the three around it
-        g0, g1, g2 = g[rows, j - 1], g[rows, j], g[rows, j + 1]
-        curv = g0 - 2.0 * g1 + g2
-        frac = np.where(curv < 0.0, 0.5 * (g0 - g2) / np.where(curv < 0.0, curv, -1.0), 0.0)
-        at = pts[rows, j] + np.clip(frac, -0.5, 0.5)[:, None] * (pts[rows, j + 1] - pts[rows, j])
-        found = at[g1 > config.min_gradient].astype(np.float32)
-        if len(found) < config.min_edge_points:
-            return None
-        vx, vy, x0, y0 = cv2.fitLine(found, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+    for k in range(4):
+        vx, vy, x0, y0 = cv2.fitLine(at[k][ok[k]].astype(np.float32), cv2.DIST_HUBER, 0, 0.01,
+                                     0.01).ravel()
         lines.append((np.array([x0, y0], dtype=float), np.array([vx, vy], dtype=float)))
     out = np.empty((4, 2))
     for k in range(4):

@@ -21,14 +21,16 @@ Kalman innovation, the network's score and the two-marker geometry; when the tra
 the geometry is violated it searches the whole frame and restarts the filter
 (``docs/tracking.md``). ``trust=None`` runs the seed's gate alone.
 
-With ``plate`` (default ``PlateConfig()``, and the trust rule on), ``observer.gk.plate`` follows
-the VFC plate's four edges from frame to frame. When nothing is trusted for the red marker, the
-plate maps the last red centre measured together with the yellow one into the frame, and that
-position stands in for the Kalman prediction (``red_source`` "inferred", not measured; the
-filter is updated with it, so the prediction follows the plate); likewise the yellow marker
-when it is not measured (``yellow_source`` "inferred" instead of P_red + V_rel). The plate is
-believed only while a measured marker lies where the plate maps it, when the other is
-inferred; it is started again on the next frame with both markers measured.
+With ``plate`` (default ``PlateConfig()``, and the trust rule on), ``observer.gk.plate`` places a
+hidden marker from the VFC plate's four edges. When nothing is trusted for the red marker (or
+the last frame lacked a measured marker), the plate is found on the last frame with both
+markers measured, which becomes its reference, and followed into this frame; the reference red
+centre mapped by it stands in for the Kalman prediction (``red_source`` "inferred", not
+measured; the filter is updated with it, so the prediction follows the plate), and the yellow
+one replaces P_red + V_rel when the yellow marker is not measured (``yellow_source``
+"inferred"). The plate is followed from frame to frame until both markers are measured again,
+and believed only while a measured marker lies where it maps it when the other is inferred.
+Frames with both markers measured cost nothing more.
 
 After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
 prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
@@ -52,12 +54,13 @@ from the latest attitude estimate before each ``step``.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from observer.gk.assist import GKAssist, GKConfig, GKResult
+from observer.gk.assist import GKAssist, GKConfig, GKResult, JudgedObservation
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
 from observer.gk.plate import PlateConfig, PlateTracker
 from observer.gk.trust import MarkerTrust, TrustConfig, TrustDecision
@@ -122,6 +125,10 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.trust = None if trust is None else MarkerTrust(self.gk, trust)
         self.last_trust: TrustDecision | None = None
         self.plate = None if plate is None or trust is None else PlateTracker(self.params, plate)
+        #: The last frames with both markers measured: (frame number, image, markers (2, 2))
+        self._seen: deque[tuple[int, NDArray[np.uint8], NDArray[np.float64]]] = deque(maxlen=2)
+        self._frame = 0
+        self._hidden_before = False
 
     def reset(self) -> None:
         """Forget the track and the GK assistance's state."""
@@ -130,6 +137,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.last_gk = None
         if self.plate is not None:
             self.plate.lose()
+        self._seen.clear()
+        self._frame, self._hidden_before = 0, False
 
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
@@ -143,9 +152,12 @@ class GKTransTPairTracker(MarkerPairTracker):
         if self.trust is not None:
             self.trust.start(image, self.binning, boxes_sensor_px[0])
         if self.plate is not None:
+            self.plate.lose()
+            self._seen.clear()
             centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
             found = self.last_gk.marker_px
-            self.plate.start(image, self.binning, *np.where(np.isfinite(found), found, centres))
+            self._frame, self._hidden_before = 0, False
+            self._seen.append((0, image, np.where(np.isfinite(found), found, centres)))
 
     def search_centre_image_px(self) -> NDArray[np.float64] | None:
         """The Kalman prediction of the red centre for the next frame in image px, clipped to
@@ -187,15 +199,15 @@ class GKTransTPairTracker(MarkerPairTracker):
         if self.trust is not None:
             decision = self._judge(image, box, score)
             judged, self.last_trust = decision.observation, decision
-        mapped = None
-        if self.plate is not None and self.plate.update(image):
-            mapped = self.plate.locate(self.binning)
-            if judged is not None and mapped is not None:
-                judged = replace(judged, yellow_stand_in_sensor_px=mapped[1])
-                if judged.centre_sensor_px is None:
-                    judged = replace(judged, stand_in_sensor_px=mapped[0],
-                                     stand_in_sigma_px=self.plate.config.stand_in_sigma_px,
-                                     reason=f"{judged.reason}; from the plate")
+        self._frame += 1
+        mapped = self._plate_markers(image, judged)
+        if judged is not None and mapped is not None:
+            judged = replace(judged, yellow_stand_in_sensor_px=mapped[1])
+            if judged.centre_sensor_px is None:
+                assert self.plate is not None
+                judged = replace(judged, stand_in_sensor_px=mapped[0],
+                                 stand_in_sigma_px=self.plate.config.stand_in_sigma_px,
+                                 reason=f"{judged.reason}; from the plate")
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
                            tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
@@ -207,21 +219,39 @@ class GKTransTPairTracker(MarkerPairTracker):
             out = self._restart(image, res, out)
         return out
 
+    def _plate_markers(self, image: NDArray[np.uint8], judged: JudgedObservation | None
+                       ) -> NDArray[np.float64] | None:
+        """Where the plate puts the reference red and yellow centres in this frame (2, 2),
+        sensor px, when a marker is (or just was) not measured; None otherwise or without a
+        plate. Starts the plate on the last frame with both markers measured when needed."""
+        if self.plate is None or judged is None:
+            return None
+        assert self.binning is not None
+        if not self.plate.tracked:
+            if not (judged.centre_sensor_px is None or self._hidden_before) or not self._seen:
+                return None
+            k, seen_image, markers = self._seen[-1]
+            before = self._seen[0][2] if len(self._seen) == 2 and self._seen[0][0] == k - 1 \
+                else None
+            if not self.plate.start(seen_image, self.binning, *markers, before):
+                return None
+        if not self.plate.update(image):
+            return None
+        return self.plate.locate(self.binning)
+
     def _plate_after(self, image: NDArray[np.uint8], res: GKResult,
                      mapped: NDArray[np.float64] | None) -> None:
-        """The plate's bookkeeping after a frame: with both markers measured it keeps them as
-        its reference (or starts, if it was lost); with one marker inferred from it, the other,
-        measured, must lie where it maps it."""
+        """The plate's bookkeeping after a frame: with both markers measured the frame is kept
+        (a reference for the next start) and the plate let go; with one marker inferred from
+        the plate, the other, measured, must lie where the plate maps it."""
         if self.plate is None:
             return
-        assert self.binning is not None
         red_measured = res.red_source == "measurement"
         yellow_measured = res.yellow_source == "measurement"
+        self._hidden_before = not (red_measured and yellow_measured)
         if red_measured and yellow_measured:
-            if self.plate.tracked:
-                self.plate.remember(res.red_px, res.yellow_px, self.binning)
-            else:
-                self.plate.start(image, self.binning, res.red_px, res.yellow_px)
+            self._seen.append((self._frame, image, np.vstack([res.red_px, res.yellow_px])))
+            self.plate.lose()
         elif mapped is not None and res.red_source == "inferred" and yellow_measured:
             self.plate.check(mapped[1], res.yellow_px)
         elif mapped is not None and res.yellow_source == "inferred" and red_measured:
@@ -269,6 +299,8 @@ class GKTransTPairTracker(MarkerPairTracker):
         assert self.binning is not None
         res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
         self.last_gk = res
+        self._frame += 1
+        self._hidden_before = True
         if self.plate is not None:
             self.plate.lose()  # not followed through this frame: started again later
         return self._result(res, None, float("nan"), 0.0)
