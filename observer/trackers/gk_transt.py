@@ -30,7 +30,9 @@ measured; the filter is updated with it, so the prediction follows the plate), a
 one replaces P_red + V_rel when the yellow marker is not measured (``yellow_source``
 "inferred"). The plate is followed from frame to frame until both markers are measured again,
 and believed only while a measured marker lies where it maps it when the other is inferred.
-Frames with both markers measured cost nothing more.
+Frames with both markers measured cost nothing more: the tracker keeps a reference to the last
+two such frames (not a copy), so a caller must pass each frame in its own array, not refill
+one buffer in place.
 
 After a loss (occlusion, blur) the filter keeps predicting and the network keeps searching at the
 prediction, so the first frame in which the marker is visible near the prediction re-acquires it;
@@ -135,6 +137,10 @@ class GKTransTPairTracker(MarkerPairTracker):
         super().reset()
         self.gk.reset()
         self.last_gk = None
+        self._forget_plate()
+
+    def _forget_plate(self) -> None:
+        """Let the plate go and forget the frames kept for its next start."""
         if self.plate is not None:
             self.plate.lose()
         self._seen.clear()
@@ -146,17 +152,14 @@ class GKTransTPairTracker(MarkerPairTracker):
         self.gk.reset()
         self.last_gk = self.gk.step(image, self.binning, box_sensor_px=boxes_sensor_px[0],
                                     tilt_prev_rad=self.tilt_hint_rad)
+        centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
         if self.gk.aux.V_rel is None:
-            centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
             self.gk.aux.V_rel = centres[1] - centres[0]
         if self.trust is not None:
             self.trust.start(image, self.binning, boxes_sensor_px[0])
+        self._forget_plate()
         if self.plate is not None:
-            self.plate.lose()
-            self._seen.clear()
-            centres = boxes_sensor_px[:, :2] + 0.5 * boxes_sensor_px[:, 2:]
             found = self.last_gk.marker_px
-            self._frame, self._hidden_before = 0, False
             self._seen.append((0, image, np.where(np.isfinite(found), found, centres)))
 
     def search_centre_image_px(self) -> NDArray[np.float64] | None:
