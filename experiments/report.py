@@ -10,7 +10,7 @@ import markdown
 import numpy as np
 import pandas as pd
 
-from latency import loop
+from latency import metrics
 from latency.models import SEED_LATENCY_S
 
 HTML_HEAD = """<!doctype html><html><head><meta charset="utf-8"><title>{title}</title>
@@ -178,14 +178,14 @@ def write_report(
         "intervals over seeds: bootstrap of the mean for RMS error and lost frames, Wilson for "
         "the probability of loss of control"
         + (" (with a single seed there is no interval)" if n_seeds < 2 else "")
-        + f". Loss of control: the rotor rests on the tilt stop for {loop.LOC_TILT_STOP_S:g} s, "
-        f"the markers are lost for {loop.LOC_MARKER_LOSS_S:g} s or on "
-        f"{100 * loop.LOC_LOST_FRACTION:.0f} % of the frames, the error grows (last quarter's "
-        f"RMS at least {loop.LOC_GROWTH_RATIO:g} times the second quarter's and at least "
-        f"{loop.LOC_GROWTH_MIN_DEG:g}°), or the error exceeds the divergence limit. The step is "
+        + f". Loss of control: the rotor rests on the tilt stop for {metrics.LOC_TILT_STOP_S:g} s, "
+        f"the markers are lost for {metrics.LOC_MARKER_LOSS_S:g} s or on "
+        f"{100 * metrics.LOC_LOST_FRACTION:.0f} % of the frames, the error grows (last quarter's "
+        f"RMS at least {metrics.LOC_GROWTH_RATIO:g} times the second quarter's and at least "
+        f"{metrics.LOC_GROWTH_MIN_DEG:g}°), or the error exceeds the divergence limit. The step is "
         "measured against the commanded 5° (overshoot in % of it; settling into the absolute "
-        f"band ±{loop.SETTLE_BAND_DEG:g}°; steady-state error: the mean over the final "
-        f"{loop.STEADY_STATE_WINDOW_S:g} s). The MPC previews the reference and "
+        f"band ±{metrics.SETTLE_BAND_DEG:g}°; steady-state error: the mean over the final "
+        f"{metrics.STEADY_STATE_WINDOW_S:g} s). The MPC previews the reference and "
         "the PID feeds it forward; their variants without preview / feedforward are shown "
         "on the step for a fair comparison.",
         "",

@@ -72,7 +72,6 @@ from experiments.study_plots import (
 )
 from experiments.sweep import run_sweep
 from experiments.user_files import plant_from_files
-from latency.loop import SETTLE_BAND_DEG
 from latency.margins import (
     Margins,
     as_run_margins,
@@ -81,6 +80,7 @@ from latency.margins import (
     sampled_margins,
     sampled_stable,
 )
+from latency.metrics import SETTLE_BAND_DEG
 from latency.models import SEED_LATENCY_S, Empirical
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode

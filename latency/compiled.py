@@ -36,13 +36,8 @@ covers), and the arithmetic of a few small products is ordered differently (roun
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import hashlib
 import heapq
-import inspect
-import itertools
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -57,7 +52,9 @@ from latency.frontends import (
     LOST_OUTSIDE_WINDOW,
     MeasurementFrontEnd,
 )
-from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams, summarize
+from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams
+from latency.metrics import step_values, summarize, summarize_values
+from latency.numba_cache import drop_stale_cache
 from latency.pipeline import FrameScheduler
 from observer import cor_solver
 from observer.cor_model import CorModel
@@ -81,6 +78,7 @@ from observer.pixel_observer import PixelKalmanObserver, SolverObserver
 from plant import rigid_body, torque
 from plant.params import PlantParams
 from plant.rigid_body import (
+    FASTMATH,
     PAIR_REUSE_RAD,
     PHYSICS_SUBSTEPS,
     SUBSTEP_ANGLE_RAD,
@@ -91,32 +89,9 @@ from plant.rigid_body import (
 )
 from plant.torque import N_COILS, TorqueMap, allocate
 
-#: Where numba caches this module's compiled functions.
-_CACHE = Path(__file__).with_name("__pycache__")
-
-
-def _drop_stale_cache(folder: Path = _CACHE) -> None:
-    """Delete this module's numba cache (in ``folder``) when a module whose compiled functions
-    or constants its kernel uses has changed since the cache was written.
-
-    numba invalidates a cached function when its own source file changes, not when a function
-    it calls in another file does: the kernel compiles in the physics step, the solver's
-    iteration and the filter's matrices, so an edit there would otherwise leave it running
-    the old code. A digest of those files, kept beside the cache, says when to drop it."""
-    digest = hashlib.sha256()
-    for module in (rigid_body, cor_solver, pixel_kalman, torque):
-        digest.update(Path(inspect.getfile(module)).read_bytes())
-    stamp = folder / "compiled.deps.sha256"
-    if stamp.is_file() and stamp.read_text() == digest.hexdigest():
-        return
-    with contextlib.suppress(OSError):  # a read-only install: numba caches elsewhere
-        for cached in folder.glob(f"{Path(__file__).stem}.*.nb[ic]"):
-            cached.unlink(missing_ok=True)
-        folder.mkdir(exist_ok=True)
-        stamp.write_text(digest.hexdigest())
-
-
-_drop_stale_cache()
+# The kernel compiles in the physics step, the solver's iteration and the filter's matrices:
+# an edit there drops this module's numba cache.
+drop_stale_cache(__file__, (rigid_body, cor_solver, pixel_kalman, torque))
 
 # --- event kinds of the schedule, event codes of the record -----------------------------------
 _FRAME, _RELEASE, _COMMAND = 0, 1, 2
@@ -203,34 +178,73 @@ def _schedule(loop: ClosedLoop) -> tuple[NDArray, NDArray, NDArray, NDArray]:
 
     The event loop's queue (``ClosedLoop.timeline``: the first frame at mid-exposure, each
     frame pushing the next frame and then its release, each release its command; ties in the
-    order pushed) with the run's own streams (``latency.loop.run_streams``): each frame's
-    observer latency from the pipeline's stream, each command's controller latency from the
-    controller's. Returns the events' times (s), kinds and frame indices, and per frame
-    (t_exposure, t_release, dropped)."""
+    order pushed) with the run's own streams (``latency.loop.run_streams``): the frames'
+    observer latencies drawn from the pipeline's stream, one per processed frame in order
+    (``FrameScheduler.next_frame``), the commands' controller latencies from the controller's,
+    one per release in order. The draws come first, as many as the run has frames (each
+    stream serves one purpose, so the numbers a run uses are the same), and the queue then
+    runs compiled (``_event_queue``). Returns the events' times (s), kinds and frame indices,
+    and per frame (t_exposure, t_release, dropped)."""
     c = loop.config
     pipe = c.pipeline
     rng_pipe, rng_ctrl, _ = run_streams(c.seed)
-    scheduler = FrameScheduler(pipe, rng_pipe)
-    queue: list[tuple[float, int, int, int]] = []
-    order = itertools.count()
-    heapq.heappush(queue, (0.5 * pipe.exposure_s, next(order), _FRAME, 0))
-    events, frames = [], []
-    while queue and queue[0][0] < c.duration_s - 1e-12:
+    FrameScheduler(pipe, rng_pipe)  # its checks of the pipeline's settings (it draws nothing)
+    period, exposure = pipe.frame_period_s, pipe.exposure_s
+    n_frames = max(int(np.ceil((c.duration_s - 1e-12 - 0.5 * exposure) / period)), 0) + 1
+    observer = np.array([pipe.observer.sample(rng_pipe) for _ in range(n_frames)])
+    controller = np.array([c.controller_latency.sample(rng_ctrl) for _ in range(n_frames)])
+    ev, frames, bad = _event_queue(period, exposure, pipe.readout_s, pipe.mode == "sequential",
+                                   pipe.mode == "pipelined", c.duration_s, observer, controller)
+    if bad >= 0:
+        raise ValueError(f"observer latency must be finite and >= 0, got {observer[bad]}")
+    return ev[:, 0].copy(), ev[:, 1].astype(np.int64), ev[:, 2].astype(np.int64), frames
+
+
+@njit(cache=True)
+def _event_queue(period, exposure, readout, sequential, pipelined, duration, observer,
+                 controller):
+    """The event loop's queue (``_schedule``) with the latencies drawn: the events (time,
+    kind, frame) in the order handled, the frames (t_exposure, t_release, dropped) as
+    ``FrameScheduler.next_frame`` times them, and the index of the first invalid observer
+    latency used (-1: none)."""
+    queue = [(0.5 * exposure, 0, _FRAME, 0)]
+    heapq.heapify(queue)
+    order = 1
+    n = observer.shape[0]
+    events = np.empty((3 * n, 3))
+    frames = np.empty((n, 3))
+    n_ev = n_fr = used_obs = used_ctrl = 0
+    busy_until = last_release = -np.inf
+    while len(queue) > 0 and queue[0][0] < duration - 1e-12:
         t, _, kind, index = heapq.heappop(queue)
-        events.append((t, kind, index))
+        events[n_ev, 0], events[n_ev, 1], events[n_ev, 2] = t, kind, index
+        n_ev += 1
         if kind == _FRAME:
-            timing = scheduler.next_frame()
-            t_next = (timing.index + 1) * pipe.frame_period_s + 0.5 * pipe.exposure_s
-            heapq.heappush(queue, (t_next, next(order), _FRAME, timing.index + 1))
-            frames.append((timing.t_exposure, timing.t_release, timing.dropped))
-            if not timing.dropped:
-                heapq.heappush(queue, (timing.t_release, next(order), _RELEASE, timing.index))
+            t0 = index * period
+            t_exposure, t_ready = t0 + 0.5 * exposure, t0 + exposure + readout
+            heapq.heappush(queue, ((index + 1) * period + 0.5 * exposure, order, _FRAME,
+                                   index + 1))
+            order += 1
+            if sequential and t_ready < busy_until:
+                frames[n_fr, 0], frames[n_fr, 1], frames[n_fr, 2] = t_exposure, np.nan, 1.0
+            else:
+                latency = observer[used_obs]
+                if latency < 0 or not np.isfinite(latency):
+                    return events[:n_ev], frames[:n_fr], used_obs
+                used_obs += 1
+                t_release = t_ready + latency
+                if pipelined:
+                    t_release = max(t_release, last_release)
+                busy_until = last_release = t_release
+                frames[n_fr, 0], frames[n_fr, 1], frames[n_fr, 2] = t_exposure, t_release, 0.0
+                heapq.heappush(queue, (t_release, order, _RELEASE, index))
+                order += 1
+            n_fr += 1
         elif kind == _RELEASE:
-            latency = c.controller_latency.sample(rng_ctrl)
-            heapq.heappush(queue, (t + latency, next(order), _COMMAND, index))
-    ev = np.array(events, dtype=float).reshape(-1, 3)
-    return ev[:, 0].copy(), ev[:, 1].astype(np.int64), ev[:, 2].astype(np.int64), \
-        np.array(frames, dtype=float).reshape(-1, 3)
+            heapq.heappush(queue, (t + controller[used_ctrl], order, _COMMAND, index))
+            used_ctrl += 1
+            order += 1
+    return events[:n_ev], frames[:n_fr], -1
 
 
 def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
@@ -608,7 +622,7 @@ def _record(st, k, ref_grid, log, evs, par):
     st[_STOP] = stop
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FASTMATH)
 def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets, gain,
              scal, pairs):
     """``latency.loop._advance_segment`` on the run's state: to the next grid point or the
@@ -811,15 +825,19 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
                          p.motor.i_max_A)
         st[_CMD : _CMD + N_COILS], st[_TDEL : _TDEL + 3] = alloc.currents, alloc.delivered
         st[_ALLOC_SAT], ready = float(alloc.saturated), True
-    steps = log.columns(int(st[_K]) + 1)
-    frames_cols = _frames_columns(fr, solver)
+    n_rows = int(st[_K]) + 1
     evs = evs[: int(st[_N_EV])]
     stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
     if not tables:
-        # The summary reads the events table's length only: its texts are not written.
-        summary = summarize(steps, frames_cols, {"t_s": evs[:, 0]}, c.duration_s, stopped)
+        # The summary straight from the kernel's arrays: no tables, no events' texts.
+        a = log.a[:n_rows]
+        values = step_values(a[:, 0], a[:, 1:5], a[:, 8:12], a[:, 15:18], a[:, 39] > 0)
+        summary = summarize_values(values, a[-1, 0], _frames_summary_columns(fr), len(evs),
+                                   c.duration_s, stopped)
         return LoopResult(pd.DataFrame(), pd.DataFrame(), _NO_EVENTS.copy(), summary,
                           c.model_dump(mode="json"))
+    steps = log.columns(n_rows)
+    frames_cols = _frames_columns(fr, solver)
     events = _events_table(evs, frames_cols)
     summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
     return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
@@ -863,6 +881,19 @@ def _reason(f: NDArray[np.float64], solver: CorSolver) -> str:
     if np.isfinite(f[_F_HELD_FROM]):
         text = f"{text}; holding the solution from t = {f[_F_HELD_FROM]:.4f} s"
     return text
+
+
+def _frames_summary_columns(fr: NDArray[np.float64]) -> dict[str, NDArray]:
+    """The columns of the frames table that ``latency.metrics.summarize_values`` reads."""
+    if not len(fr):
+        return {}
+    data: dict[str, NDArray] = {"t_exposure_s": fr[:, _F_T_EXP],
+                                "dropped": fr[:, _F_DROPPED].astype(bool)}
+    if not data["dropped"].all():
+        data["lost"] = _flag_column(fr[:, _F_LOST])
+    if (fr[:, _F_RELEASED] == 1.0).any():
+        data["latency_s"] = fr[:, _F_LATENCY]
+    return data
 
 
 def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDArray]:

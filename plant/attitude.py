@@ -217,31 +217,41 @@ def _zyz_of_matrix(R00, R01, R02, R10, R11, R12, R20, R21, R22) -> tuple:
 
 
 @njit(cache=True)
+def _zyz_of(w, x, y, z) -> tuple:
+    """(spin, tilt, yaw), rad, of the quaternion (w, x, y, z), normalised first."""
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return _zyz_of_matrix(*_matrix_elements(w / n, x / n, y / n, z / n))
+
+
+@njit(cache=True)
 def _zyz_rows(q):
     """(N, 3) Z-Y-Z angles, rad, of the (N, 4) quaternions q, each normalised."""
     out = np.empty((q.shape[0], 3))
     for i in range(q.shape[0]):
-        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        out[i, 0], out[i, 1], out[i, 2] = _zyz_of_matrix(
-            *_matrix_elements(w / n, x / n, y / n, z / n))
+        out[i, 0], out[i, 1], out[i, 2] = _zyz_of(q[i, 0], q[i, 1], q[i, 2], q[i, 3])
     return out
 
 
 @njit(cache=True)
+def _geodesic_of(aw, ax, ay, az, bw, bx, by, bz) -> float:
+    """Angle, rad, of the rotation taking the quaternion a to b, each normalised:
+    2 atan2(|vec(d)|, |d_w|) with d = conj(a) ⊗ b (normalised first, so that a quaternion and
+    a rescaled copy of it give exactly 0)."""
+    na = math.sqrt(aw * aw + ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bw * bw + bx * bx + by * by + bz * bz)
+    dw, dx, dy, dz = _hamilton(aw / na, -ax / na, -ay / na, -az / na,
+                               bw / nb, bx / nb, by / nb, bz / nb)
+    return 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
+
+
+@njit(cache=True)
 def _geodesic_rows(a, b):
-    """(N,) angles, rad, of the rotations taking the (N, 4) quaternions a to b, each
-    normalised: 2 atan2(|vec(d)|, |d_w|) with d = conj(a) ⊗ b (normalised first, so that a
-    quaternion and a rescaled copy of it give exactly 0)."""
+    """(N,) angles, rad, of the rotations taking the (N, 4) quaternions a to b
+    (``_geodesic_of``)."""
     out = np.empty(a.shape[0])
     for i in range(a.shape[0]):
-        na = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
-                       + a[i, 3] * a[i, 3])
-        nb = math.sqrt(b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2]
-                       + b[i, 3] * b[i, 3])
-        dw, dx, dy, dz = _hamilton(a[i, 0] / na, -a[i, 1] / na, -a[i, 2] / na, -a[i, 3] / na,
-                                   b[i, 0] / nb, b[i, 1] / nb, b[i, 2] / nb, b[i, 3] / nb)
-        out[i] = 2.0 * math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), abs(dw))
+        out[i] = _geodesic_of(a[i, 0], a[i, 1], a[i, 2], a[i, 3],
+                              b[i, 0], b[i, 1], b[i, 2], b[i, 3])
     return out
 
 

@@ -36,19 +36,21 @@ about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0
 Code: one numba-compiled loop over the batch rows (``_step_rows``), each row with its own step
 length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
 (``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). The cost is
-the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. One scan lists,
-for each magnet, the coils whose window can open while the rotor turns by a margin
-(``_MARGIN_TURNS`` h |omega| + ``_MARGIN_RAD``), with each magnet's gain folded in; the stages
-then visit only those pairs (about 40), each with its coil's current of the step, and a stage
-that has turned further than the margin lists its own, so the result does not depend on the
-margin (equal to the full sum to rounding, tests/test_rigid_body.py). The lists do not depend
-on the currents: a rotor stepped over and over (the compiled run loop, ``_step_series``) keeps
-them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since they were made could
-leave it, which saves most scans (a scan costs about as much as two stages). The rotor's
-constants travel as tuples of floats, and the exponential map and the Bortz coefficient use
-their series below 0.05 rad. numba caches the machine code on disk (``cache=True``): the
-first call in a fresh process loads it (about 0.4 s measured under load) or, without a cache,
-compiles it (4-8 s under load).
+the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. One scan lists the
+coil-magnet pairs whose window can open while the rotor turns by a margin (``_MARGIN_TURNS``
+h |omega| + ``_MARGIN_RAD``), as columns (magnet axis, coil axis, gain times coil axis, and that
+times the coil's current of the step); the stages then visit only those pairs (about 36) in one
+flat loop that compiles to vector instructions, and a stage that has turned further than the
+margin lists its own, so the result does not depend on the margin (equal to the full sum to
+rounding, tests/test_rigid_body.py). Apart from the current row, folded in once per step, the
+lists do not depend on the currents: a rotor stepped over and over (the compiled run loop,
+``_step_series``) keeps them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since
+they were made could leave it, which saves most scans (a scan costs about as much as two
+stages). The rotor's constants travel as tuples of floats, the exponential map and the Bortz
+coefficient use their series below 0.05 rad, and the compiled step runs with LLVM's
+fast-math licences except the NaN and infinity ones (``FASTMATH``). numba caches the machine
+code on disk (``cache=True``): the first call in a fresh process loads it (about 0.4 s measured
+under load) or, without a cache, compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
@@ -84,6 +86,13 @@ _MARGIN_RAD = 0.005
 #: rad: its lists then serve the steps until the rotor has turned by about this much (a scan
 #: of the 288 pairs costs about as much as the four stages together). Our choice, measured.
 PAIR_REUSE_RAD = 0.02
+#: The floating-point licences of the compiled step (LLVM's fast-math flags), for every function
+#: that compiles it in (its inlined pieces take their caller's): contraction into fused
+#: multiply-adds, reassociation (so the pair loop's sums can be vectorised), reciprocals and
+#: approximate functions, no signed zeros; not ``nnan``/``ninf``, so a state that turns NaN or
+#: infinite stays so and the checks downstream see it. Measured: the step takes 0.6 of the
+#: time it takes without them; the results move by rounding (1e-16).
+FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
 #: Time constant of the tilt stop's critically damped contact, s: our choice, two default physics
 #: steps (stiff enough to hold 0.5 N·m within 0.01°, well inside RK4's stability limit).
 STOP_TIMECONST_S = 0.002
@@ -97,7 +106,7 @@ _SCALARS = ("viscous", "tau_c", "omega_s", "cos_cutoff", "stop_k", "stop_c", "ti
             "cos_tilt_max")
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _qmul(a, b):
     """Hamilton product of two quaternions given as 4-tuples (w, x, y, z)."""
     return (a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
@@ -106,7 +115,7 @@ def _qmul(a, b):
             a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _cross3(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
@@ -117,7 +126,7 @@ def _cross3(a, b):
 _SERIES_RAD = 0.05
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _quat_exp(p0, p1, p2):
     """The unit quaternion of the rotation vector (p0, p1, p2), rad (the exponential map)."""
     t2 = p0 * p0 + p1 * p1 + p2 * p2
@@ -131,7 +140,7 @@ def _quat_exp(p0, p1, p2):
     return (c, s * p0, s * p1, s * p2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _dexpinv(phi, w):
     """phi_dot of q = q0 ⊗ exp(phi) for the body rate w (the Bortz equation)."""
     theta2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
@@ -147,7 +156,7 @@ def _dexpinv(phi, w):
             w[2] + 0.5 * pxw[2] + c * ppw[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _rotation(q):
     """The rotation matrix R(q) (rotor to stator) of the quaternion q (4-tuple), as a 9-tuple
     (R00, R01, R02, R10, ..., R22)."""
@@ -157,40 +166,26 @@ def _rotation(q):
             2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy))
 
 
-@njit(cache=True, inline="always")
-def _magnet_torque(r0, r1, r2, cv, coil, cur, lo, hi, cut):
-    """The torque a x r, N·m (stator frame), of the magnet with axis r = (r0, r1, r2) in the
-    stator frame on the listed coils ``cv[lo:hi]`` (``_window_pairs``) with the coil currents
-    ``cur``: a = sum_i g_j I_i w(c_i . r) c_i, the window w = max(x, 0)^2 without a branch (a
-    listed pair near its cut-off opens and closes unpredictably)."""
-    a0 = a1 = a2 = 0.0
-    for k in range(lo, hi):
-        x = max(cv[k, 0] * r0 + cv[k, 1] * r1 + cv[k, 2] * r2 - cut, 0.0)
-        x2 = x * x * cur[coil[k]]
-        a0 += x2 * cv[k, 3]
-        a1 += x2 * cv[k, 4]
-        a2 += x2 * cv[k, 5]
-    return a1 * r2 - a2 * r1, a2 * r0 - a0 * r2, a0 * r1 - a1 * r0
+#: Rows of the pair lists (``_window_pairs``), one column per listed coil-magnet pair: the
+#: magnet's axis m_j in the rotor frame, the coil's axis c_i, g_j c_i and g_j I_i c_i.
+_M, _C, _GC, _GIC, _N_ROWS = 0, 3, 6, 9, 12
 
 
-@njit(cache=True)
-def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv, coil):
+@njit(cache=True, fastmath=FASTMATH)
+def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, count, pv, coil):
     """List the coil-magnet pairs whose window can be open for the rotor at R (9-tuple), and
     return K(q) I there (3-tuple, N·m, stator frame) with the coil currents ``cur`` (16,), A.
 
-    For each magnet j, the coils i with ``c_i . R m_j > cos_wide`` go to
-    ``cv[start[j]:start[j + 1]]`` in increasing i, as (c_i, g_j c_i) (the window's scale folded
-    into ``gain``), with ``coil`` = i. The lists do not depend on the currents, so they serve
-    every step while the rotor stays within their margin. With ``cos_wide = cos(phi_c + M)``
-    they hold every pair that can open while the rotor turns by at most M rad from R (a
-    rotation by M moves each axis by at most M); ``cut = cos(phi_c)``. K(q) I = sum_j a_j x r_j
-    with r_j the magnet axis in the stator frame and a_j = sum_i g_ij I_i c_i,
-    g_ij = k_T s_j w(c_i . r_j) (``plant.torque.TorqueMap``)."""
+    The pairs (i, j) with ``c_i . R m_j > cos_wide`` go to the columns ``pv[:, :count[0]]``
+    (rows ``_M``, ``_C``, ``_GC``, ``_GIC``: m_j, c_i, g_j c_i, g_j I_i c_i, the window's scale
+    folded into ``gain``), magnet by magnet, with ``coil`` = i. Apart from the last rows
+    (``_fold_currents``) the lists do not depend on the currents, so they serve every step
+    while the rotor stays within their margin. With ``cos_wide = cos(phi_c + M)`` they hold
+    every pair that can open while the rotor turns by at most M rad from R (a rotation by M
+    moves each axis by at most M); ``cut = cos(phi_c)``."""
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
     n = 0
-    T0 = T1 = T2 = 0.0
     for j in range(magnets.shape[0]):
-        start[j] = n
         m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
         r0 = R00 * m0 + R01 * m1 + R02 * m2
         r1 = R10 * m0 + R11 * m1 + R12 * m2
@@ -198,33 +193,51 @@ def _window_pairs(R, cur, coils, magnets, gain, cut, cos_wide, start, cv, coil):
         for i in range(coils.shape[0]):
             if coils[i, 0] * r0 + coils[i, 1] * r1 + coils[i, 2] * r2 > cos_wide:
                 s = gain[j]
-                cv[n, 0], cv[n, 1], cv[n, 2] = coils[i, 0], coils[i, 1], coils[i, 2]
-                cv[n, 3], cv[n, 4], cv[n, 5] = s * coils[i, 0], s * coils[i, 1], s * coils[i, 2]
+                for k in range(3):
+                    pv[_M + k, n], pv[_C + k, n] = magnets[j, k], coils[i, k]
+                    pv[_GC + k, n] = s * coils[i, k]
                 coil[n] = i
                 n += 1
-        if n > start[j]:
-            t = _magnet_torque(r0, r1, r2, cv, coil, cur, start[j], n, cut)
-            T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
-    start[magnets.shape[0]] = n
-    return T0, T1, T2
+    count[0] = n
+    _fold_currents(cur, count, pv, coil)
+    return _coil_torque(R, count, pv, cut)
 
 
-@njit(cache=True, inline="always")
-def _coil_torque(R, cur, start, cv, coil, magnets, cut):
-    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) with the coil currents
-    ``cur`` from the pair lists of ``_window_pairs`` made at an attitude within their margin of
-    R: only the listed pairs can be inside their window, and a magnet without any adds
-    nothing."""
+@njit(cache=True, inline="always", fastmath=FASTMATH)
+def _fold_currents(cur, count, pv, coil):
+    """The rows ``_GIC`` of the listed pairs for the coil currents ``cur`` (16,), A: g_j I_i c_i,
+    once per step (the currents are held over it)."""
+    for k in range(count[0]):
+        current = cur[coil[k]]
+        for d in range(3):
+            pv[_GIC + d, k] = current * pv[_GC + d, k]
+
+
+@njit(cache=True, inline="always", fastmath=FASTMATH)
+def _coil_torque(R, count, pv, cut):
+    """K(q) I (3-tuple, N·m, stator frame) for the rotor at R (9-tuple) from the pair lists of
+    ``_window_pairs`` made at an attitude within their margin of R (only the listed pairs can
+    be inside their window) with their currents folded in (``_fold_currents``):
+
+        K(q) I = sum_(i, j) w(c_i . r_j) (g_j I_i c_i) x r_j,  r_j = R m_j,
+
+    the window w = max(x - cos phi_c, 0)^2 without a branch (a listed pair near its cut-off
+    opens and closes unpredictably) (``plant.torque.TorqueMap``). One flat loop over the
+    pairs' columns, which the compiler turns into vector instructions."""
     R00, R01, R02, R10, R11, R12, R20, R21, R22 = R
+    m0, m1, m2 = pv[_M], pv[_M + 1], pv[_M + 2]
+    c0, c1, c2 = pv[_C], pv[_C + 1], pv[_C + 2]
+    a0, a1, a2 = pv[_GIC], pv[_GIC + 1], pv[_GIC + 2]
     T0 = T1 = T2 = 0.0
-    for j in range(magnets.shape[0]):
-        if start[j] == start[j + 1]:
-            continue
-        m0, m1, m2 = magnets[j, 0], magnets[j, 1], magnets[j, 2]
-        t = _magnet_torque(R00 * m0 + R01 * m1 + R02 * m2, R10 * m0 + R11 * m1 + R12 * m2,
-                           R20 * m0 + R21 * m1 + R22 * m2, cv, coil, cur, start[j],
-                           start[j + 1], cut)
-        T0, T1, T2 = T0 + t[0], T1 + t[1], T2 + t[2]
+    for k in range(count[0]):
+        r0 = R00 * m0[k] + R01 * m1[k] + R02 * m2[k]
+        r1 = R10 * m0[k] + R11 * m1[k] + R12 * m2[k]
+        r2 = R20 * m0[k] + R21 * m1[k] + R22 * m2[k]
+        x = max(c0[k] * r0 + c1[k] * r1 + c2[k] * r2 - cut, 0.0)
+        x2 = x * x
+        T0 += x2 * (a1[k] * r2 - a2[k] * r1)
+        T1 += x2 * (a2[k] * r0 - a0[k] * r2)
+        T2 += x2 * (a0[k] * r1 - a1[k] * r0)
     return T0, T1, T2
 
 
@@ -240,7 +253,7 @@ def _rotor_tuples(J, J_inv, com, m_g, scal):
             (scal[0], scal[1], scal[2], scal[3], scal[4], scal[5], scal[6], scal[7]))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _dynamics(R, T, w, d, rotor):
     """omega_dot (3-tuple), rad/s², of one rotor at attitude R (9-tuple) and body rate w
     (3-tuple) with the coils' torque T = K(q) I (3-tuple, N·m, stator frame) and the body
@@ -279,26 +292,26 @@ def _dynamics(R, T, w, d, rotor):
             J_inv[6] * t0 + J_inv[7] * t1 + J_inv[8] * t2)
 
 
-@njit(cache=True)
-def _acceleration(q, w, cur, d, pairs, rotor, magnets):
+@njit(cache=True, fastmath=FASTMATH)
+def _acceleration(q, w, d, pairs, rotor):
     """omega_dot (3-tuple), rad/s², of one rotor at attitude q (4-tuple) and body rate w
-    (3-tuple) with the coil currents ``cur``, A, and the body torque d (3-tuple), N·m, from
-    ``pairs`` (``_pair_lists`` made at an attitude within their margin of q)."""
+    (3-tuple) with the body torque d (3-tuple), N·m, from ``pairs`` (``_pair_lists`` made at
+    an attitude within their margin of q, with the step's coil currents folded in)."""
     R = _rotation(q)
-    return _dynamics(R, _coil_torque(R, cur, pairs[0], pairs[1], pairs[2], magnets,
-                                     rotor[4][3]), w, d, rotor)
+    return _dynamics(R, _coil_torque(R, pairs[0], pairs[1], rotor[4][3]), w, d, rotor)
 
 
 @njit(cache=True)
 def _pair_lists(n_magnets, n_coils, reuse_rad=0.0):
-    """Empty ``_window_pairs`` lists (start, cv, coil) for every pair of a rotor, and their
-    state (margin M, rad; bound on the rotation since they were made, rad (inf: not made yet);
-    ``reuse_rad``, the margin added so that the lists last over several steps)."""
-    return (np.empty(n_magnets + 1, dtype=np.int64), np.empty((n_magnets * n_coils, 6)),
-            np.empty(n_magnets * n_coils, dtype=np.int64), np.array([0.0, np.inf, reuse_rad]))
+    """Empty ``_window_pairs`` lists (count, columns, coil) for every pair of a rotor, and
+    their state (margin M, rad; bound on the rotation since they were made, rad (inf: not made
+    yet); ``reuse_rad``, the margin added so that the lists last over several steps)."""
+    n = n_magnets * n_coils
+    return (np.zeros(1, dtype=np.int64), np.empty((_N_ROWS, n)), np.empty(n, dtype=np.int64),
+            np.array([0.0, np.inf, reuse_rad]))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, gain):
     """The acceleration at the stage attitude qb ⊗ exp(phi) and rate ws (``_acceleration``):
     with the step's pair lists while the rotor has turned by at most ``turned + |phi|`` <=
@@ -310,10 +323,10 @@ def _stage(qb, phi, turned, margin, ws, cur, d, pairs, rotor, coils, magnets, ga
         cut = rotor[4][3]
         return _dynamics(R, _window_pairs(R, cur, coils, magnets, gain, cut, cut, own[0],
                                           own[1], own[2]), ws, d, rotor)
-    return _acceleration(qs, ws, cur, d, pairs, rotor, magnets)
+    return _acceleration(qs, ws, d, pairs, rotor)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FASTMATH)
 def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, pairs,
               max_angle):
     """Advance one rotor, at attitude qb (4-tuple) and body rate wb (3-tuple, rad/s), by h s
@@ -338,7 +351,8 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
                           np.cos(wide) if wide < np.pi else -2.0, pairs[0], pairs[1], pairs[2])
         state[0], state[1] = turn + _MARGIN_RAD + state[2], 0.0
     else:
-        T = _coil_torque(R, cur, pairs[0], pairs[1], pairs[2], magnets, scal[3])
+        _fold_currents(cur, pairs[0], pairs[1], pairs[2])
+        T = _coil_torque(R, pairs[0], pairs[1], scal[3])
     margin = state[0]
     # The first stage is the same for any number of sub-steps: its rate and acceleration
     # bound the rotation over the step, which sets the number (SUBSTEP_ANGLE_RAD).
@@ -381,7 +395,7 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
     return qb, wb, 4 * n_sub
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FASTMATH)
 def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets,
                        gain, scal, max_angle=SUBSTEP_ANGLE_RAD):
     """``_step_rows``, also returning the number of acceleration evaluations of each row (B,)
@@ -417,7 +431,7 @@ def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils,
     return q_out, w_out
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FASTMATH)
 def _step_series(q, omega, currents, h, dist, fresh, J, J_inv, com, m_g, coils, magnets, gain,
                  scal):
     """Step each rotor b of a batch n times as the compiled run loop does (``_step_row`` with

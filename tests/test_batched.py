@@ -230,18 +230,3 @@ def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
         event = run_summary(config)
         assert table.loc[rid, "result.rms_error_deg"] == pytest.approx(event["rms_error_deg"],
                                                                        rel=1e-9)
-
-
-def test_the_compiled_cache_is_dropped_when_a_module_it_compiles_in_changes(tmp_path):
-    """The kernel's numba cache goes when the digest of the modules whose code it compiles in
-    (physics, solver, filter) differs from the one written with it, and stays otherwise."""
-    cached = tmp_path / "compiled._run_events-1.py311.nbi"
-    other = tmp_path / "loop._helper-1.py311.nbi"
-    for f in (cached, other):
-        f.write_text("")
-    (tmp_path / "compiled.deps.sha256").write_text("a digest of other sources")
-    compiled._drop_stale_cache(tmp_path)
-    assert not cached.exists() and other.exists()
-    cached.write_text("")
-    compiled._drop_stale_cache(tmp_path)
-    assert cached.exists()

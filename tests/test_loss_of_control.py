@@ -5,8 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from latency import loop
-from latency.loop import _StepLog, loss_of_control, summarize
+from latency import loop, metrics
+from latency.loop import _StepLog
+from latency.metrics import loss_of_control, summarize
 
 H = 1e-3  # s, the physics step of the constructed runs
 
@@ -45,9 +46,9 @@ def test_step_metrics_are_measured_against_the_commanded_step():
     after = t >= 0.1
     assert r["step_size_deg"] == pytest.approx(5.0, abs=1e-9)
     assert r["overshoot_pct"] == pytest.approx(100 * (theta[after].max() - 5.0) / 5.0, abs=1e-6)
-    outside = np.flatnonzero(np.abs(theta[after] - 5.0) > loop.SETTLE_BAND_DEG)
+    outside = np.flatnonzero(np.abs(theta[after] - 5.0) > metrics.SETTLE_BAND_DEG)
     assert r["settling_time_s"] == pytest.approx(t[after][outside[-1] + 1] - 0.1, abs=1e-9)
-    late = t >= 3.0 - loop.STEADY_STATE_WINDOW_S
+    late = t >= 3.0 - metrics.STEADY_STATE_WINDOW_S
     assert r["steady_state_error_deg"] == pytest.approx(np.mean(np.abs(theta[late] - 5.0)),
                                                         abs=1e-9)
     assert r["loss_of_control"] == 0.0

@@ -1,0 +1,350 @@
+"""A closed-loop run's scalar metrics, from its steps, frames and events tables.
+
+Both engines summarise a run here: the event loop (``latency.loop``) from its tables, the
+compiled run loop (``latency.compiled``) straight from its arrays. The per-step metrics come
+from one compiled pass over the steps (``_step_pass``): the geodesic error, the Z-Y-Z angle
+errors, the torque, the step response after the reference's last change, the steady state,
+the longest tilt-stop contact and the quarters' RMS errors, with the formulas of
+``plant.attitude``. The per-frame ones read the frames table's few columns with numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+from numba import njit
+from numpy.typing import NDArray
+
+from latency.numba_cache import drop_stale_cache
+from plant import attitude
+from plant.attitude import _geodesic_of, _hamilton, _zyz_of
+
+drop_stale_cache(__file__, (attitude,))
+
+#: Loss of control (our choices, docs/closed_loop.md): any of these over a run.
+LOC_TILT_STOP_S = 0.25  # continuous contact with the tilt stop for this long, s
+LOC_MARKER_LOSS_S = 0.5  # markers lost on every processed frame for this long, s
+LOC_LOST_FRACTION = 0.5  # or this fraction of the processed frames lost
+LOC_GROWTH_RATIO = 2.0  # RMS error of the last quarter over that of the second quarter ...
+LOC_GROWTH_MIN_DEG = 2.0  # ... when the last quarter's RMS error is at least this, deg
+#: Absolute settling band around the commanded attitude, deg (2 % of the study's 5° step).
+SETTLE_BAND_DEG = 0.1
+#: Steady-state error: mean geodesic error over this final stretch of the run, s.
+STEADY_STATE_WINDOW_S = 0.5
+#: Reference rows further apart than this, rad, are a change of the reference.
+_CHANGE_RAD = 1e-9
+#: A commanded step smaller than this, rad, has no step metrics.
+_MIN_STEP_RAD = 1e-6
+
+#: A run's table as named columns: a ``pandas.DataFrame``, or a mapping of column names to
+#: arrays (the same columns, before the frame is built; empty for a table without rows, so
+#: that ``len`` is 0 exactly when the table has no rows).
+Columns = pd.DataFrame | Mapping[str, NDArray]
+
+#: What ``_step_pass`` returns, in its order (the last three feed ``loss_of_control``).
+_STEP_VALUES = ("rms_error_deg", "max_error_deg", "rms_spin_error_deg", "rms_tilt_error_deg",
+                "rms_yaw_error_deg", "max_spin_error_deg", "max_tilt_error_deg",
+                "max_yaw_error_deg", "control_effort_N2m2s", "rms_torque_Nm", "settling_time_s",
+                "overshoot_pct", "step_size_deg", "steady_state_error_deg",
+                "longest_tilt_stop_s", "rms_second_quarter_deg", "rms_last_quarter_deg")
+
+
+@njit(cache=True)
+def _wrapped(a: float, b: float) -> float:
+    """(a − b) wrapped into (−pi, pi], rad (``attitude.wrap_angle`` of the difference, taken
+    in degrees as the steps table holds the angles)."""
+    d = math.radians(math.degrees(a) - math.degrees(b))
+    return math.pi - (math.pi - d) % (2.0 * math.pi)
+
+
+@njit(cache=True)
+def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
+    """The per-step metrics (``_STEP_VALUES``) of a run from its steps: times t (n,), s,
+    attitudes q and references q_ref (n, 4), delivered torques (n, 3), N·m, and tilt-stop
+    flags (n,). One pass over the rows (and one backwards to the reference's last change)."""
+    n = t.shape[0]
+    out = np.full(len(_STEP_VALUES), np.nan)
+    t_end = t[n - 1]
+    # The reference's last change: the commanded step runs from q_ref[i0 - 1] to q_ref[i0].
+    i0 = 0
+    for k in range(n - 1, 0, -1):
+        a, b = q_ref[k - 1], q_ref[k]
+        if a[0] == b[0] and a[1] == b[1] and a[2] == b[2] and a[3] == b[3]:
+            continue
+        if _geodesic_of(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]) > _CHANGE_RAD:
+            i0 = k
+            break
+    size = 0.0
+    axis = np.zeros(3)
+    if i0 > 0:
+        f, g = q_ref[i0 - 1], q_ref[i0]
+        size = _geodesic_of(f[0], f[1], f[2], f[3], g[0], g[1], g[2], g[3])
+        # the step's rotation axis (``attitude.to_rotvec`` of conj(from) ⊗ to, over its angle)
+        d = np.array(_hamilton(f[0], -f[1], -f[2], -f[3], g[0], g[1], g[2], g[3]))
+        d = d / math.sqrt(d @ d)
+        if d[0] < 0:
+            d = -d
+        s = math.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
+        rv = 2.0 * d[1:] if s < 1e-12 else 2.0 * math.atan2(s, d[0]) * d[1:] / s
+        axis = rv / size
+    stepped = i0 > 0 and size >= _MIN_STEP_RAD
+    sum_e2 = sum_T2 = effort = 0.0
+    max_e, nan_e = -np.inf, False
+    sums = np.zeros(3)
+    maxes = np.zeros(3)
+    nan_d = np.zeros(3, dtype=np.bool_)
+    counts = np.zeros(3)
+    late_sum, late_n = 0.0, 0
+    q2_sum, q2_n, q4_sum, q4_n = 0.0, 0, 0.0, 0
+    prog_max, nan_prog, last_out = -np.inf, False, -1
+    stop_from, longest_stop = np.nan, 0.0
+    ref_prev = np.full(4, np.nan)
+    ref_zyz = (0.0, 0.0, 0.0)
+    for k in range(n):
+        qk, rk = q[k], q_ref[k]
+        e = math.degrees(_geodesic_of(qk[0], qk[1], qk[2], qk[3], rk[0], rk[1], rk[2], rk[3]))
+        sum_e2 += e * e
+        if math.isnan(e):
+            nan_e = True
+        elif e > max_e:
+            max_e = e
+        # Z-Y-Z angle errors: tilt on every row, spin and yaw where both tilts exceed 1°
+        if not (rk[0] == ref_prev[0] and rk[1] == ref_prev[1] and rk[2] == ref_prev[2]
+                and rk[3] == ref_prev[3]):
+            ref_zyz = _zyz_of(rk[0], rk[1], rk[2], rk[3])
+            ref_prev[:] = rk
+        zyz = _zyz_of(qk[0], qk[1], qk[2], qk[3])
+        both_tilted = math.degrees(ref_zyz[1]) > 1.0 and math.degrees(zyz[1]) > 1.0
+        for i in range(3):
+            if i == 1 or both_tilted:
+                d_i = _wrapped(zyz[i], ref_zyz[i])
+                sums[i] += d_i * d_i
+                counts[i] += 1
+                if math.isnan(d_i):
+                    nan_d[i] = True
+                elif abs(d_i) > maxes[i]:
+                    maxes[i] = abs(d_i)
+        T2 = torque[k, 0] ** 2 + torque[k, 1] ** 2 + torque[k, 2] ** 2
+        sum_T2 += T2
+        if k > 0:
+            effort += T2 * (t[k] - t[k - 1])
+        if t[k] >= t_end - steady_window_s:
+            late_sum += e
+            late_n += 1
+        if t[k] >= 0.25 * t_end and t[k] < 0.5 * t_end:
+            q2_sum += e * e
+            q2_n += 1
+        if t[k] >= 0.75 * t_end:
+            q4_sum += e * e
+            q4_n += 1
+        # the longest contact: from its first row to the next row without it (or the end)
+        if stop[k]:
+            if math.isnan(stop_from):
+                stop_from = t[k]
+        elif not math.isnan(stop_from):
+            longest_stop = max(longest_stop, t[k] - stop_from)
+            stop_from = np.nan
+        if stepped and k >= i0:
+            f, g = q_ref[i0 - 1], q_ref[i0]
+            # progress along the step's axis (1.0 on target), from the step's start
+            rw, rx, ry, rz = _hamilton(f[0], -f[1], -f[2], -f[3], qk[0], qk[1], qk[2], qk[3])
+            sw = rw + 1e-300
+            sign = 1.0 if sw > 0 else (-1.0 if sw < 0 else (0.0 if sw == 0 else np.nan))
+            rw, rx, ry, rz = sign * rw, sign * rx, sign * ry, sign * rz
+            s_half = math.sqrt(rx * rx + ry * ry + rz * rz)
+            scale = 2.0 * math.atan2(s_half, rw) / max(s_half, 1e-300) if s_half > 1e-12 else 2.0
+            prog = scale * (rx * axis[0] + ry * axis[1] + rz * axis[2]) / size
+            if math.isnan(prog):
+                nan_prog = True
+            elif prog > prog_max:
+                prog_max = prog
+            same = rk[0] == g[0] and rk[1] == g[1] and rk[2] == g[2] and rk[3] == g[3]
+            e_to = e if same else math.degrees(
+                _geodesic_of(qk[0], qk[1], qk[2], qk[3], g[0], g[1], g[2], g[3]))
+            if e_to > settle_band_deg:
+                last_out = k
+    if not math.isnan(stop_from):
+        longest_stop = max(longest_stop, t_end - stop_from)
+    out[0] = math.sqrt(sum_e2 / n)
+    out[1] = np.nan if nan_e else max_e
+    for i in range(3):
+        if counts[i] > 0:
+            out[2 + i] = math.degrees(math.sqrt(sums[i] / counts[i]))
+            out[5 + i] = np.nan if nan_d[i] else math.degrees(maxes[i])
+    out[8], out[9] = effort, math.sqrt(sum_T2 / n)
+    if stepped:
+        if last_out < 0:
+            out[10] = 0.0
+        elif last_out < n - 1:
+            out[10] = t[last_out + 1] - t[i0]
+        over = 100.0 * ((np.nan if nan_prog else prog_max) - 1.0)
+        out[11] = over if over > 0.0 else 0.0
+        out[12] = math.degrees(size)
+    out[13] = late_sum / late_n if late_n else np.nan
+    out[14] = longest_stop
+    out[15] = math.sqrt(q2_sum / q2_n) if q2_n else 0.0
+    out[16] = math.sqrt(q4_sum / q4_n) if q4_n else 0.0
+    return out
+
+
+def step_values(t: NDArray, q: NDArray, q_ref: NDArray, torque_delivered: NDArray,
+                tilt_stop: NDArray) -> dict[str, float]:
+    """The per-step metrics of a run (``_STEP_VALUES``) from its steps as arrays: times (n,),
+    s, attitudes and references (n, 4), delivered torques (n, 3), N·m, tilt-stop flags (n,)."""
+    values = _step_pass(np.asarray(t, dtype=float), np.asarray(q, dtype=float),
+                        np.asarray(q_ref, dtype=float), np.asarray(torque_delivered, dtype=float),
+                        np.asarray(tilt_stop, dtype=bool), SETTLE_BAND_DEG,
+                        STEADY_STATE_WINDOW_S)
+    return dict(zip(_STEP_VALUES, values.tolist(), strict=True))
+
+
+def _steps_values(steps: Columns) -> dict[str, float]:
+    """``step_values`` of a steps table."""
+    def stack(names: list[str]) -> NDArray:
+        return np.column_stack([np.asarray(steps[c], dtype=float) for c in names])
+
+    return step_values(np.asarray(steps["t_s"], dtype=float),
+                       stack([f"q{c}" for c in "wxyz"]), stack([f"ref_q{c}" for c in "wxyz"]),
+                       stack([f"torque_delivered_{c}_Nm" for c in "xyz"]),
+                       np.asarray(steps["tilt_stop"], dtype=bool))
+
+
+def summarize(
+    steps: Columns,
+    frames: Columns,
+    events: Columns,
+    duration_s: float,
+    stopped: str = "",
+) -> dict[str, float]:
+    """Scalar metrics of a run (all over the run's whole duration).
+
+    * ``rms_error_deg``, ``max_error_deg``: geodesic attitude error truth vs reference;
+    * ``rms_{spin,tilt,yaw}_error_deg``, ``max_{spin,tilt,yaw}_error_deg``: per seed angle,
+      wrapped; spin and yaw only where the reference tilt is above 1° (below it Z-Y-Z spin and
+      yaw are not separable);
+    * step metrics after the reference's last change, against the *commanded* step (from the
+      reference before the change to the one after, whatever the attitude was when it came):
+      ``step_size_deg``; ``overshoot_pct``, the peak progress beyond the target along the step's
+      rotation axis in % of the commanded step; ``settling_time_s``, from the change until the
+      geodesic error stays within ``SETTLE_BAND_DEG`` (NaN if it never does);
+      ``steady_state_error_deg``, the mean error over the final ``STEADY_STATE_WINDOW_S``;
+    * ``control_effort_N2m2s``: ∫ |T_delivered|² dt; ``rms_torque_Nm``;
+    * ``lost_frame_fraction``: lost / processed frames; ``dropped_frame_fraction``;
+    * ``mean_latency_s``; ``diverged`` (1.0 if the error ever exceeded the divergence limit,
+      ``stopped`` non-empty);
+    * ``loss_of_control`` (1.0 or 0.0) and its criteria (:func:`loss_of_control`).
+
+    ``steps``, ``frames`` and ``events`` are the run's tables (``LoopResult``), as frames or as
+    their columns (``Columns``): the metrics read the steps' times, attitudes, references,
+    delivered torques and tilt-stop flags, a few frame columns, and the events' count.
+    """
+    return summarize_values(_steps_values(steps), np.asarray(steps["t_s"])[-1], frames,
+                            n_rows(events), duration_s, stopped)
+
+
+def summarize_values(values: dict[str, float], simulated_s: float, frames: Columns,
+                     n_events: int, duration_s: float, stopped: str = "") -> dict[str, float]:
+    """``summarize`` from the per-step metrics (``step_values``), the last step's time (s),
+    the frames table and the number of events."""
+    out: dict[str, float] = {
+        "duration_s": float(duration_s),
+        "simulated_s": float(simulated_s),
+        "rms_error_deg": values["rms_error_deg"],
+        "max_error_deg": values["max_error_deg"],
+        "diverged": float(bool(stopped)),
+    }
+    for name in ("spin", "tilt", "yaw"):
+        for stat in ("rms", "max"):
+            out[f"{stat}_{name}_error_deg"] = values[f"{stat}_{name}_error_deg"]
+    for key in ("control_effort_N2m2s", "rms_torque_Nm", "settling_time_s", "overshoot_pct",
+                "step_size_deg", "steady_state_error_deg"):
+        out[key] = values[key]
+    out["lost_frame_fraction"] = 0.0
+    if len(frames):
+        dropped = np.asarray(frames["dropped"], dtype=bool)
+        processed = ~dropped
+        out["dropped_frame_fraction"] = float(dropped.mean())
+        lost = _processed_lost(frames, processed)
+        out["lost_frame_fraction"] = float(lost.mean()) if len(lost) else 0.0
+        latency = (np.asarray(frames["latency_s"], dtype=float)[processed]
+                   if "latency_s" in frames else np.zeros(0))
+        known = latency[~np.isnan(latency)]
+        out["mean_latency_s"] = float(known.mean()) if len(known) else float("nan")
+    out.update(_loss_of_control(values, simulated_s, frames, bool(stopped)))
+    out["n_events"] = float(n_events)
+    return out
+
+
+def n_rows(table: Columns) -> int:
+    """The number of rows of a table given as a frame or as its columns."""
+    if isinstance(table, pd.DataFrame):
+        return len(table)
+    return len(next(iter(table.values()))) if len(table) else 0
+
+
+def _processed_lost(frames: Columns, processed: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The ``lost`` flags of the processed frames (none without the column); a flag that is
+    missing counts as not lost."""
+    if "lost" not in frames:
+        return np.zeros(0, dtype=bool)
+    lost = np.asarray(frames["lost"])[processed]
+    if lost.dtype == bool:
+        return lost
+    lost = lost.astype(object)
+    return np.where(pd.isna(lost), False, lost).astype(bool)
+
+
+def _longest_run_s(flags: np.ndarray, t: np.ndarray, t_end: float) -> float:
+    """Longest time (s) ``flags`` stays True: from the first sample of a run of True to the
+    next False sample (or ``t_end``)."""
+    f = np.concatenate(([False], np.asarray(flags, dtype=bool), [False]))
+    edges = np.flatnonzero(np.diff(f.astype(np.int8)))
+    starts, stops = edges[::2], edges[1::2]  # a run covers samples starts .. stops - 1
+    if not len(starts):
+        return 0.0
+    t_after = np.append(np.asarray(t, dtype=float), t_end)[stops]  # the next False sample
+    return float(np.max(t_after - np.asarray(t, dtype=float)[starts]))
+
+
+def loss_of_control(steps: Columns, frames: Columns, diverged: bool) -> dict[str, float]:
+    """Whether the loop lost control of the rotor during a run, and why (1.0 = yes).
+
+    Any of (our thresholds, module constants): ``loc_tilt_stop``, the rotor rests against the
+    tilt stop for ``LOC_TILT_STOP_S`` without a break; ``loc_marker_loss``, the markers are lost
+    on every processed frame for ``LOC_MARKER_LOSS_S`` or on at least ``LOC_LOST_FRACTION`` of
+    them; ``loc_growing_oscillation``, the RMS error of the last quarter of the run is at
+    least ``LOC_GROWTH_RATIO`` times that of the second quarter and at least
+    ``LOC_GROWTH_MIN_DEG``; ``loc_divergence``, the error exceeded the loop's divergence
+    limit. Also returns ``longest_tilt_stop_s`` and ``longest_marker_loss_s``.
+    """
+    return _loss_of_control(_steps_values(steps), float(np.asarray(steps["t_s"])[-1]), frames,
+                            diverged)
+
+
+def _loss_of_control(values: dict[str, float], t_end: float, frames: Columns,
+                     diverged: bool) -> dict[str, float]:
+    """``loss_of_control`` from the per-step metrics (``step_values``) and the last step's
+    time (s)."""
+    loss_s, lost_frac = 0.0, 0.0
+    if len(frames) and "lost" in frames:
+        processed = ~np.asarray(frames["dropped"], dtype=bool)
+        lost = _processed_lost(frames, processed)
+        t_exp = np.asarray(frames["t_exposure_s"], dtype=float)[processed]
+        loss_s = _longest_run_s(lost, t_exp, t_end)
+        lost_frac = float(lost.mean()) if len(lost) else 0.0
+    stop_s = values["longest_tilt_stop_s"]
+    rms2, rms4 = values["rms_second_quarter_deg"], values["rms_last_quarter_deg"]
+    flags = {
+        "loc_tilt_stop": stop_s >= LOC_TILT_STOP_S,
+        "loc_marker_loss": loss_s >= LOC_MARKER_LOSS_S or lost_frac >= LOC_LOST_FRACTION,
+        "loc_growing_oscillation": rms4 >= LOC_GROWTH_MIN_DEG and rms4 >= LOC_GROWTH_RATIO * rms2,
+        "loc_divergence": bool(diverged),
+    }
+    out = {k: float(v) for k, v in flags.items()}
+    out["loss_of_control"] = float(any(flags.values()))
+    out["longest_tilt_stop_s"] = stop_s
+    out["longest_marker_loss_s"] = float(loss_s)
+    return out
