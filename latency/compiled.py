@@ -54,6 +54,7 @@ from latency.frontends import (
 )
 from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams
 from latency.metrics import step_values, summarize, summarize_values
+from latency.models import Constant
 from latency.numba_cache import drop_stale_cache
 from latency.pipeline import FrameScheduler
 from observer import cor_solver
@@ -70,7 +71,10 @@ from observer.cor_solver import (
     CorSolver,
     _lm,
     _residual_jac,
+    _solve3,
+    condition_number,
     failure_reason,
+    normal_equations,
 )
 from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
@@ -187,12 +191,17 @@ def _schedule(loop: ClosedLoop) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     and per frame (t_exposure, t_release, dropped)."""
     c = loop.config
     pipe = c.pipeline
-    rng_pipe, rng_ctrl, _ = run_streams(c.seed)
-    FrameScheduler(pipe, rng_pipe)  # its checks of the pipeline's settings (it draws nothing)
+    FrameScheduler.check(pipe)
     period, exposure = pipe.frame_period_s, pipe.exposure_s
     n_frames = max(int(np.ceil((c.duration_s - 1e-12 - 0.5 * exposure) / period)), 0) + 1
-    observer = np.array([pipe.observer.sample(rng_pipe) for _ in range(n_frames)])
-    controller = np.array([c.controller_latency.sample(rng_ctrl) for _ in range(n_frames)])
+    if isinstance(pipe.observer, Constant) and isinstance(c.controller_latency, Constant):
+        # constant latencies draw nothing: the streams are not needed
+        observer = np.full(n_frames, pipe.observer.value_s)
+        controller = np.full(n_frames, c.controller_latency.value_s)
+    else:
+        rng_pipe, rng_ctrl, _ = run_streams(c.seed)
+        observer = np.array([pipe.observer.sample(rng_pipe) for _ in range(n_frames)])
+        controller = np.array([c.controller_latency.sample(rng_ctrl) for _ in range(n_frames)])
     ev, frames, bad = _event_queue(period, exposure, pipe.readout_s, pipe.mode == "sequential",
                                    pipe.mode == "pipelined", c.duration_s, observer, controller)
     if bad >= 0:
@@ -296,6 +305,24 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
 
 
 # --- the kernel's pieces (numba) -------------------------------------------------------------
+# The 3-vectors and 3×3 matrices are multiplied in loops: numba hands ``@`` on 2-D arrays to
+# BLAS, whose call costs more than these few products.
+@njit(cache=True)
+def _mv(A, v):
+    """A v for a 3×3 A and a 3-vector v."""
+    return np.array([A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2],
+                     A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2],
+                     A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]])
+
+
+@njit(cache=True)
+def _mtv(A, v):
+    """Aᵀ v for a 3×3 A and a 3-vector v."""
+    return np.array([A[0, 0] * v[0] + A[1, 0] * v[1] + A[2, 0] * v[2],
+                     A[0, 1] * v[0] + A[1, 1] * v[1] + A[2, 1] * v[2],
+                     A[0, 2] * v[0] + A[1, 2] * v[1] + A[2, 2] * v[2]])
+
+
 @njit(cache=True)
 def _qmul(a, b):
     """Hamilton product of two quaternions (4,) (w, x, y, z)."""
@@ -453,7 +480,7 @@ def _solve(q_prev, uv, P, t_cor, intr, par):
     if q[0] < 0:
         q = -q
     rms = np.sqrt(cost / r.shape[0])
-    cond = np.linalg.cond(J.T @ J)
+    cond = condition_number(normal_equations(J, r)[0])
     if not np.isfinite(cond) or cond > par[_P_MAX_COND]:
         return nan4, False, ILL_CONDITIONED, cond
     if rms > par[_P_MAX_RMS]:
@@ -518,8 +545,8 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
     q_e = _conj_mul(q, ref_q)
     e = _rotvec(q_e)
     R_e = _matrix(q_e)
-    w_r = R_e @ ref_w
-    a_r = R_e @ ref_a
+    w_r = _mv(R_e, ref_w)
+    a_r = _mv(R_e, ref_a)
     # the rate from successive attitudes (``controller.pid.RateFromAttitude``)
     has_prev = not np.isnan(st[_RATE_Q])
     if has_prev and t_state > st[_RATE_T]:
@@ -549,12 +576,12 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
                          w_r[0] * Jw[1] - w_r[1] * Jw[0]])
         tau = tau + J * a_r + gyro
     R = _matrix(q)
-    T = R @ tau
+    T = _mv(R, tau)
     n = np.sqrt(T @ T)
     saturated = n > par[_P_LIMIT]
     if saturated:
         T = T * (par[_P_LIMIT] / n)
-    tau_sat = R.T @ T
+    tau_sat = _mtv(R, T)
     rate = Ki * e
     if par[_P_AW] == 0:
         rate = rate + (tau_sat - tau) / par[_P_TT : _P_TT + 3]
@@ -573,7 +600,9 @@ def _torque_map(q, coils, magnets, gain, cos_cut):
     """K(q) (3, 16), N·m/A (``plant.torque.TorqueMap``); ``gain`` is k_T s_j (18,)."""
     R = _matrix(q)
     K = np.empty((3, coils.shape[0]))
-    r = magnets @ R.T
+    r = np.empty_like(magnets)
+    for j in range(magnets.shape[0]):
+        r[j] = _mv(R, magnets[j])
     for i in range(coils.shape[0]):
         v0 = v1 = v2 = 0.0
         for j in range(r.shape[0]):
@@ -589,6 +618,27 @@ def _torque_map(q, coils, magnets, gain, cos_cut):
         K[1, i] = c[2] * v0 - c[0] * v2
         K[2, i] = c[0] * v1 - c[1] * v0
     return K
+
+
+@njit(cache=True)
+def _least_norm(K, torque):
+    """The least-norm currents I = Kᵀ (K Kᵀ)⁻¹ T (n,), A, of the torque map K (3, n) for the
+    torque T (3,), N·m (``plant.torque.allocate`` within the limits), the torque K I they
+    deliver, and False when K Kᵀ is singular."""
+    n = K.shape[1]
+    G = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            for i in range(n):
+                G[a, b] += K[a, i] * K[b, i]
+    x, solved = _solve3(G, torque)
+    currents = np.empty(n)
+    delivered = np.zeros(3)
+    for i in range(n):
+        currents[i] = K[0, i] * x[0] + K[1, i] * x[1] + K[2, i] * x[2]
+        for a in range(3):
+            delivered[a] += K[a, i] * currents[i]
+    return currents, delivered, solved
 
 
 @njit(cache=True)
@@ -762,13 +812,13 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
                 truth_q = par[_P_TRUTH] > 0 or f[_F_VALID] == 0
                 q_alloc = st[_Q : _Q + 4].copy() if truth_q else f[_F_EST : _F_EST + 4].copy()
                 K = _torque_map(q_alloc, coils, magnets, tm_gain, par[_P_KT_COS])
-                currents = K.T @ np.linalg.solve(K @ K.T, torque)
-                if np.max(np.abs(currents)) > par[_P_I_MAX]:
+                currents, delivered, solved = _least_norm(K, torque)
+                if not solved or np.max(np.abs(currents)) > par[_P_I_MAX]:
                     st[_ALLOC_T : _ALLOC_T + 3] = torque
                     st[_ALLOC_Q : _ALLOC_Q + 4] = q_alloc
                     return e
                 st[_CMD : _CMD + N_COILS] = currents
-                st[_TDEL : _TDEL + 3] = K @ currents
+                st[_TDEL : _TDEL + 3] = delivered
                 saturated = 0.0
             if saturated != st[_SAT]:
                 if saturated > 0:
@@ -800,7 +850,7 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     ref_grid = np.ascontiguousarray(
         loop.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q)
     ref = loop.reference.sample_many(ev_t)
-    body_consts, tm = _plant_parts(p)
+    body_consts, tm, camera_truth, tm_gain = _plant_parts(p)
     solver = _solver_observer(loop).solver  # type: ignore[union-attr]
     par = _settings(loop)
     st = np.zeros(_N_STATE)
@@ -811,13 +861,16 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
         st[b + 5 : b + 21] = np.eye(4).ravel()
     for at, n in ((_EST, 4), (_RATE_Q, 4), (_RATE_W, 3)):
         st[at : at + n] = np.nan
-    log = _StepLog(n_steps + 1)
+    # A summary-only run's step rows are read before the next run writes them: one buffer
+    # serves them all (each row is written whole before it is read).
+    log = _StepLog(n_steps + 1) if tables else None
+    rows = log.a if log is not None else _summary_rows(n_steps + 1)
     fr = np.full((len(frames), _N_FR), np.nan)
     evs = np.zeros((4 * len(frames) + n_steps + 8, 6))
     args = (ev_t, ev_kind, ev_idx, frames, ref_grid, np.ascontiguousarray(ref.q),
             np.ascontiguousarray(ref.omega), np.ascontiguousarray(ref.alpha), par, *body_consts,
-            _model_arrays(CorModel.nominal(p)), _model_arrays(solver.model),
-            p.motor.k_T_Nm_per_A * tm.s, loop.front_end.rng, st, log.a, fr, evs)
+            camera_truth, _model_arrays(solver.model), tm_gain, loop.front_end.rng, st, rows,
+            fr, evs)
     e, ready = 0, False
     while (e := _run_events(e, ready, *args)) < len(ev_t):
         # least-norm currents beyond the limits: the LP and bounded solve of ``allocate``
@@ -830,12 +883,13 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     stopped = f"divergence: geodesic error {st[_DIV_DEG]:.1f} deg" if st[_DIV] > 0 else ""
     if not tables:
         # The summary straight from the kernel's arrays: no tables, no events' texts.
-        a = log.a[:n_rows]
+        a = rows[:n_rows]
         values = step_values(a[:, 0], a[:, 1:5], a[:, 8:12], a[:, 15:18], a[:, 39] > 0)
         summary = summarize_values(values, a[-1, 0], _frames_summary_columns(fr), len(evs),
                                    c.duration_s, stopped)
-        return LoopResult(pd.DataFrame(), pd.DataFrame(), _NO_EVENTS.copy(), summary,
+        return LoopResult(_NO_ROWS.copy(), _NO_ROWS.copy(), _NO_EVENTS.copy(), summary,
                           c.model_dump(mode="json"))
+    assert log is not None
     steps = log.columns(n_rows)
     frames_cols = _frames_columns(fr, solver)
     events = _events_table(evs, frames_cols)
@@ -845,10 +899,21 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
 
 
 @functools.lru_cache(maxsize=16)
-def _plant_parts(params: PlantParams) -> tuple[tuple, TorqueMap]:
-    """The physics kernel's constants (``RigidBody.consts``) and the torque map of a plant,
-    made once per parameter set (a sweep's runs share it; ``PlantParams`` is frozen)."""
-    return RigidBody(params).consts, TorqueMap(params.motor)
+def _plant_parts(params: PlantParams) -> tuple[tuple, TorqueMap, tuple, NDArray]:
+    """The physics kernel's constants (``RigidBody.consts``), the torque map, the camera's
+    true projection (``_model_arrays`` of the nominal CoR model) and the torque map's gains
+    k_T s_j (18,) of a plant, made once per parameter set (a sweep's runs share them;
+    ``PlantParams`` is frozen)."""
+    tm = TorqueMap(params.motor)
+    return (RigidBody(params).consts, tm, _model_arrays(CorModel.nominal(params)),
+            params.motor.k_T_Nm_per_A * tm.s)
+
+
+@functools.lru_cache(maxsize=4)
+def _summary_rows(n_rows: int) -> NDArray[np.float64]:
+    """The step rows (``latency.loop._StepLog``'s layout) of summary-only runs of ``n_rows``
+    grid points, one buffer per length, reused from run to run."""
+    return np.empty((n_rows, _StepLog.WIDTH))
 
 
 def _model_arrays(model: CorModel) -> tuple[NDArray, NDArray, NDArray]:
@@ -930,7 +995,9 @@ def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDA
     return data
 
 
-#: The events table without rows (built once: an empty frame costs pandas 0.1 ms).
+#: A table without rows, and the events table without rows (built once and copied: an empty
+#: frame costs pandas 0.03 ms, a copy 0.01 ms).
+_NO_ROWS = pd.DataFrame()
 _NO_EVENTS = pd.DataFrame({"t_s": np.zeros(0), "kind": np.zeros(0, dtype=object),
                            "detail": np.zeros(0, dtype=object)})
 

@@ -583,8 +583,11 @@ def _no_estimate(t: float) -> Estimate:
 class _StepLog:
     """Preallocated per-step arrays (faster than a list of dicts)."""
 
+    #: Columns of a row (``columns`` names the first 40, 44 with the MuJoCo sensor).
+    WIDTH = 48
+
     def __init__(self, n: int) -> None:
-        self.a = np.full((n, 48), np.nan)
+        self.a = np.full((n, self.WIDTH), np.nan)
 
     def write_rows(self, k0, t, seg, q_ref, T_cmd, T_del, q_est, sat, stop) -> None:
         """Rows k0 ... k0 + n - 1: times t (n,), the states of ``seg``, the references

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from latency.numba_cache import drop_stale_cache
 from plant import attitude
-from plant.attitude import _geodesic_of, _hamilton, _zyz_of
+from plant.attitude import _geodesic_of, _hamilton, _matrix_elements
 
 drop_stale_cache(__file__, (attitude,))
 
@@ -53,11 +53,29 @@ _STEP_VALUES = ("rms_error_deg", "max_error_deg", "rms_spin_error_deg", "rms_til
 
 
 @njit(cache=True)
-def _wrapped(a: float, b: float) -> float:
-    """(a − b) wrapped into (−pi, pi], rad (``attitude.wrap_angle`` of the difference, taken
-    in degrees as the steps table holds the angles)."""
-    d = math.radians(math.degrees(a) - math.degrees(b))
-    return math.pi - (math.pi - d) % (2.0 * math.pi)
+def _zyz_elements(w, x, y, z):
+    """The elements (R02, R12, R20, R21, R22) of R(q) that the Z-Y-Z angles read
+    (``attitude._zyz_of_matrix``), q normalised first, and the tilt beta, rad."""
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    R = _matrix_elements(w / n, x / n, y / n, z / n)
+    return R[2], R[5], R[6], R[7], R[8], math.atan2(math.hypot(R[2], R[5]), R[8])
+
+
+@njit(cache=True)
+def _zyz_differences(a, b):
+    """The wrapped differences (rad) of the spin, tilt and yaw of the attitudes whose
+    ``_zyz_elements`` are a and b, and whether both tilts exceed 1° (spin and yaw are NaN
+    where they do not: Z-Y-Z spin and yaw are not separable near zero tilt). With spin
+    alpha = atan2(R21, -R20) and yaw gamma = atan2(R12, R02) (``attitude.to_zyz``), each
+    difference is one atan2 of the sine and cosine of the difference (in (-pi, pi], as
+    ``attitude.wrap_angle`` gives it); the tilts lie in [0, pi], so theirs needs no wrap."""
+    a02, a12, a20, a21, _, a_tilt = a
+    b02, b12, b20, b21, _, b_tilt = b
+    if not (math.degrees(a_tilt) > 1.0 and math.degrees(b_tilt) > 1.0):
+        return np.nan, a_tilt - b_tilt, np.nan, False
+    spin = math.atan2(a20 * b21 - a21 * b20, a20 * b20 + a21 * b21)
+    yaw = math.atan2(a12 * b02 - a02 * b12, a02 * b02 + a12 * b12)
+    return spin, a_tilt - b_tilt, yaw, True
 
 
 @njit(cache=True)
@@ -102,7 +120,7 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
     prog_max, nan_prog, last_out = -np.inf, False, -1
     stop_from, longest_stop = np.nan, 0.0
     ref_prev = np.full(4, np.nan)
-    ref_zyz = (0.0, 0.0, 0.0)
+    ref_R = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k in range(n):
         qk, rk = q[k], q_ref[k]
         e = math.degrees(_geodesic_of(qk[0], qk[1], qk[2], qk[3], rk[0], rk[1], rk[2], rk[3]))
@@ -114,13 +132,12 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
         # Z-Y-Z angle errors: tilt on every row, spin and yaw where both tilts exceed 1°
         if not (rk[0] == ref_prev[0] and rk[1] == ref_prev[1] and rk[2] == ref_prev[2]
                 and rk[3] == ref_prev[3]):
-            ref_zyz = _zyz_of(rk[0], rk[1], rk[2], rk[3])
+            ref_R = _zyz_elements(rk[0], rk[1], rk[2], rk[3])
             ref_prev[:] = rk
-        zyz = _zyz_of(qk[0], qk[1], qk[2], qk[3])
-        both_tilted = math.degrees(ref_zyz[1]) > 1.0 and math.degrees(zyz[1]) > 1.0
-        for i in range(3):
+        d_spin, d_tilt, d_yaw, both_tilted = _zyz_differences(
+            _zyz_elements(qk[0], qk[1], qk[2], qk[3]), ref_R)
+        for i, d_i in enumerate((d_spin, d_tilt, d_yaw)):
             if i == 1 or both_tilted:
-                d_i = _wrapped(zyz[i], ref_zyz[i])
                 sums[i] += d_i * d_i
                 counts[i] += 1
                 if math.isnan(d_i):

@@ -190,16 +190,22 @@ class FrameScheduler:
     ``schedule(duration_s)`` for the whole timeline of a run."""
 
     def __init__(self, config: PipelineConfig, rng: np.random.Generator) -> None:
-        if config.exposure_s > config.frame_period_s:
-            raise ValueError(
-                f"exposure_s {config.exposure_s} exceeds the frame period "
-                f"{config.frame_period_s:.4g} s"
-            )
+        self.check(config)
         self.config = config
         self.rng = rng
         self._k = 0
         self._busy_until = -np.inf
         self._last_release = -np.inf
+
+    @staticmethod
+    def check(config: PipelineConfig) -> None:
+        """Raise ``ValueError`` when the frames of ``config`` cannot be timed: an exposure
+        longer than the frame period."""
+        if config.exposure_s > config.frame_period_s:
+            raise ValueError(
+                f"exposure_s {config.exposure_s} exceeds the frame period "
+                f"{config.frame_period_s:.4g} s"
+            )
 
     def next_frame(self, measure: Callable[[int], float] | None = None) -> FrameTiming:
         """Timing of the next frame.

@@ -122,7 +122,9 @@ def _residual_jac(q, P, uv, t_cor, intr):
     J = np.empty((2 * n, 3))
     behind = False
     for j in range(n):
-        RP = R @ P[j]
+        RP = np.empty(3)  # R P_j in a loop: a BLAS call costs more than its nine products
+        for k in range(3):
+            RP[k] = R[k, 0] * P[j, 0] + R[k, 1] * P[j, 1] + R[k, 2] * P[j, 2]
         X0, X1, X2 = RP[0] + t_cor[0], RP[1] + t_cor[1], RP[2] + t_cor[2]
         behind = behind or not X2 > 0.0
         iz = 1.0 / X2
@@ -145,6 +147,57 @@ def _residual_jac(q, P, uv, t_cor, intr):
     if behind:
         res[:] = np.nan
     return res, J
+
+
+@njit(cache=True)
+def normal_equations(J, r):
+    """JᵀJ (3×3) and Jᵀr (3,) of the Jacobian J (m, 3) and residual r (m,), summed in loops
+    (a BLAS call costs more than these few products)."""
+    H = np.zeros((3, 3))
+    g = np.zeros(3)
+    for i in range(J.shape[0]):
+        for a in range(3):
+            g[a] += J[i, a] * r[i]
+            for b in range(a, 3):
+                H[a, b] += J[i, a] * J[i, b]
+    for a in range(3):
+        for b in range(a):
+            H[a, b] = H[b, a]
+    return H, g
+
+
+@njit(cache=True)
+def condition_number(H):
+    """The 2-norm condition number of a symmetric positive semi-definite 3×3 matrix H: its
+    largest over its smallest eigenvalue, inf when the smallest is not positive.
+
+    The eigenvalues come from cyclic Jacobi rotations (Golub & Van Loan, Matrix Computations,
+    4th ed., §8.5.2-8.5.3): each rotation zeroes one off-diagonal element with
+    t = sgn(θ)/(|θ| + √(θ² + 1)), θ = (a_qq − a_pp)/(2 a_pq), until the off-diagonal part
+    is below round-off of the diagonal. Their absolute error is of the order of ε‖H‖, as for
+    the SVD that ``numpy.linalg.cond`` takes."""
+    a = H.copy()
+    for _ in range(60):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        diag = a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]
+        if not off > 1e-36 * diag:
+            break
+        for p, q, r in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
+            if a[p, q] == 0.0:
+                continue
+            theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+            t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+            c = 1.0 / np.sqrt(t * t + 1.0)
+            s = t * c
+            a[p, p] -= t * a[p, q]
+            a[q, q] += t * a[p, q]
+            a[p, q] = a[q, p] = 0.0
+            arp, arq = a[r, p], a[r, q]
+            a[r, p] = a[p, r] = c * arp - s * arq
+            a[r, q] = a[q, r] = s * arp + c * arq
+    lo = min(a[0, 0], a[1, 1], a[2, 2])
+    hi = max(a[0, 0], a[1, 1], a[2, 2])
+    return hi / lo if lo > 0.0 else np.inf
 
 
 @njit(cache=True)
@@ -183,11 +236,11 @@ def _lm(q, P, uv, t_cor, intr, max_iterations, step_tol):
     lam = 1e-6
     it = 0
     for it in range(1, max_iterations + 1):
-        H = J.T @ J
+        H, g = normal_equations(J, r)
         A = H.copy()
         for k in range(3):
             A[k, k] += lam * H[k, k]
-        dp, ok = _solve3(A, J.T @ r)
+        dp, ok = _solve3(A, g)
         if not ok:
             return q, _SINGULAR, it, cost, J
         step = 4.0 * np.sqrt(dp @ dp)  # rotation angle of q(dp), rad (small dp)
@@ -339,8 +392,8 @@ class CorSolver:
         if q[0] < 0:
             q = -q
         rms = float(np.sqrt(cost / len(r)))
-        H = J.T @ J
-        cond = float(np.linalg.cond(H))
+        H, _ = normal_equations(J, r)
+        cond = float(condition_number(H))
         if not np.isfinite(cond) or cond > cfg.max_condition:
             return SolverResult(
                 q=np.full(4, np.nan), valid=False, iterations=it, residual_rms_px=rms,
