@@ -53,7 +53,7 @@ from latency.frontends import (
     MeasurementFrontEnd,
 )
 from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams
-from latency.metrics import step_values, summarize, summarize_values
+from latency.metrics import frame_values, step_values, summarize, summarize_values
 from latency.models import Constant
 from latency.numba_cache import drop_stale_cache
 from latency.pipeline import FrameScheduler
@@ -79,7 +79,8 @@ from observer.cor_solver import (
 from observer.gk import pixel_kalman
 from observer.gk.pixel_kalman import F_CV, H_CV
 from observer.pixel_observer import PixelKalmanObserver, SolverObserver
-from plant import rigid_body, torque
+from plant import attitude, rigid_body, torque
+from plant.attitude import _geodesic_of, _hamilton, _matrix_elements
 from plant.params import PlantParams
 from plant.rigid_body import (
     FASTMATH,
@@ -93,9 +94,9 @@ from plant.rigid_body import (
 )
 from plant.torque import N_COILS, TorqueMap, allocate
 
-# The kernel compiles in the physics step, the solver's iteration and the filter's matrices:
-# an edit there drops this module's numba cache.
-drop_stale_cache(__file__, (rigid_body, cor_solver, pixel_kalman, torque))
+# The kernel compiles in the physics step, the solver's iteration, the filter's matrices and
+# the attitude formulas: an edit there drops this module's numba cache.
+drop_stale_cache(__file__, (rigid_body, cor_solver, pixel_kalman, torque, attitude))
 
 # --- event kinds of the schedule, event codes of the record -----------------------------------
 _FRAME, _RELEASE, _COMMAND = 0, 1, 2
@@ -305,67 +306,61 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
 
 
 # --- the kernel's pieces (numba) -------------------------------------------------------------
-# The 3-vectors and 3×3 matrices are multiplied in loops: numba hands ``@`` on 2-D arrays to
-# BLAS, whose call costs more than these few products.
+# Small vectors and matrices as tuples of floats, multiplied out: numba hands ``@`` on 2-D
+# arrays to BLAS, whose call costs more than these few products, and each small array costs
+# an allocation.
 @njit(cache=True)
-def _mv(A, v):
-    """A v for a 3×3 A and a 3-vector v."""
-    return np.array([A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2],
-                     A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2],
-                     A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]])
-
-
-@njit(cache=True)
-def _mtv(A, v):
-    """Aᵀ v for a 3×3 A and a 3-vector v."""
-    return np.array([A[0, 0] * v[0] + A[1, 0] * v[1] + A[2, 0] * v[2],
-                     A[0, 1] * v[0] + A[1, 1] * v[1] + A[2, 1] * v[2],
-                     A[0, 2] * v[0] + A[1, 2] * v[1] + A[2, 2] * v[2]])
-
-
-@njit(cache=True)
-def _qmul(a, b):
-    """Hamilton product of two quaternions (4,) (w, x, y, z)."""
-    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
+def _unit(q):
+    """The quaternion q (4 numbers) over its norm, as a 4-tuple."""
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return q[0] / n, q[1] / n, q[2] / n, q[3] / n
 
 
 @njit(cache=True)
 def _conj_mul(a, b):
-    """a* ⊗ b for unit quaternions a and b, each normalised first (``plant.attitude``)."""
-    a = a / np.sqrt(a @ a)
-    b = b / np.sqrt(b @ b)
-    return _qmul(np.array([a[0], -a[1], -a[2], -a[3]]), b)
+    """a* ⊗ b (4-tuple) for the quaternions a and b, each normalised first
+    (``plant.attitude``)."""
+    a, b = _unit(a), _unit(b)
+    return _hamilton(a[0], -a[1], -a[2], -a[3], b[0], b[1], b[2], b[3])
 
 
 @njit(cache=True)
 def _matrix(q):
-    """R(q) (3, 3), rotor to stator, of the normalised q (``plant.attitude.to_matrix``)."""
-    w, x, y, z = q / np.sqrt(q @ q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    """R(q), rotor to stator, of the normalised q, row by row as a 9-tuple
+    (``plant.attitude.to_matrix``)."""
+    w, x, y, z = _unit(q)
+    return _matrix_elements(w, x, y, z)
+
+
+@njit(cache=True)
+def _mv(R, v):
+    """R v (3-tuple) for R a 9-tuple (``_matrix``) and v three numbers."""
+    return (R[0] * v[0] + R[1] * v[1] + R[2] * v[2], R[3] * v[0] + R[4] * v[1] + R[5] * v[2],
+            R[6] * v[0] + R[7] * v[1] + R[8] * v[2])
+
+
+@njit(cache=True)
+def _mtv(R, v):
+    """Rᵀ v (3-tuple) for R a 9-tuple (``_matrix``) and v three numbers."""
+    return (R[0] * v[0] + R[3] * v[1] + R[6] * v[2], R[1] * v[0] + R[4] * v[1] + R[7] * v[2],
+            R[2] * v[0] + R[5] * v[1] + R[8] * v[2])
 
 
 @njit(cache=True)
 def _rotvec(q):
-    """Rotation vector (rad, angle in [0, pi]) of q (``plant.attitude.to_rotvec``)."""
-    q = q / np.sqrt(q @ q)
-    if q[0] < 0:
-        q = -q
-    s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if s < 1e-12:
-        return 2.0 * q[1:]
-    return 2.0 * np.arctan2(s, q[0]) * q[1:] / s
+    """Rotation vector (3-tuple, rad, angle in [0, pi]) of q (``plant.attitude.to_rotvec``)."""
+    w, x, y, z = _unit(q)
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    s = np.sqrt(x * x + y * y + z * z)
+    f = 2.0 if s < 1e-12 else 2.0 * np.arctan2(s, w) / s
+    return f * x, f * y, f * z
 
 
 @njit(cache=True)
 def _geodesic(q1, q2):
     """Angle (rad) of the rotation from q1 to q2 (``plant.attitude.geodesic_angle``)."""
-    d = _conj_mul(q1, q2)
-    return 2.0 * np.arctan2(np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3]), abs(d[0]))
+    return _geodesic_of(q1[0], q1[1], q1[2], q1[3], q2[0], q2[1], q2[2], q2[3])
 
 
 @njit(cache=True)
@@ -412,8 +407,8 @@ def _blur_travel_px(q, w, par, P, t_cor, intr):
         else:
             c, sn = np.cos(0.5 * theta), np.sin(0.5 * theta) / theta
             dq = np.array([c, sn * rv[0], sn * rv[1], sn * rv[2]])
-        qs = _qmul(q, dq)
-        ends[s] = _project(qs / np.sqrt(qs @ qs), P, t_cor, intr)
+        qs = _hamilton(q[0], q[1], q[2], q[3], dq[0], dq[1], dq[2], dq[3])
+        ends[s] = _project(np.array(_unit(qs)), P, t_cor, intr)
     d = ends[1] - ends[0]
     return max(np.sqrt(d[0] @ d[0]), np.sqrt(d[1] @ d[1]))
 
@@ -541,7 +536,7 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
         return st[_LAST_TAU : _LAST_TAU + 3].copy()
     dt = 0.0 if np.isnan(st[_T_PREV]) else max(t_state - st[_T_PREV], 0.0)
     st[_T_PREV] = t_state
-    q = q_est / np.sqrt(q_est @ q_est)
+    q = _unit(q_est)
     q_e = _conj_mul(q, ref_q)
     e = _rotvec(q_e)
     R_e = _matrix(q_e)
@@ -550,73 +545,78 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
     # the rate from successive attitudes (``controller.pid.RateFromAttitude``)
     has_prev = not np.isnan(st[_RATE_Q])
     if has_prev and t_state > st[_RATE_T]:
-        dq = _conj_mul(st[_RATE_Q : _RATE_Q + 4], q)
-        st[_RATE_W : _RATE_W + 3] = _rotvec(dq) / (t_state - st[_RATE_T])
+        rv = _rotvec(_conj_mul(st[_RATE_Q : _RATE_Q + 4], q))
+        for i in range(3):
+            st[_RATE_W + i] = rv[i] / (t_state - st[_RATE_T])
     if not has_prev or t_state > st[_RATE_T]:
-        st[_RATE_Q : _RATE_Q + 4] = q
+        for i in range(4):
+            st[_RATE_Q + i] = q[i]
         st[_RATE_T] = t_state
-    omega = st[_RATE_W : _RATE_W + 3]
-    d = st[_D : _D + 3]
-    if np.all(np.isfinite(omega)):
-        x = w_r - omega
-        if st[_D_INIT] == 0:
-            d[:] = x
-            st[_D_INIT] = 1.0
-        else:
-            d += (1.0 - np.exp(-dt / par[_P_TAU_F])) * (x - d)
-    st[_INT : _INT + 3] = st[_INT : _INT + 3] + st[_PEND : _PEND + 3] * dt
-    Kp, Ki, Kd = par[_P_KP : _P_KP + 3], par[_P_KI : _P_KI + 3], par[_P_KD : _P_KD + 3]
-    tau = Kp * e + st[_INT : _INT + 3] + Kd * d
-    if par[_P_FRIC] > 0.0:
-        tau = tau + par[_P_FRIC] * np.tanh(e / par[_P_FRIC_W])
+    if np.isfinite(st[_RATE_W]) and np.isfinite(st[_RATE_W + 1]) and np.isfinite(st[_RATE_W + 2]):
+        blend = 1.0 - np.exp(-dt / par[_P_TAU_F])
+        for i in range(3):
+            x = w_r[i] - st[_RATE_W + i]
+            st[_D + i] = x if st[_D_INIT] == 0 else st[_D + i] + blend * (x - st[_D + i])
+        st[_D_INIT] = 1.0
+    tau = np.empty(3)
+    for i in range(3):
+        st[_INT + i] = st[_INT + i] + st[_PEND + i] * dt
+        tau[i] = par[_P_KP + i] * e[i] + st[_INT + i] + par[_P_KD + i] * st[_D + i]
+        if par[_P_FRIC] > 0.0:
+            tau[i] = tau[i] + par[_P_FRIC] * np.tanh(e[i] / par[_P_FRIC_W])
     if par[_P_FF] > 0:
-        J = par[_P_J : _P_J + 3]
-        Jw = J * w_r
-        gyro = np.array([w_r[1] * Jw[2] - w_r[2] * Jw[1], w_r[2] * Jw[0] - w_r[0] * Jw[2],
-                         w_r[0] * Jw[1] - w_r[1] * Jw[0]])
-        tau = tau + J * a_r + gyro
+        J = (par[_P_J], par[_P_J + 1], par[_P_J + 2])
+        Jw = (J[0] * w_r[0], J[1] * w_r[1], J[2] * w_r[2])
+        gyro = (w_r[1] * Jw[2] - w_r[2] * Jw[1], w_r[2] * Jw[0] - w_r[0] * Jw[2],
+                w_r[0] * Jw[1] - w_r[1] * Jw[0])
+        for i in range(3):
+            tau[i] = tau[i] + J[i] * a_r[i] + gyro[i]
     R = _matrix(q)
     T = _mv(R, tau)
-    n = np.sqrt(T @ T)
+    n = np.sqrt(T[0] * T[0] + T[1] * T[1] + T[2] * T[2])
     saturated = n > par[_P_LIMIT]
     if saturated:
-        T = T * (par[_P_LIMIT] / n)
+        f = par[_P_LIMIT] / n
+        T = (T[0] * f, T[1] * f, T[2] * f)
     tau_sat = _mtv(R, T)
-    rate = Ki * e
-    if par[_P_AW] == 0:
-        rate = rate + (tau_sat - tau) / par[_P_TT : _P_TT + 3]
-    elif par[_P_AW] == 1 and saturated:
-        for i in range(3):
-            excess = tau[i] - tau_sat[i]
-            if np.sign(e[i]) == np.sign(excess) and abs(excess) > 0:
-                rate[i] = 0.0
-    st[_PEND : _PEND + 3] = rate
-    st[_LAST_TAU : _LAST_TAU + 3] = T
-    return T.copy()
+    for i in range(3):
+        rate = par[_P_KI + i] * e[i]
+        excess = tau[i] - tau_sat[i]
+        if par[_P_AW] == 0:
+            rate = rate + (tau_sat[i] - tau[i]) / par[_P_TT + i]
+        elif par[_P_AW] == 1 and saturated and np.sign(e[i]) == np.sign(excess) and abs(excess) > 0:
+            rate = 0.0
+        st[_PEND + i] = rate
+        st[_LAST_TAU + i] = T[i]
+    return np.array(T)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FASTMATH)
 def _torque_map(q, coils, magnets, gain, cos_cut):
-    """K(q) (3, 16), N·m/A (``plant.torque.TorqueMap``); ``gain`` is k_T s_j (18,)."""
+    """K(q) (3, 16), N·m/A (``plant.torque.TorqueMap``); ``gain`` is k_T s_j (18,). The
+    magnet axes in the stator frame as three rows, and the windows without a branch, so
+    that the sum over the magnets compiles to vector instructions."""
     R = _matrix(q)
+    n = magnets.shape[0]
+    r = np.empty((3, n))
+    for j in range(n):
+        for k in range(3):
+            r[k, j] = (R[3 * k] * magnets[j, 0] + R[3 * k + 1] * magnets[j, 1]
+                       + R[3 * k + 2] * magnets[j, 2])
+    scale = 1.0 / (1.0 - cos_cut)
     K = np.empty((3, coils.shape[0]))
-    r = np.empty_like(magnets)
-    for j in range(magnets.shape[0]):
-        r[j] = _mv(R, magnets[j])
     for i in range(coils.shape[0]):
+        c0, c1, c2 = coils[i, 0], coils[i, 1], coils[i, 2]
         v0 = v1 = v2 = 0.0
-        for j in range(r.shape[0]):
-            x = (coils[i, 0] * r[j, 0] + coils[i, 1] * r[j, 1] + coils[i, 2] * r[j, 2]
-                 - cos_cut) / (1.0 - cos_cut)
-            if x > 0.0:
-                g = gain[j] * x * x
-                v0 += g * r[j, 0]
-                v1 += g * r[j, 1]
-                v2 += g * r[j, 2]
-        c = coils[i]
-        K[0, i] = c[1] * v2 - c[2] * v1
-        K[1, i] = c[2] * v0 - c[0] * v2
-        K[2, i] = c[0] * v1 - c[1] * v0
+        for j in range(n):
+            x = max(c0 * r[0, j] + c1 * r[1, j] + c2 * r[2, j] - cos_cut, 0.0) * scale
+            g = gain[j] * x * x
+            v0 += g * r[0, j]
+            v1 += g * r[1, j]
+            v2 += g * r[2, j]
+        K[0, i] = c1 * v2 - c2 * v1
+        K[1, i] = c2 * v0 - c0 * v2
+        K[2, i] = c0 * v1 - c1 * v0
     return K
 
 
@@ -656,17 +656,20 @@ def _record(st, k, ref_grid, log, evs, par):
     the row before)."""
     row = log[k]
     row[0] = k * par[_P_H]
-    row[1:5] = st[_Q : _Q + 4]
-    row[5:8] = st[_W : _W + 3]
-    row[8:12] = ref_grid[k]
-    row[12:15] = st[_TCMD : _TCMD + 3]
-    row[15:18] = st[_TDEL : _TDEL + 3]
-    row[18:34] = st[_CUR : _CUR + N_COILS]
-    row[34:38] = st[_EST : _EST + 4]
+    # element by element: a slice per field costs more than the copy itself
+    for i in range(4):
+        row[1 + i] = st[_Q + i]
+        row[8 + i] = ref_grid[k, i]
+        row[34 + i] = st[_EST + i]
+    for i in range(3):
+        row[5 + i] = st[_W + i]
+        row[12 + i] = st[_TCMD + i]
+        row[15 + i] = st[_TDEL + i]
+    for i in range(N_COILS):
+        row[18 + i] = st[_CUR + i]
     row[38] = st[_SAT]
     row[39] = st[_STOP]
-    q = st[_Q : _Q + 4]
-    stop = 1.0 if 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]) < par[_P_COS_STOP] else 0.0
+    stop = 1.0 if 1.0 - 2.0 * (st[_Q + 1] ** 2 + st[_Q + 2] ** 2) < par[_P_COS_STOP] else 0.0
     if stop != st[_STOP]:
         _event(st, evs, row[0], _EV_CONTACT if stop > 0 else _EV_RELEASE, 0.0, 0.0, 0.0, 0.0)
     st[_STOP] = stop
@@ -688,6 +691,7 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
     cmd = st[_CMD : _CMD + N_COILS]
     rotor = _rotor_tuples(J, J_inv, com, m_g, scal)
     cutoff = np.arccos(scal[3])
+    decay_h = np.exp(-h / tau_l) if tau_l > 0 else 0.0  # the coils' lag over a whole step
     t, k = st[_T], int(st[_K])
     while True:
         t_grid = (k + 1) * h
@@ -700,7 +704,7 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
                 hk = h if s < n else rest
                 if s == n and not rest > 1e-12:
                     break
-                decay = np.exp(-hk / tau_l) if tau_l > 0 else 0.0
+                decay = (decay_h if hk == h else np.exp(-hk / tau_l)) if tau_l > 0 else 0.0
                 for i in range(N_COILS):
                     cur[i] = cmd[i] + (cur[i] - cmd[i]) * decay
                 q, w, _ = _step_row(q, w, cur, hk, (0.0, 0.0, 0.0), PHYSICS_SUBSTEPS, rotor,
@@ -708,7 +712,8 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
             t = t_to
             st[_Q], st[_Q + 1], st[_Q + 2], st[_Q + 3] = q
             st[_W], st[_W + 1], st[_W + 2] = w
-            st[_CUR : _CUR + N_COILS] = cur
+            for i in range(N_COILS):
+                st[_CUR + i] = cur[i]
         if abs(t - t_grid) < 1e-12 and k + 1 <= n_steps:
             k += 1
             _record(st, k, ref_grid, log, evs, par)
@@ -839,9 +844,10 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     """Run ``loop`` (``covers(loop)`` must hold) and return what ``loop.run()`` returns: the
     same tables and ``summarize`` metrics (module docstring: where they differ).
 
-    ``tables=False`` leaves the steps, frames and events tables of the result empty: the
-    summary is computed from the same columns, without building their DataFrames or the
-    events' texts (for sweeps that keep the summaries only)."""
+    ``tables=False`` leaves the steps, frames and events tables of the result empty (tables
+    without rows that all such results share; do not modify them): the summary is computed
+    from the kernel's arrays, without building the tables or the events' texts (for sweeps
+    that keep the summaries only)."""
     if not covers(loop):
         raise ValueError("the compiled run loop does not cover this run; use the event loop")
     c, p = loop.config, loop.params
@@ -885,10 +891,11 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
         # The summary straight from the kernel's arrays: no tables, no events' texts.
         a = rows[:n_rows]
         values = step_values(a[:, 0], a[:, 1:5], a[:, 8:12], a[:, 15:18], a[:, 39] > 0)
-        summary = summarize_values(values, a[-1, 0], _frames_summary_columns(fr), len(evs),
-                                   c.duration_s, stopped)
-        return LoopResult(_NO_ROWS.copy(), _NO_ROWS.copy(), _NO_EVENTS.copy(), summary,
-                          c.model_dump(mode="json"))
+        frame_metrics = frame_values(fr[:, _F_T_EXP], fr[:, _F_DROPPED] > 0,
+                                     fr[:, _F_LOST] == 1.0, fr[:, _F_LATENCY], a[-1, 0])
+        summary = summarize_values(values, a[-1, 0], frame_metrics, len(evs), c.duration_s,
+                                   stopped)
+        return LoopResult(_NO_ROWS, _NO_ROWS, _NO_EVENTS, summary, c.model_dump(mode="json"))
     assert log is not None
     steps = log.columns(n_rows)
     frames_cols = _frames_columns(fr, solver)
@@ -948,19 +955,6 @@ def _reason(f: NDArray[np.float64], solver: CorSolver) -> str:
     return text
 
 
-def _frames_summary_columns(fr: NDArray[np.float64]) -> dict[str, NDArray]:
-    """The columns of the frames table that ``latency.metrics.summarize_values`` reads."""
-    if not len(fr):
-        return {}
-    data: dict[str, NDArray] = {"t_exposure_s": fr[:, _F_T_EXP],
-                                "dropped": fr[:, _F_DROPPED].astype(bool)}
-    if not data["dropped"].all():
-        data["lost"] = _flag_column(fr[:, _F_LOST])
-    if (fr[:, _F_RELEASED] == 1.0).any():
-        data["latency_s"] = fr[:, _F_LATENCY]
-    return data
-
-
 def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDArray]:
     """The frames table of ``ClosedLoop.timeline`` from the kernel's frame record, as columns:
     the same columns in the same order and types (a column appears once a frame has it)."""
@@ -995,8 +989,8 @@ def _frames_columns(fr: NDArray[np.float64], solver: CorSolver) -> dict[str, NDA
     return data
 
 
-#: A table without rows, and the events table without rows (built once and copied: an empty
-#: frame costs pandas 0.03 ms, a copy 0.01 ms).
+#: The tables of a summary-only result: a table without rows, and the events table without
+#: rows, built once and shared by every such result (an empty frame costs pandas 0.03 ms).
 _NO_ROWS = pd.DataFrame()
 _NO_EVENTS = pd.DataFrame({"t_s": np.zeros(0), "kind": np.zeros(0, dtype=object),
                            "detail": np.zeros(0, dtype=object)})

@@ -256,16 +256,20 @@ def summarize(
 
     ``steps``, ``frames`` and ``events`` are the run's tables (``LoopResult``), as frames or as
     their columns (``Columns``): the metrics read the steps' times, attitudes, references,
-    delivered torques and tilt-stop flags, a few frame columns, and the events' count.
+    delivered torques and tilt-stop flags, the frames' exposure times, dropped and lost flags
+    and latencies, and the events' count.
     """
-    return summarize_values(_steps_values(steps), np.asarray(steps["t_s"])[-1], frames,
+    t_end = float(np.asarray(steps["t_s"])[-1])
+    return summarize_values(_steps_values(steps), t_end, _frames_values(frames, t_end),
                             n_rows(events), duration_s, stopped)
 
 
-def summarize_values(values: dict[str, float], simulated_s: float, frames: Columns,
-                     n_events: int, duration_s: float, stopped: str = "") -> dict[str, float]:
+def summarize_values(values: dict[str, float], simulated_s: float,
+                     frame_metrics: dict[str, float] | None, n_events: int, duration_s: float,
+                     stopped: str = "") -> dict[str, float]:
     """``summarize`` from the per-step metrics (``step_values``), the last step's time (s),
-    the frames table and the number of events."""
+    the per-frame ones (``frame_values``; None for a run without frames) and the number of
+    events."""
     out: dict[str, float] = {
         "duration_s": float(duration_s),
         "simulated_s": float(simulated_s),
@@ -279,20 +283,81 @@ def summarize_values(values: dict[str, float], simulated_s: float, frames: Colum
     for key in ("control_effort_N2m2s", "rms_torque_Nm", "settling_time_s", "overshoot_pct",
                 "step_size_deg", "steady_state_error_deg"):
         out[key] = values[key]
-    out["lost_frame_fraction"] = 0.0
-    if len(frames):
-        dropped = np.asarray(frames["dropped"], dtype=bool)
-        processed = ~dropped
-        out["dropped_frame_fraction"] = float(dropped.mean())
-        lost = _processed_lost(frames, processed)
-        out["lost_frame_fraction"] = float(lost.mean()) if len(lost) else 0.0
-        latency = (np.asarray(frames["latency_s"], dtype=float)[processed]
-                   if "latency_s" in frames else np.zeros(0))
-        known = latency[~np.isnan(latency)]
-        out["mean_latency_s"] = float(known.mean()) if len(known) else float("nan")
-    out.update(_loss_of_control(values, simulated_s, frames, bool(stopped)))
+    frame_metrics = frame_metrics or _NO_FRAMES
+    out["lost_frame_fraction"] = frame_metrics["lost_frame_fraction"]
+    if frame_metrics is not _NO_FRAMES:
+        out["dropped_frame_fraction"] = frame_metrics["dropped_frame_fraction"]
+        out["mean_latency_s"] = frame_metrics["mean_latency_s"]
+    out.update(_loss_of_control(values, frame_metrics, bool(stopped)))
     out["n_events"] = float(n_events)
     return out
+
+
+#: The per-frame metrics of a run without frames.
+_NO_FRAMES = {"lost_frame_fraction": 0.0, "longest_marker_loss_s": 0.0}
+#: What ``_frame_pass`` returns, in its order.
+_FRAME_VALUES = ("dropped_frame_fraction", "lost_frame_fraction", "mean_latency_s",
+                 "longest_marker_loss_s")
+
+
+@njit(cache=True)
+def _frame_pass(t_exposure, dropped, lost, latency, t_end):
+    """The per-frame metrics (``_FRAME_VALUES``) from the frames' exposure times (n,), s,
+    dropped and lost flags (n,) and latencies (n,), s (NaN: not released): the dropped
+    fraction of all frames; over the processed (not dropped) ones the lost fraction, the mean
+    known latency and the longest run of lost frames, from its first frame's exposure to the
+    next processed frame's that is not lost (or ``t_end``, s)."""
+    n = t_exposure.shape[0]
+    n_dropped = n_processed = n_lost = n_known = 0
+    latency_sum = 0.0
+    loss_from, longest = np.nan, 0.0
+    for i in range(n):
+        if dropped[i]:
+            n_dropped += 1
+            continue
+        n_processed += 1
+        if not math.isnan(latency[i]):
+            latency_sum += latency[i]
+            n_known += 1
+        if lost[i]:
+            n_lost += 1
+            if math.isnan(loss_from):
+                loss_from = t_exposure[i]
+        elif not math.isnan(loss_from):
+            longest = max(longest, t_exposure[i] - loss_from)
+            loss_from = np.nan
+    if not math.isnan(loss_from):
+        longest = max(longest, t_end - loss_from)
+    return (n_dropped / n, n_lost / n_processed if n_processed else 0.0,
+            latency_sum / n_known if n_known else np.nan, longest)
+
+
+def frame_values(t_exposure: NDArray, dropped: NDArray, lost: NDArray, latency: NDArray,
+                 t_end: float) -> dict[str, float] | None:
+    """The per-frame metrics of a run (``_FRAME_VALUES``) from its frames as arrays (see
+    ``_frame_pass``; the last step's time ``t_end``, s); None for a run without frames."""
+    if not len(t_exposure):
+        return None
+    values = _frame_pass(np.asarray(t_exposure, dtype=float), np.asarray(dropped, dtype=bool),
+                         np.asarray(lost, dtype=bool), np.asarray(latency, dtype=float),
+                         float(t_end))
+    return dict(zip(_FRAME_VALUES, values, strict=True))
+
+
+def _frames_values(frames: Columns, t_end: float) -> dict[str, float] | None:
+    """``frame_values`` of a frames table: a flag that is missing counts as not lost, a
+    latency that is missing as not released."""
+    if not len(frames):
+        return None
+    n = n_rows(frames)
+    lost = np.zeros(n, dtype=bool)
+    if "lost" in frames:
+        flags = np.asarray(frames["lost"])
+        lost = flags if flags.dtype == bool else np.where(pd.isna(flags), False, flags).astype(bool)
+    latency = (np.asarray(frames["latency_s"], dtype=float) if "latency_s" in frames
+               else np.full(n, np.nan))
+    return frame_values(np.asarray(frames["t_exposure_s"], dtype=float),
+                        np.asarray(frames["dropped"], dtype=bool), lost, latency, t_end)
 
 
 def n_rows(table: Columns) -> int:
@@ -300,30 +365,6 @@ def n_rows(table: Columns) -> int:
     if isinstance(table, pd.DataFrame):
         return len(table)
     return len(next(iter(table.values()))) if len(table) else 0
-
-
-def _processed_lost(frames: Columns, processed: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """The ``lost`` flags of the processed frames (none without the column); a flag that is
-    missing counts as not lost."""
-    if "lost" not in frames:
-        return np.zeros(0, dtype=bool)
-    lost = np.asarray(frames["lost"])[processed]
-    if lost.dtype == bool:
-        return lost
-    lost = lost.astype(object)
-    return np.where(pd.isna(lost), False, lost).astype(bool)
-
-
-def _longest_run_s(flags: np.ndarray, t: np.ndarray, t_end: float) -> float:
-    """Longest time (s) ``flags`` stays True: from the first sample of a run of True to the
-    next False sample (or ``t_end``)."""
-    f = np.concatenate(([False], np.asarray(flags, dtype=bool), [False]))
-    edges = np.flatnonzero(np.diff(f.astype(np.int8)))
-    starts, stops = edges[::2], edges[1::2]  # a run covers samples starts .. stops - 1
-    if not len(starts):
-        return 0.0
-    t_after = np.append(np.asarray(t, dtype=float), t_end)[stops]  # the next False sample
-    return float(np.max(t_after - np.asarray(t, dtype=float)[starts]))
 
 
 def loss_of_control(steps: Columns, frames: Columns, diverged: bool) -> dict[str, float]:
@@ -337,21 +378,16 @@ def loss_of_control(steps: Columns, frames: Columns, diverged: bool) -> dict[str
     ``LOC_GROWTH_MIN_DEG``; ``loc_divergence``, the error exceeded the loop's divergence
     limit. Also returns ``longest_tilt_stop_s`` and ``longest_marker_loss_s``.
     """
-    return _loss_of_control(_steps_values(steps), float(np.asarray(steps["t_s"])[-1]), frames,
+    t_end = float(np.asarray(steps["t_s"])[-1])
+    return _loss_of_control(_steps_values(steps), _frames_values(frames, t_end) or _NO_FRAMES,
                             diverged)
 
 
-def _loss_of_control(values: dict[str, float], t_end: float, frames: Columns,
+def _loss_of_control(values: dict[str, float], frame_metrics: dict[str, float],
                      diverged: bool) -> dict[str, float]:
-    """``loss_of_control`` from the per-step metrics (``step_values``) and the last step's
-    time (s)."""
-    loss_s, lost_frac = 0.0, 0.0
-    if len(frames) and "lost" in frames:
-        processed = ~np.asarray(frames["dropped"], dtype=bool)
-        lost = _processed_lost(frames, processed)
-        t_exp = np.asarray(frames["t_exposure_s"], dtype=float)[processed]
-        loss_s = _longest_run_s(lost, t_exp, t_end)
-        lost_frac = float(lost.mean()) if len(lost) else 0.0
+    """``loss_of_control`` from the per-step and per-frame metrics (``step_values``,
+    ``frame_values``)."""
+    loss_s, lost_frac = frame_metrics["longest_marker_loss_s"], frame_metrics["lost_frame_fraction"]
     stop_s = values["longest_tilt_stop_s"]
     rms2, rms4 = values["rms_second_quarter_deg"], values["rms_last_quarter_deg"]
     flags = {
