@@ -113,19 +113,19 @@ def _residual_jac(q, P, uv, t_cor, intr):
     camera makes every residual NaN."""
     fx, fy, cx, cy, k1, k2, k3 = intr[0], intr[1], intr[2], intr[3], intr[4], intr[5], intr[6]
     w, x, y, z = q[0], q[1], q[2], q[3]
-    R = np.empty((3, 3))
-    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    # R(q) row by row, as floats (small arrays would cost an allocation each)
+    R = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
     n = P.shape[0]
     res = np.empty(2 * n)
     J = np.empty((2 * n, 3))
     behind = False
     for j in range(n):
-        RP = np.empty(3)  # R P_j in a loop: a BLAS call costs more than its nine products
-        for k in range(3):
-            RP[k] = R[k, 0] * P[j, 0] + R[k, 1] * P[j, 1] + R[k, 2] * P[j, 2]
-        X0, X1, X2 = RP[0] + t_cor[0], RP[1] + t_cor[1], RP[2] + t_cor[2]
+        RP0 = R[0] * P[j, 0] + R[1] * P[j, 1] + R[2] * P[j, 2]
+        RP1 = R[3] * P[j, 0] + R[4] * P[j, 1] + R[5] * P[j, 2]
+        RP2 = R[6] * P[j, 0] + R[7] * P[j, 1] + R[8] * P[j, 2]
+        X0, X1, X2 = RP0 + t_cor[0], RP1 + t_cor[1], RP2 + t_cor[2]
         behind = behind or not X2 > 0.0
         iz = 1.0 / X2
         xn, yn = X0 * iz, X1 * iz
@@ -139,11 +139,11 @@ def _residual_jac(q, P, uv, t_cor, intr):
         a21, a22 = fy * c * iz, fy * (s + 2.0 * yn * yn * ds) * iz
         for row, g0, g1 in ((2 * j, a11, a12), (2 * j + 1, a21, a22)):
             g2 = -(g0 * xn + g1 * yn)
-            e0 = g1 * RP[2] - g2 * RP[1]  # g × RP
-            e1 = g2 * RP[0] - g0 * RP[2]
-            e2 = g0 * RP[1] - g1 * RP[0]
+            e0 = g1 * RP2 - g2 * RP1  # g × RP
+            e1 = g2 * RP0 - g0 * RP2
+            e2 = g0 * RP1 - g1 * RP0
             for k in range(3):
-                J[row, k] = -4.0 * (e0 * R[0, k] + e1 * R[1, k] + e2 * R[2, k])
+                J[row, k] = -4.0 * (e0 * R[k] + e1 * R[3 + k] + e2 * R[6 + k])
     if behind:
         res[:] = np.nan
     return res, J
