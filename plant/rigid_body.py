@@ -45,10 +45,11 @@ margin lists its own, so the result does not depend on the margin (equal to the 
 rounding, tests/test_rigid_body.py). Apart from the current row, folded in once per step, the
 lists do not depend on the currents: a rotor stepped over and over (the compiled run loop,
 ``_step_series``) keeps them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since
-they were made could leave it, which saves most scans (a scan costs about as much as two
-stages). The rotor's constants travel as tuples of floats, the exponential map and the Bortz
-coefficient use their series below 0.05 rad, and the compiled step runs with LLVM's
-fast-math licences except the NaN and infinity ones (``FASTMATH``). numba caches the machine
+they were made could leave it, which saves most scans (a scan cost about as much as two
+stages before their pair loop was vectorised). The rotor's constants travel as tuples of
+floats, the exponential map and the Bortz coefficient use their series below 0.05 rad, and the
+compiled step runs with LLVM's fast-math licences except the NaN and infinity ones
+(``FASTMATH``). numba caches the machine
 code on disk (``cache=True``): the first call in a fresh process loads it (about 0.4 s measured
 under load) or, without a cache, compiles it (4-8 s under load).
 """
@@ -84,7 +85,8 @@ _MARGIN_TURNS = 1.5
 _MARGIN_RAD = 0.005
 #: The margin added to the pair lists of a rotor stepped over and over (the compiled run loop),
 #: rad: its lists then serve the steps until the rotor has turned by about this much (a scan
-#: of the 288 pairs costs about as much as the four stages together). Our choice, measured.
+#: of the 288 pairs cost about as much as the four stages together, measured before the
+#: stages' pair loop was vectorised, which made the stages cheaper still). Our choice.
 PAIR_REUSE_RAD = 0.02
 #: The floating-point licences of the compiled step (LLVM's fast-math flags), for every function
 #: that compiles it in (its inlined pieces take their caller's): contraction into fused
