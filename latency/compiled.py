@@ -13,9 +13,10 @@ run, and the agreement tests (tests/test_batched.py) hold it to it.
 How. In such a run the events' times do not depend on the rotor's state: frames come on the
 camera's clock, the frame scheduler decides from the observer's latencies alone which frames it
 drops and when it releases the others, and each command comes one controller latency after its
-release. So the run's event sequence is built first, in Python, with the run's own latency
-streams and the loop's tie rule (``_schedule``: the same ``FrameScheduler`` and the same
-priority queue), and the reference is sampled at the grid points and at the events' times
+release. So the run's event sequence is built first, with the run's own latency streams and
+the loop's tie rule (``_schedule``: the latencies drawn as the event loop draws them, then
+``FrameScheduler``'s rules and the same priority queue compiled, ``_event_queue``), and the
+reference is sampled at the grid points and at the events' times
 (``Reference.sample_many``). Then ``_run_events`` (numba, cached on disk) walks the events:
 between two events it advances the rotor with the compiled physics step
 (``plant.rigid_body._step_row``, the one code of the physics) as ``_advance_segment`` does,
