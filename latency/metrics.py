@@ -97,8 +97,8 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
             break
     size = 0.0
     axis = np.zeros(3)
+    f, g = q_ref[max(i0 - 1, 0)], q_ref[i0]  # the commanded step's start and target
     if i0 > 0:
-        f, g = q_ref[i0 - 1], q_ref[i0]
         size = _geodesic_of(f[0], f[1], f[2], f[3], g[0], g[1], g[2], g[3])
         # the step's rotation axis (``attitude.to_rotvec`` of conj(from) ⊗ to, over its angle)
         d = np.array(_hamilton(f[0], -f[1], -f[2], -f[3], g[0], g[1], g[2], g[3]))
@@ -165,7 +165,6 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
             longest_stop = max(longest_stop, t[k] - stop_from)
             stop_from = np.nan
         if stepped and k >= i0:
-            f, g = q_ref[i0 - 1], q_ref[i0]
             # progress along the step's axis (1.0 on target), from the step's start
             rw, rx, ry, rz = _hamilton(f[0], -f[1], -f[2], -f[3], qk[0], qk[1], qk[2], qk[3])
             sw = rw + 1e-300
