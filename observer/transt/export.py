@@ -1,9 +1,10 @@
 """ONNX export of TransT's per-frame step and an ONNX Runtime session for it (optional backend).
 
 The exported graph is ``TransTNet.track_features`` with the template's position encoding baked
-in: inputs ``search`` (1, 3, Sx, Sx) float32 (ImageNet-normalised crop) and ``z`` (1, Lz, d)
+in: inputs ``search`` (B, 3, Sx, Sx) float32 (ImageNet-normalised crops) and ``z`` (B, Lz, d)
 float32 (the template tokens from ``TransTNet.template_features``, computed once at ``init``);
-outputs ``logits`` (1, L, 2) and ``boxes`` (1, L, 4). Needs ``onnx`` for the export and
+outputs ``logits`` (B, L, 2) and ``boxes`` (B, L, 4). The batch axis B is free, so one call can
+take the crops of many runs (``observer.transt.service``). Needs ``onnx`` for the export and
 ``onnxruntime`` to run it (both project dependencies); they are imported lazily, so a checkout
 without them still runs the eager backend, and the error says what is missing.
 """
@@ -21,15 +22,19 @@ from torch import Tensor, nn
 from observer.transt.network import TransTNet
 
 
+def template_position(net: TransTNet) -> Tensor:
+    """The template tokens' position encoding (1, Lz, d): the same for every template."""
+    fz = net.config.template_feature_size
+    return net.backbone[1].encode(fz, fz).flatten(2).transpose(1, 2).contiguous()
+
+
 class _TrackStep(nn.Module):
     """``track_features`` with the template position encoding as a constant buffer."""
 
     def __init__(self, net: TransTNet) -> None:
         super().__init__()
         self.net = net
-        fz = net.config.template_feature_size
-        pos = net.backbone[1].encode(fz, fz).flatten(2).transpose(1, 2).contiguous()
-        self.register_buffer("pos_z", pos)
+        self.register_buffer("pos_z", template_position(net))
 
     def forward(self, search: Tensor, z: Tensor) -> tuple[Tensor, Tensor]:
         return self.net.track_features(search, z, self.pos_z)
@@ -53,6 +58,7 @@ def export_onnx(net: TransTNet, path: str | Path | None = None) -> bytes:
             output_names=["logits", "boxes"],
             dynamo=False,
             opset_version=17,
+            dynamic_axes={name: {0: "batch"} for name in ("search", "z", "logits", "boxes")},
         )
     data = buf.getvalue()
     if path is not None:

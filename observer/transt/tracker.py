@@ -31,9 +31,9 @@ track. ``initialize`` raises ``ValueError`` for a frame or box it cannot start f
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
@@ -43,9 +43,8 @@ from observer.gk.hsv_gate import UNIFORM_PTP_DN, check_frame, check_rgb_image
 from observer.tracking import TrackResult
 from observer.transt.crop import context_side, crop_square, crop_to_box, normalise
 from observer.transt.network import TransTConfig, TransTNet, build_transt
-from observer.transt.weights import SMALL_WEIGHTS, load_weights
-
-Backend = Literal["eager", "compile", "onnx"]
+from observer.transt.service import Backend, NetworkService, shared_service
+from observer.transt.weights import SMALL_WEIGHTS, WeightsError, load_weights
 
 #: Our choice: the smallest box side the tracker keeps, image px (TransT clips at 10 px of
 #: full-resolution video; our binned frames show the 8 mm marker at about 48 px).
@@ -92,38 +91,20 @@ def hanning_window(n: int) -> NDArray[np.float32]:
 
 
 class _Runner:
-    """Runs the per-frame part of the network: search crop -> (logits (L, 2), boxes (L, 4))."""
+    """The per-frame part of the network for one target: search crop -> (logits (L, 2),
+    boxes (L, 4)) against this target's template tokens, through a ``NetworkService`` (the
+    process's shared one for the shipped weights, so that runs can be batched)."""
 
-    def __init__(self, net: TransTNet, backend: Backend) -> None:
-        self.net = net
-        self.backend = backend
-        self._z: torch.Tensor | None = None
-        self._pos_z: torch.Tensor | None = None
-        self._compiled = None
-        self._ort = None
-        if backend == "compile":
-            self._compiled = torch.compile(net.track_features, dynamic=False)
-        elif backend == "onnx":
-            from observer.transt.export import onnx_session
-
-            self._ort = onnx_session(net)
-        elif backend != "eager":
-            raise ValueError(f"backend must be 'eager', 'compile' or 'onnx', got {backend!r}")
+    def __init__(self, service: NetworkService) -> None:
+        self.service = service
+        self._z: NDArray[np.float32] | None = None
 
     def set_template(self, template: NDArray[np.float32]) -> None:
-        with torch.inference_mode():
-            z, pos = self.net.template_features(torch.from_numpy(template))
-        self._z, self._pos_z = z.contiguous(), pos
+        self._z = self.service.template_tokens(template)
 
     def __call__(self, search: NDArray[np.float32]) -> tuple[np.ndarray, np.ndarray]:
-        assert self._z is not None and self._pos_z is not None
-        if self._ort is not None:
-            logits, boxes = self._ort.run(None, {"search": search, "z": self._z.numpy()})
-            return logits[0], boxes[0]
-        fn = self._compiled if self._compiled is not None else self.net.track_features
-        with torch.inference_mode():
-            logits, boxes = fn(torch.from_numpy(search), self._z, self._pos_z)
-        return logits[0].numpy(), boxes[0].numpy()
+        assert self._z is not None
+        return self.service.evaluate(search, self._z)
 
 
 class TransTTracker:
@@ -134,6 +115,8 @@ class TransTTracker:
     net : the network; put in eval mode here.
     backend : "eager" (PyTorch), "compile" (``torch.compile``) or "onnx" (ONNX Runtime; needs
         the optional ``onnxruntime`` and ``onnx`` packages).
+    service : the ``NetworkService`` that runs ``net`` (default: one of this tracker's own in
+        ``backend``); ``small()`` passes the process's shared service of the shipped weights.
     window_influence : weight of the Hanning window (default: the configuration's, 0.49 as in
         TransT).
     min_box_px : smallest box side kept, image px (our choice, ``MIN_BOX_PX``).
@@ -151,6 +134,7 @@ class TransTTracker:
         backend: Backend = "eager",
         window_influence: float | None = None,
         min_box_px: float = MIN_BOX_PX,
+        service: NetworkService | None = None,
     ) -> None:
         self.net = net.eval()
         self.config: TransTConfig = net.config
@@ -161,7 +145,9 @@ class TransTTracker:
         if not 0.0 <= self.window_influence <= 1.0:
             raise ValueError(f"window_influence must be in [0, 1], got {self.window_influence}")
         self.min_box_px = float(min_box_px)
-        self._runner = _Runner(self.net, backend)
+        if service is not None and (service.net is not net or service.backend != backend):
+            raise ValueError("service must run the same network in the same backend")
+        self._runner = _Runner(service or NetworkService(self.net, backend))
         self._window = hanning_window(self.config.search_feature_size)
         self.centre_image_px: NDArray[np.float64] | None = None
         self._frame_shape: tuple[int, ...] | None = None
@@ -183,16 +169,28 @@ class TransTTracker:
         ``backend=None`` takes ``DEFAULT_BACKEND`` (ONNX Runtime) and falls back to eager
         PyTorch when that is unavailable; ``tracker.backend`` says which one runs.
 
+        The network is loaded and exported once per process and shared by every tracker built
+        here (``observer.transt.service.shared_service``); an ``expected_sha256`` other than
+        the recorded digest builds a network of this tracker's own.
+
         Raises ``observer.transt.weights.WeightsError`` (naming the file and the command that
         rebuilds it) when the file is missing or corrupt.
         """
-        net, _ = load_weights(weights, expected_sha256)
+        if expected_sha256 is not None:
+            net, _ = load_weights(weights, expected_sha256)
+            return cls(net, backend=backend or "eager")
         if backend is not None:
-            return cls(net, backend=backend)
+            service = shared_service(weights, backend)
+            return cls(service.net, backend=backend, service=service)
         try:
-            return cls(net, backend=DEFAULT_BACKEND)
-        except Exception:  # optional ONNX packages missing or export failed: eager works always
-            return cls(net, backend="eager")
+            service = shared_service(weights, DEFAULT_BACKEND)
+        except WeightsError:
+            raise
+        except Exception as exc:  # optional ONNX packages missing or export failed
+            warnings.warn(f"ONNX Runtime backend unavailable ({exc}); running eager PyTorch, "
+                          "which gives the same results more slowly", stacklevel=2)
+            service = shared_service(weights, "eager")
+        return cls(service.net, backend=service.backend, service=service)
 
     @classmethod
     def from_config(

@@ -1,0 +1,167 @@
+"""The batched image-in-the-loop engine: many image-mode runs of the timed loop together.
+
+Each run is a ``latency.loop.ClosedLoop`` with an ``ImageFrontEnd`` (its own seed, renderer,
+tracker, delays, controller and reference), built in the process that runs it by a picklable
+``build(spec)`` (e.g. ``experiments.scenario.build_loop`` on ``Scenario`` objects). The engine
+
+* spreads the runs over ``workers`` processes (one per core by default), in batches of
+  ``runs_per_batch`` runs;
+* in each process builds the tracker networks once (``observer.transt.service.shared_service``:
+  the shipped weights are read, checked and exported to ONNX once per process, not per run);
+* advances a batch's runs together, one thread per run, each on the event loop's own timeline
+  (``ClosedLoop.run``), so a run computes exactly what the event loop computes for it: the same
+  frames from the same renderer and seed, the same tracker and GK code, the same physics and
+  control;
+* evaluates the network on the crops of all runs of the batch that are waiting for it in one
+  call (``NetworkService.batching``: a call takes every run's crop once all of the batch's runs
+  are waiting on the network or done, at most ``max_network_batch`` crops). A crop's result does
+  not depend on the other crops in the call, so the tracker outputs equal the event loop's to the
+  rounding of the batched products (tests/test_image_engine.py).
+
+Timing: a run's tracker latency is the loop's latency *model* (``pipeline.observer``), e.g. the
+distribution of the tracker's per-frame latency measured unbatched on this machine
+(``pmspm measure-latency``, ``latency.profile``), as a single camera would see it, never the wall
+time of a batched call. Runs that ask for measured latencies (``observer_latency: measured`` or
+``controller_latency: measured``) are refused: threads of a batch share the cores, so a time
+measured there says nothing about one camera.
+
+Where an image run's time goes, and what this engine does not do: docs/closed_loop.md.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
+from typing import TypeVar
+
+from tqdm import tqdm
+
+from latency.frontends import ImageFrontEnd
+from latency.loop import ClosedLoop, LoopResult
+from observer.transt.service import shared_services
+
+Spec = TypeVar("Spec")
+
+#: Our choice: runs advanced together in one process. Enough for the network to see full
+#: batches while the other runs render and track (docs/closed_loop.md, the image engine).
+RUNS_PER_BATCH = 16
+#: Our choice: most crops in one network call (the per-crop cost measured flat from 8 to 64,
+#: benchmarks/results/bench_image_engine.json).
+MAX_NETWORK_BATCH = 16
+
+
+def check_image_loop(loop: ClosedLoop) -> None:
+    """``ValueError`` unless ``loop`` is an image-mode run the engine can batch: an
+    ``ImageFrontEnd`` and model latencies only (see the module docstring)."""
+    c = loop.config
+    if not isinstance(loop.front_end, ImageFrontEnd):
+        raise ValueError(
+            f"the image engine runs image-mode marker runs; this run's front end is "
+            f"{type(loop.front_end).__name__} (measurement-model runs go to latency.batched)"
+        )
+    if c.observer_latency == "measured" or c.controller_latency == "measured":
+        raise ValueError(
+            "the image engine needs model latencies (observer_latency: model and a "
+            "controller_latency model): runs that share the cores cannot measure one "
+            "camera's latency; measure it unbatched with `pmspm measure-latency` and use that "
+            "profile as pipeline.observer"
+        )
+
+
+def run_batch(loops: Sequence[ClosedLoop], max_network_batch: int = MAX_NETWORK_BATCH
+              ) -> list[LoopResult]:
+    """Run the image-mode ``loops`` together in this process (one thread each, their network
+    calls batched; see the module docstring) and return their results in order. An exception in
+    a run is raised here after the others have finished."""
+    for lp in loops:
+        check_image_loop(lp)
+    results: list[LoopResult | BaseException | None] = [None] * len(loops)
+    services = shared_services()
+
+    def one(i: int) -> None:
+        with ExitStack() as stack:
+            for s in services:
+                stack.enter_context(s.client())
+            try:
+                results[i] = loops[i].run()
+            except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread
+                results[i] = exc
+
+    with ExitStack() as stack:
+        for s in services:
+            stack.enter_context(s.batching(max_network_batch))
+        threads = [threading.Thread(target=one, args=(i,), name=f"image-run-{i}")
+                   for i in range(len(loops))]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    for r in results:
+        if isinstance(r, BaseException):
+            raise r
+    return [r for r in results if isinstance(r, LoopResult)]
+
+
+def _run_specs(build: Callable[[Spec], ClosedLoop], specs: Sequence[Spec],
+               max_network_batch: int) -> list[LoopResult]:
+    """A worker's batch: build the loops here (networks from this process's services), run."""
+    return run_batch([build(s) for s in specs], max_network_batch)
+
+
+def _worker_init() -> None:
+    """One core per worker: torch's and OpenCV's own thread pools off."""
+    import cv2
+    import torch
+
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+
+
+def run_images(
+    build: Callable[[Spec], ClosedLoop],
+    specs: Sequence[Spec],
+    *,
+    workers: int = 2,
+    runs_per_batch: int = RUNS_PER_BATCH,
+    max_network_batch: int = MAX_NETWORK_BATCH,
+    progress: bool = False,
+) -> list[LoopResult]:
+    """Run image-mode closed loops and return their results, in the order of ``specs``.
+
+    Parameters
+    ----------
+    build : picklable callable spec -> ``ClosedLoop`` (an image-mode run), called in the worker
+        that runs the spec (trackers hold network sessions that do not cross processes).
+    specs : what ``build`` takes, one per run (e.g. ``experiments.scenario.Scenario``).
+    workers : processes (1: in this process, no pool).
+    runs_per_batch : runs advanced together in one process.
+    max_network_batch : most crops per network call.
+    progress : a progress bar over the runs.
+    """
+    if workers < 1 or runs_per_batch < 1:
+        raise ValueError(f"workers and runs_per_batch must be >= 1, got {workers}, "
+                         f"{runs_per_batch}")
+    chunks = [list(specs[i : i + runs_per_batch]) for i in range(0, len(specs), runs_per_batch)]
+    out: list[list[LoopResult] | None] = [None] * len(chunks)
+    bar = tqdm(total=len(specs), disable=not progress, desc="image runs", unit="run")
+    try:
+        if workers == 1 or len(chunks) == 1 and len(specs) == 1:
+            for k, chunk in enumerate(chunks):
+                out[k] = _run_specs(build, chunk, max_network_batch)
+                bar.update(len(chunk))
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(workers, len(chunks)), mp_context=ctx,
+                                     initializer=_worker_init) as pool:
+                futures = {pool.submit(_run_specs, build, chunk, max_network_batch): k
+                           for k, chunk in enumerate(chunks)}
+                for fut in as_completed(futures):
+                    k = futures[fut]
+                    out[k] = fut.result()
+                    bar.update(len(chunks[k]))
+    finally:
+        bar.close()
+    return [r for chunk in out if chunk is not None for r in chunk]
