@@ -527,6 +527,49 @@ def measure_latency(
         typer.echo(f"profile: {path}")
 
 
+@app.command("calibrate-loss")
+def calibrate_loss(
+    tracker: Annotated[str, typer.Option(
+        help="gk_transt, dual_transt, kcf_gk (OpenCV KCF inside the GK assistance) or k2cf.")],
+    seeds: Annotated[int, typer.Option(help="Reference seeds per fit point (>= 1).")] = 6,
+    holdout_seeds: Annotated[int, typer.Option(
+        help="Reference seeds per held-out point (>= 1).")] = 4,
+    duration_s: Annotated[float, typer.Option(help="Simulated time per run, s (> 0.5).")] = 3.0,
+    workers: Annotated[int, typer.Option(help="Worker processes of the image engine.")] = 2,
+    work: Annotated[Path | None, typer.Option(
+        help="Folder of the resumable records (default runs/calibrate-loss-<tracker>).")] = None,
+) -> None:
+    """Calibrate a tracker's loss model on its own image-in-the-loop runs and write it as the
+    package's latency/loss_models/<tracker>.json (scenarios select it with
+    measurement: {loss: {kind: calibrated, tracker: NAME}}). Resumable: run it again with the
+    same --work folder to continue. Prints the held-out agreement table.
+
+    Example: pmspm calibrate-loss --tracker gk_transt --seeds 6
+    """
+    from experiments.loss_calibration import CalibrationDesign, calibrate
+    from latency.loss_model import CALIBRATABLE
+
+    if tracker not in CALIBRATABLE:
+        _fail(f"--tracker must be one of {', '.join(CALIBRATABLE)}, got {tracker!r}")
+    if seeds < 1 or holdout_seeds < 1 or workers < 1 or not duration_s > 0.5:
+        _fail("--seeds, --holdout-seeds and --workers must be >= 1 and --duration-s > 0.5")
+    design = CalibrationDesign(fit_seeds=seeds, holdout_seeds=holdout_seeds,
+                               duration_s=duration_s)
+    try:
+        path, data = calibrate(tracker, design, work, workers)
+    except KeyboardInterrupt:
+        _interrupted()
+    except ValueError as exc:
+        _fail(str(exc))
+    typer.echo(f"{tracker}: {data.n_frames} frames from {data.n_runs} runs; "
+               f"noise {data.noise_sigma_px:.2f} px; written to {path}")
+    for row in data.validation:
+        il, ml = row["image_lost_frame_fraction"], row["model_lost_frame_fraction"]
+        typer.echo(f"  {row['delay_ms']:6.2f} ms {row['rate_rad_s']:4.1f} rad/s: lost frames "
+                   f"image {il[0]:.3f} [{il[1]:.3f}, {il[2]:.3f}] model {ml[0]:.3f} "
+                   f"[{ml[1]:.3f}, {ml[2]:.3f}]; {'agree' if row['agree'] else 'DIFFER'}")
+
+
 def _names(values: list[str] | None) -> list[str] | None:
     """Option values given repeated or comma-separated (``--cases clean,blur``)."""
     if not values:

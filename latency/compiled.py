@@ -48,9 +48,11 @@ from numpy.typing import NDArray
 from controller.pid import PIDController
 from latency.frontends import (
     LOST_BLUR,
+    LOST_CALIBRATED,
     LOST_DROPOUT,
     LOST_OUTSIDE_ROI,
     LOST_OUTSIDE_WINDOW,
+    CalibratedLoss,
     MeasurementFrontEnd,
 )
 from latency.loop import ClosedLoop, LoopResult, _StepLog, run_streams
@@ -108,7 +110,8 @@ EVENT_KINDS = ("frame_dropped", "tracking_loss", "reacquisition", "invalid_estim
 (_EV_DROPPED, _EV_LOSS, _EV_REACQ, _EV_INVALID_EST, _EV_INVALID_CMD, _EV_SATURATION,
  _EV_CONTACT, _EV_RELEASE, _EV_DIVERGENCE) = range(len(EVENT_KINDS))
 #: Why a front end lost a frame (``MeasurementFrontEnd.capture``'s reasons), by code.
-CAPTURE_REASONS = ("", LOST_DROPOUT, LOST_OUTSIDE_WINDOW, LOST_OUTSIDE_ROI, LOST_BLUR)
+CAPTURE_REASONS = ("", LOST_DROPOUT, LOST_OUTSIDE_WINDOW, LOST_OUTSIDE_ROI, LOST_BLUR,
+                   LOST_CALIBRATED)
 #: A solve's outcome (``_solve``): ``observer.cor_solver``'s failure codes (``failure_reason``),
 #: and two of its own: a clean solution, and a frame the front end lost (not solved).
 _R_OK, _R_LOST = -1, -2
@@ -138,7 +141,9 @@ _P_KF_ON, _P_KF_Q, _P_KF_R, _P_KF_V0 = 45, 46, 62, 66  # pixel Kalman: on, Q (4 
 # limit (px, NaN: none) and the camera's exposure (s)
 _P_ROI, _P_ROI_COLS, _P_ROI_ROWS, _P_ROI_FOLLOW, _P_SENSOR_W, _P_SENSOR_H = range(67, 73)
 _P_BLUR, _P_EXPOSURE = 73, 74
-_N_PAR = 75
+# the calibrated loss model (latency.loss_model): on, hazard (3), persistence (4)
+_P_CAL_ON, _P_CAL_HAZ, _P_CAL_PER = 75, 76, 79
+_N_PAR = 83
 _AW_MODES = ("back_calculation", "conditional", "none")
 
 # --- the frame record (``fr``), by column -----------------------------------------------------
@@ -273,15 +278,22 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     par[_P_TAU_L], par[_P_N_STEPS] = p.motor.coil_time_constant_s, loop.n_steps
     par[_P_COS_STOP] = np.cos(np.deg2rad(p.rotor.tilt_stop_deg))
     par[_P_DIV_DEG], par[_P_LOSS_PX] = c.divergence_deg, c.loss_threshold_px
-    par[_P_SIGMA], par[_P_DROPOUT], par[_P_OUTLIER] = m.sigma_px, m.dropout_prob, m.outlier_prob
-    par[_P_OUTLIER_PX] = m.outlier_px
-    par[_P_SEARCH] = np.nan if m.search_radius_px is None else m.search_radius_px
-    par[_P_PREDICT], par[_P_REACQ] = m.predictive_search, m.reacquire_after_frames
+    par[_P_SIGMA], par[_P_DROPOUT] = m.noise_sigma_px, m.dropout_prob
+    par[_P_OUTLIER], par[_P_OUTLIER_PX] = m.outlier_prob, m.outlier_px
+    w = m.window
+    par[_P_SEARCH] = np.nan if w is None or w.search_radius_px is None else w.search_radius_px
+    par[_P_PREDICT] = m.predictive
+    par[_P_REACQ] = 1.0 if w is None else w.reacquire_after_frames
     if m.roi is not None:
         par[_P_ROI], par[_P_ROI_COLS], par[_P_ROI_ROWS] = 1.0, m.roi.cols, m.roi.rows
         par[_P_ROI_FOLLOW] = m.roi.follow
     par[_P_SENSOR_W], par[_P_SENSOR_H] = p.camera.sensor_width_px, p.camera.sensor_height_px
-    par[_P_BLUR] = np.nan if m.blur_limit_px is None else m.blur_limit_px
+    par[_P_BLUR] = np.nan if w is None or w.blur_limit_px is None else w.blur_limit_px
+    if isinstance(m.loss, CalibratedLoss):
+        model = m.loss.model
+        par[_P_CAL_ON] = 1.0
+        par[_P_CAL_HAZ : _P_CAL_HAZ + 3] = model.hazard
+        par[_P_CAL_PER : _P_CAL_PER + 4] = model.persistence
     par[_P_EXPOSURE] = p.camera.exposure_s
     sc = solver.config
     par[_P_MAX_IT], par[_P_STEP_TOL] = sc.max_iterations, sc.step_tol_rad
@@ -415,6 +427,27 @@ def _blur_travel_px(q, w, par, P, t_cor, intr):
 
 
 @njit(cache=True)
+def _calibrated_lost(st, q, w, par, P, t_cor, intr, truth, u):
+    """``LossModel.p_lost`` on the front end's state (``MeasurementFrontEnd.capture`` with a
+    calibrated loss): whether the uniform draw ``u`` loses this frame."""
+    offset = 0.0
+    if st[_FE_HAS] > 0:
+        for j in range(2):
+            du = truth[j, 0] - (st[_FE_LAST + 2 * j] + st[_FE_MOTION + 2 * j])
+            dv = truth[j, 1] - (st[_FE_LAST + 2 * j + 1] + st[_FE_MOTION + 2 * j + 1])
+            offset = max(offset, np.sqrt(du * du + dv * dv))
+    a = np.log1p(offset)
+    b = np.log1p(_blur_travel_px(q, w, par, P, t_cor, intr))
+    n = st[_FE_LOST]
+    if n <= 0:
+        x = par[_P_CAL_HAZ] + par[_P_CAL_HAZ + 1] * a + par[_P_CAL_HAZ + 2] * b
+    else:
+        x = (par[_P_CAL_PER] + par[_P_CAL_PER + 1] * a + par[_P_CAL_PER + 2] * b
+             + par[_P_CAL_PER + 3] * np.log1p(n))
+    return u < 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+@njit(cache=True)
 def _capture(st, q, w, par, P, t_cor, intr, rng, meas):
     """``MeasurementFrontEnd.capture`` at the attitude q and body rate w: writes the measured
     pixels into ``meas`` (NaN when lost) and returns (true pixels, lost, reason code of
@@ -428,7 +461,11 @@ def _capture(st, q, w, par, P, t_cor, intr, rng, meas):
         st[_FE_LOST] += 1.0
         return truth, True, 3
     predict = 1.0 if par[_P_PREDICT] > 0 else 0.0
-    if np.isfinite(par[_P_SEARCH]) and st[_FE_HAS] > 0 and st[_FE_LOST] < par[_P_REACQ]:
+    if par[_P_CAL_ON] > 0:
+        if _calibrated_lost(st, q, w, par, P, t_cor, intr, truth, rng.random()):
+            st[_FE_LOST] += 1.0
+            return truth, True, 5
+    elif np.isfinite(par[_P_SEARCH]) and st[_FE_HAS] > 0 and st[_FE_LOST] < par[_P_REACQ]:
         worst = 0.0
         for j in range(2):
             du = truth[j, 0] - (st[_FE_LAST + 2 * j] + predict * st[_FE_MOTION + 2 * j])

@@ -19,17 +19,24 @@ loop can flag tracking loss by the seed's 20 px criterion (seed 000 §4.2).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Annotated, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from latency.loss_model import (
+    CALIBRATABLE,
+    LossModel,
+    blur_travel_px,
+    load_loss_model,
+    prediction_offset_px,
+)
 from observer.orb import OrbConfig, OrbMeasurement, OrbReference
 from observer.trackers import make_pair_tracker
 from observer.tracking import PairTracker
-from plant import attitude
 from plant.camera import marker_pixels, sensor_to_image
 from plant.camera_mode import RegionOfInterest
 from plant.params import PlantParams
@@ -89,18 +96,78 @@ LOST_DROPOUT = "dropout (measurement model)"
 LOST_OUTSIDE_WINDOW = "marker left the search window"
 LOST_OUTSIDE_ROI = "marker outside the region of interest"
 LOST_BLUR = "motion blur beyond the tracker's limit"
+LOST_CALIBRATED = "lost by the tracker's calibrated loss model"
+
+
+class SearchWindowLoss(BaseModel):
+    """The hand-set search-window loss model, the same for every tracker (our construction, so
+    that loss depends on the delay, the frame drops and the reference's aggressiveness): the
+    tracker searches a window of radius ``search_radius_px`` around its expected marker
+    position (the last measurement, advanced by the last inter-frame motion when
+    ``predictive_search``, as the GK Kalman prediction does); a marker outside the window is
+    lost until a re-detection ``reacquire_after_frames`` processed frames later. A marker
+    smeared over more than ``blur_limit_px`` during the exposure is lost for that frame.
+    ``CalibratedLoss`` replaces it with a tracker's own, measured behaviour."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["search_window"] = "search_window"
+    search_radius_px: float | None = Field(
+        None,
+        gt=0.0,
+        description="Tracker search window radius, sensor px; None: never lost "
+        "by motion. A KCF-like window of 2.5 marker diameters is about 240 sensor px.",
+    )
+    predictive_search: bool = Field(True, description="Centre the window on a CV prediction.")
+    reacquire_after_frames: int = Field(
+        5, ge=1, description="Our choice: processed frames until a re-detection finds it."
+    )
+    blur_limit_px: float | None = Field(
+        None,
+        gt=0.0,
+        description="Marker travel during the exposure beyond which the frame is "
+        "lost, sensor px; None: blur never loses it.",
+    )
+
+
+class CalibratedLoss(BaseModel):
+    """A tracker's own loss behaviour, calibrated on its image-in-the-loop runs
+    (``latency.loss_model``; written by ``pmspm calibrate-loss --tracker NAME``). The file is
+    loaded when the settings are validated, so a missing, stale or foreign file is an error
+    before any run."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["calibrated"] = "calibrated"
+    tracker: str = Field(description=f"One of {', '.join(CALIBRATABLE)}.")
+    noise: Literal["calibrated", "sigma_px"] = Field(
+        "calibrated", description="Centre noise of tracked frames: the tracker's calibrated "
+        "spread, or the measurement model's sigma_px.")
+
+    @model_validator(mode="after")
+    def _file_loads(self) -> CalibratedLoss:
+        load_loss_model(self.tracker)
+        return self
+
+    @property
+    def model(self) -> LossModel:
+        """The loaded calibration."""
+        return load_loss_model(self.tracker)
+
+
+LossSpec = Annotated[SearchWindowLoss | CalibratedLoss, Field(discriminator="kind")]
+#: Keys of ``SearchWindowLoss`` that older settings gave at the top level.
+_WINDOW_KEYS = ("search_radius_px", "predictive_search", "reacquire_after_frames",
+                "blur_limit_px")
 
 
 class MeasurementConfig(BaseModel):
     """Noise and loss model of the measurement front end, sensor px.
 
-    Tracking loss is modelled from the motion (our construction, so that loss depends on the
-    delay, the frame drops and the reference's aggressiveness as with a real tracker): the tracker
-    searches a window of radius ``search_radius_px`` around its expected marker position (the last
-    measurement, advanced by the last inter-frame motion when ``predictive_search``, as the GK
-    Kalman prediction does); a marker outside the window is lost until a re-detection
-    ``reacquire_after_frames`` processed frames later. A marker smeared over more than
-    ``blur_limit_px`` during the exposure is lost for that frame.
+    Tracking loss comes from ``loss``: the hand-set search window (``SearchWindowLoss``, the
+    default) or a tracker's calibrated model (``CalibratedLoss``). The search window's keys
+    given at the top level (the older form) are moved into ``loss`` with a
+    ``DeprecationWarning``.
 
     With a region of interest ``roi`` (``plant.camera_mode.RegionOfInterest``) only those rows
     and columns are read: a marker outside them is lost for the frame (the motion outran the
@@ -120,25 +187,49 @@ class MeasurementConfig(BaseModel):
     dropout_prob: float = Field(0.0, ge=0.0, le=1.0, description="Frames with no markers.")
     outlier_prob: float = Field(0.0, ge=0.0, le=1.0, description="Frames with a jumped centre.")
     outlier_px: float = Field(60.0, ge=0.0, description="Size of an outlier jump, sensor px.")
-    search_radius_px: float | None = Field(
-        None,
-        gt=0.0,
-        description="Tracker search window radius, sensor px; None: never lost "
-        "by motion. A KCF-like window of 2.5 marker diameters is about 240 sensor px.",
-    )
-    predictive_search: bool = Field(True, description="Centre the window on a CV prediction.")
-    reacquire_after_frames: int = Field(
-        5, ge=1, description="Our choice: processed frames until a re-detection finds it."
-    )
-    blur_limit_px: float | None = Field(
-        None,
-        gt=0.0,
-        description="Marker travel during the exposure beyond which the frame is "
-        "lost, sensor px; None: blur never loses it.",
+    loss: LossSpec = Field(
+        default_factory=SearchWindowLoss,
+        description="Tracking loss: {kind: search_window, ...} (hand-set, the same for every "
+        "tracker) or {kind: calibrated, tracker: NAME} (the tracker's own, measured).",
     )
     roi: RegionOfInterest | None = Field(
         None, description="Region of interest read out; None: the whole sensor."
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _window_keys_into_loss(cls, data):
+        """The older form: search-window keys at the top level."""
+        if isinstance(data, dict) and any(k in data for k in _WINDOW_KEYS):
+            if "loss" in data:
+                raise ValueError(f"give the search window's keys ({', '.join(_WINDOW_KEYS)}) "
+                                 "inside loss, not beside it")
+            warnings.warn("measurement.search_radius_px and its siblings moved into "
+                          "measurement.loss: {kind: search_window, ...}", DeprecationWarning,
+                          stacklevel=2)
+            data = dict(data)
+            data["loss"] = {"kind": "search_window",
+                            **{k: data.pop(k) for k in _WINDOW_KEYS if k in data}}
+        return data
+
+    @property
+    def window(self) -> SearchWindowLoss | None:
+        """The search-window loss model, None with a calibrated one."""
+        return self.loss if isinstance(self.loss, SearchWindowLoss) else None
+
+    @property
+    def predictive(self) -> bool:
+        """Whether the front end's prediction advances by the last motion (always with a
+        calibrated model: it was calibrated so)."""
+        return self.window is None or self.window.predictive_search
+
+    @property
+    def noise_sigma_px(self) -> float:
+        """Per-coordinate noise of a tracked frame, sensor px."""
+        loss = self.loss
+        if isinstance(loss, CalibratedLoss) and loss.noise == "calibrated":
+            return loss.model.noise_sigma_px
+        return self.sigma_px
 
 
 class MarkerPrediction:
@@ -188,7 +279,9 @@ class MeasurementFrontEnd:
         self, params: PlantParams, config: MeasurementConfig, rng: np.random.Generator
     ) -> None:
         self.params, self.config, self.rng = params, config, rng
-        self._prediction = MarkerPrediction(config.predictive_search)
+        self._prediction = MarkerPrediction(config.predictive)
+        self._calibrated = config.loss.model if isinstance(config.loss, CalibratedLoss) else None
+        self._sigma_px = config.noise_sigma_px
         self.reset()
 
     def reset(self) -> None:
@@ -204,14 +297,6 @@ class MeasurementFrontEnd:
         (``RegionOfInterest.centre_px`` on the predicted markers)."""
         return roi.centre_px(_sensor_px(self.params), self._prediction.predicted_px)
 
-    def _blur_travel_px(self, q: NDArray[np.float64], omega: NDArray[np.float64]) -> float:
-        half = 0.5 * self.params.camera.exposure_s
-        ends = [
-            marker_pixels(self.params, attitude.multiply(q, attitude.from_rotvec(s * half * omega)))
-            for s in (-1.0, 1.0)
-        ]
-        return float(np.max(np.linalg.norm(ends[1] - ends[0], axis=1)))
-
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
@@ -225,17 +310,26 @@ class MeasurementFrontEnd:
         if c.roi is not None and not c.roi.contains(truth, self.roi_centre_px(c.roi)):
             self._lost_frames += 1
             return Capture(nothing, truth, True, LOST_OUTSIDE_ROI)
-        if (
-            c.search_radius_px is not None
+        w = c.window
+        if self._calibrated is not None:
+            p = self._calibrated.p_lost(prediction_offset_px(truth, predicted),
+                                        blur_travel_px(self.params, q, omega), self._lost_frames)
+            if self.rng.random() < p:
+                self._lost_frames += 1
+                return Capture(nothing, truth, True, LOST_CALIBRATED)
+        elif (
+            w is not None
+            and w.search_radius_px is not None
             and predicted is not None
-            and self._lost_frames < c.reacquire_after_frames  # else: re-detected this frame
+            and self._lost_frames < w.reacquire_after_frames  # else: re-detected this frame
         ):
-            if np.max(np.linalg.norm(truth - predicted, axis=1)) > c.search_radius_px:
+            if prediction_offset_px(truth, predicted) > w.search_radius_px:
                 self._lost_frames += 1
                 return Capture(nothing, truth, True, LOST_OUTSIDE_WINDOW)
-        if c.blur_limit_px is not None and self._blur_travel_px(q, omega) > c.blur_limit_px:
+        if w is not None and w.blur_limit_px is not None \
+                and blur_travel_px(self.params, q, omega) > w.blur_limit_px:
             return Capture(nothing, truth, True, LOST_BLUR)
-        z = truth + self.rng.normal(scale=c.sigma_px, size=(2, 2))
+        z = truth + self.rng.normal(scale=self._sigma_px, size=(2, 2))
         if self.rng.random() < c.outlier_prob:
             angle = self.rng.uniform(0, 2 * np.pi)
             z[self.rng.integers(2)] += c.outlier_px * np.array([np.cos(angle), np.sin(angle)])

@@ -136,7 +136,9 @@ def run_images(
     build : picklable callable spec -> ``ClosedLoop`` (an image-mode run), called in the worker
         that runs the spec (trackers hold network sessions that do not cross processes).
     specs : what ``build`` takes, one per run (e.g. ``experiments.scenario.Scenario``).
-    workers : processes (1: in this process, no pool).
+    workers : processes (1: in this process, no pool). With more than one, the processes are
+        spawned: a script that calls this must guard its top level with
+        ``if __name__ == "__main__":``.
     runs_per_batch : runs advanced together in one process.
     max_network_batch : most crops per network call.
     progress : a progress bar over the runs.
@@ -144,11 +146,13 @@ def run_images(
     if workers < 1 or runs_per_batch < 1:
         raise ValueError(f"workers and runs_per_batch must be >= 1, got {workers}, "
                          f"{runs_per_batch}")
-    chunks = [list(specs[i : i + runs_per_batch]) for i in range(0, len(specs), runs_per_batch)]
+    # Batches no larger than an even share, so that every worker has runs.
+    size = max(1, min(runs_per_batch, -(-len(specs) // workers)))
+    chunks = [list(specs[i : i + size]) for i in range(0, len(specs), size)]
     out: list[list[LoopResult] | None] = [None] * len(chunks)
     bar = tqdm(total=len(specs), disable=not progress, desc="image runs", unit="run")
     try:
-        if workers == 1 or len(chunks) == 1 and len(specs) == 1:
+        if workers == 1 or len(chunks) == 1:
             for k, chunk in enumerate(chunks):
                 out[k] = _run_specs(build, chunk, max_network_batch)
                 bar.update(len(chunk))

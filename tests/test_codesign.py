@@ -540,7 +540,7 @@ def test_a_tracker_that_never_re_detects_keeps_a_lost_marker_lost_for_the_run():
                                           "reacquire_after_frames": None}})
     design = Design(frame_rate_hz=36.0, tracker="lost", observer="solver")
     frames_in_run = spec.duration_s * 36.0
-    assert scenario_dict(spec, design, 0, 0)["measurement"]["reacquire_after_frames"] > (
+    assert scenario_dict(spec, design, 0, 0)["measurement"]["loss"]["reacquire_after_frames"] > (
         frames_in_run)
 
 

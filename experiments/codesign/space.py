@@ -167,10 +167,11 @@ def scenario_dict(spec: CodesignSpec, design: Design, seed: int, reference_index
         "pipeline": {"observer": tracker.latency_model().model_dump(mode="json"),
                      "mode": design.pipeline, "readout_s": mode.readout_s},
         "measurement": {
-            "sigma_px": sigma, "search_radius_px": tracker.search_radius_px,
-            "reacquire_after_frames": never if tracker.reacquire_after_frames is None
-            else tracker.reacquire_after_frames,
-            "blur_limit_px": tracker.blur_limit_px, "dropout_prob": tracker.dropout_prob,
+            "sigma_px": sigma, "dropout_prob": tracker.dropout_prob,
+            "loss": {"kind": "search_window", "search_radius_px": tracker.search_radius_px,
+                     "reacquire_after_frames": never if tracker.reacquire_after_frames is None
+                     else tracker.reacquire_after_frames,
+                     "blur_limit_px": tracker.blur_limit_px},
             "roi": None if roi is None else roi.model_dump(mode="json"),
         },
         "observer": observer,

@@ -95,7 +95,8 @@ class TuningObjective(BaseModel):
         1.5, ge=0.0, description="Per-coordinate measurement noise, sensor px (our choice)."
     )
     measurement: dict = Field(
-        default_factory=lambda: {"search_radius_px": 240.0, "blur_limit_px": 48.0},
+        default_factory=lambda: {"loss": {"kind": "search_window", "search_radius_px": 240.0,
+                                          "blur_limit_px": 48.0}},
         description="Further MeasurementConfig fields. Our choice: a KCF-like search window "
         "of 240 sensor px (2.5 marker diameters) and a blur limit of half a marker diameter.",
     )

@@ -1,0 +1,276 @@
+"""Calibrate a tracker's loss model on its own image-in-the-loop runs (``pmspm calibrate-loss``).
+
+The design (``CalibrationDesign``): image-mode runs of the tracker in closed loop (PID, the
+per-frame solver observer, the analytic renderer) on smooth random references of several peak
+rates and reference seeds, at several constant vision delays, run by the batched image engine
+(``latency.image_engine``). Each processed frame gives one record: the conditions the
+measurement front end can compute (``latency.loss_model``: the prediction's miss, the blur,
+the frames lost in a row), whether the loop counted the frame lost (the tracker said so, or a
+centre lay more than 20 px from the truth), and the centre error. The fit
+(``latency.loss_model.fit_logistic``) takes the records of the fit rates and seeds; the
+held-out rates and reference seeds are run again with the calibrated measurement model, and the
+two sides' lost-frame fraction and loss-of-control rate are compared point by point with their
+95 % intervals (``validation`` in the file, ``docs/closed_loop.md``).
+
+Resumable: the records of each batch of runs are written to ``<work>/records-<k>.parquet``
+(through a temporary file); a new call with the same work folder and design skips the batches
+already there. The model is written atomically (``latency.loss_model.write_loss_model``).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from pydantic import BaseModel, ConfigDict, Field
+from tqdm import tqdm
+
+from experiments.intervals import bootstrap_mean_ci, wilson_ci
+from experiments.scenario import Scenario, build_loop, run_many
+from latency.frontends import MarkerPrediction
+from latency.image_engine import run_images
+from latency.loop import LoopResult
+from latency.loss_model import (
+    FORMAT_VERSION,
+    LossModelFile,
+    blur_travel_px,
+    check_tracker,
+    current_weights_sha256,
+    design_matrices,
+    fit_logistic,
+    prediction_offset_px,
+    write_loss_model,
+)
+from latency.models import SEED_LATENCY_S
+from plant.params import PlantParams
+
+#: ``make_pair_tracker`` names -> the scenario's tracker names.
+SCENARIO_TRACKER = {"gk_transt": "transt", "dual_transt": "dual_transt", "kcf_gk": "kcf",
+                    "k2cf": "k2cf"}
+
+
+class CalibrationDesign(BaseModel):
+    """The motions a tracker is calibrated on. Defaults are our choice: the study's rates and
+    delays bracketed (the seed's two latencies included), 3 s runs (108 frames at 36 Hz)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    fit_rates_rad_s: tuple[float, ...] = Field((1.0, 3.0, 6.0, 9.0), description="Peak rates "
+                                               "of the random references the fit uses, rad/s.")
+    holdout_rates_rad_s: tuple[float, ...] = Field(
+        (2.0, 4.5), description="Peak rates held out for validation, rad/s.")
+    delays_ms: tuple[float, ...] = Field(
+        (0.0, SEED_LATENCY_S["gk_transt"] * 1e3, SEED_LATENCY_S["dual_transt"] * 1e3, 45.0),
+        description="Constant vision delays, ms.")
+    fit_seeds: int = Field(6, ge=1, description="Reference seeds per fit point (0, 1, ...).")
+    holdout_seeds: int = Field(4, ge=1, description="Reference seeds per held-out point "
+                               "(1000, 1001, ...: none of the fit's).")
+    model_replicas: int = Field(4, ge=1, description="Measurement-model runs per held-out "
+                                "image run (other noise seeds, the same reference).")
+    duration_s: float = Field(3.0, gt=0.5, description="Simulated time per run, s.")
+    crossover_rad_s: float = Field(10.0, gt=0.0, description="PID crossover (rad/s).")
+
+    def scenarios(self, tracker: str, holdout: bool) -> list[Scenario]:
+        """The image-mode scenarios of the fit (``holdout`` False) or the held-out part."""
+        rates = self.holdout_rates_rad_s if holdout else self.fit_rates_rad_s
+        seeds = [1000 + i for i in range(self.holdout_seeds)] if holdout \
+            else list(range(self.fit_seeds))
+        out = []
+        for d in self.delays_ms:
+            for r in rates:
+                for s in seeds:
+                    out.append(_scenario(tracker, d, r, s, self, "image"))
+        return out
+
+
+def _scenario(tracker: str, delay_ms: float, rate: float, seed: int, design: CalibrationDesign,
+              mode: str, loss: dict | None = None, noise_seed: int | None = None) -> Scenario:
+    """One calibration run: the tracker's image run, or its measurement-model twin."""
+    body = {
+        "name": f"{tracker}-{delay_ms:g}ms-{rate:g}rad_s-r{seed}",
+        "duration_s": design.duration_s,
+        "seed": seed if noise_seed is None else noise_seed,
+        "mode": mode,
+        "tracker": SCENARIO_TRACKER[tracker],
+        "observer": {"kind": "solver"},
+        "controller": {"kind": "pid", "config": {"crossover_rad_s": design.crossover_rad_s}},
+        "reference": {"kind": "random", "args": {"max_rate_rad_s": rate, "seed": seed}},
+        "pipeline": {"observer": {"kind": "constant", "value_s": delay_ms / 1e3}},
+    }
+    if loss is not None:
+        body["measurement"] = {"loss": loss}
+    return Scenario.model_validate(body)
+
+
+def frame_records(res: LoopResult, params: PlantParams) -> pd.DataFrame:
+    """One row per processed frame of an image run: the loss model's conditions
+    (``offset_px``, ``blur_px``, ``frames_lost``), the loop's ``lost`` flag and the centre
+    errors (``err_*_px``, measured minus true, sensor px). The prediction is the measurement
+    front end's (``MarkerPrediction``), advanced as it would be by the frames the loop kept,
+    so the conditions are those the calibrated model sees when it runs."""
+    fr = res.frames[~res.frames["dropped"].astype(bool)].reset_index(drop=True)
+    steps = res.steps
+    h = float(steps["t_s"].iloc[1] - steps["t_s"].iloc[0])
+    q = steps[["qw", "qx", "qy", "qz"]].to_numpy()
+    w = steps[["omega_x_rad_s", "omega_y_rad_s", "omega_z_rad_s"]].to_numpy()
+    truth = fr[["true_red_u_px", "true_red_v_px", "true_yellow_u_px",
+                "true_yellow_v_px"]].to_numpy().reshape(-1, 2, 2)
+    meas = fr[["meas_red_u_px", "meas_red_v_px", "meas_yellow_u_px",
+               "meas_yellow_v_px"]].to_numpy()
+    lost = fr["lost"].to_numpy(dtype=bool)
+    pred = MarkerPrediction(use_motion=True)
+    rows, n_lost = [], 0
+    for k in range(len(fr)):
+        i = min(int(round(fr["t_exposure_s"].iloc[k] / h)), len(q) - 1)
+        offset = prediction_offset_px(truth[k], pred.predicted_px)
+        pred.frame()
+        rows.append((offset, blur_travel_px(params, q[i], w[i]), n_lost, lost[k]))
+        if lost[k]:
+            n_lost += 1
+        else:
+            pred.measured(truth[k])
+            n_lost = 0
+    out = pd.DataFrame(rows, columns=["offset_px", "blur_px", "frames_lost", "lost"])
+    err = meas - truth.reshape(-1, 4)
+    for j, name in enumerate(("red_u", "red_v", "yellow_u", "yellow_v")):
+        out[f"err_{name}_px"] = err[:, j]
+    return out
+
+
+def _run_records(scenarios: list[Scenario], workers: int) -> pd.DataFrame:
+    """The records of image runs, with each run's bookkeeping."""
+    results = run_images(build_loop, scenarios, workers=workers)
+    parts = []
+    for s, res in zip(scenarios, results, strict=True):
+        rec = frame_records(res, s.plant)
+        ref = s.reference.args  # type: ignore[union-attr]
+        rec["delay_ms"] = s.pipeline.observer.mean_s * 1e3
+        rec["rate_rad_s"] = ref["max_rate_rad_s"]
+        rec["reference_seed"] = ref["seed"]
+        rec["run_lost_frame_fraction"] = res.summary["lost_frame_fraction"]
+        rec["run_loss_of_control"] = res.summary["loss_of_control"]
+        rec["run"] = s.name
+        parts.append(rec)
+    return pd.concat(parts, ignore_index=True)
+
+
+def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 2,
+            batch_runs: int = 32, progress: bool = True) -> pd.DataFrame:
+    """Run (or resume) the design's image runs; the records of all of them (``holdout``
+    says which part). Batches already in ``work`` are read, not run again."""
+    work.mkdir(parents=True, exist_ok=True)
+    stamp = work / "design.json"
+    text = json.dumps({"tracker": tracker, "design": design.model_dump()}, sort_keys=True)
+    if stamp.exists() and stamp.read_text() != text:
+        raise ValueError(f"{work} holds a calibration of another design or tracker; use "
+                         "another --work folder or delete it")
+    stamp.write_text(text)
+    parts = []
+    jobs = [(False, s) for s in design.scenarios(tracker, False)] + \
+        [(True, s) for s in design.scenarios(tracker, True)]
+    batches = [jobs[i : i + batch_runs] for i in range(0, len(jobs), batch_runs)]
+    for k, batch in enumerate(tqdm(batches, desc=f"calibrating {tracker}", unit="batch",
+                                   disable=not progress)):
+        path = work / f"records-{k:03d}.parquet"
+        if not path.exists():
+            rec = _run_records([s for _, s in batch], workers)
+            holdout = {s.name: h for h, s in batch}
+            rec["holdout"] = rec["run"].map(holdout).astype(bool)
+            tmp = path.with_suffix(".tmp")
+            rec.to_parquet(tmp)
+            os.replace(tmp, path)
+        parts.append(pd.read_parquet(path))
+    return pd.concat(parts, ignore_index=True)
+
+
+def robust_sigma_px(errors: np.ndarray) -> float:
+    """1.4826 x the median absolute deviation of the finite errors (a Gaussian's sigma)."""
+    e = errors[np.isfinite(errors)]
+    if e.size == 0:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(e - np.median(e))))
+
+
+def fit(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> LossModelFile:
+    """The loss model of the fit part of ``records`` (see the module docstring)."""
+    r = records[~records["holdout"]]
+    Xh, Xp = design_matrices(r["offset_px"], r["blur_px"], r["frames_lost"])
+    after_tracked = r["frames_lost"].to_numpy() == 0
+    lost = r["lost"].to_numpy(dtype=float)
+    hazard = fit_logistic(Xh[after_tracked], lost[after_tracked])
+    if np.any(~after_tracked):
+        persistence = fit_logistic(Xp[~after_tracked], lost[~after_tracked])
+    else:  # never lost in the design: a loss would last one frame
+        persistence = np.array([-20.0, 0.0, 0.0, 0.0])
+    ok = ~r["lost"].to_numpy(dtype=bool)
+    errs = r.loc[ok, [c for c in r.columns if c.startswith("err_")]].to_numpy().ravel()
+    return LossModelFile(
+        format_version=FORMAT_VERSION, tracker=tracker,
+        weights_sha256=current_weights_sha256(tracker),
+        hazard=tuple(float(x) for x in hazard), persistence=tuple(float(x) for x in persistence),
+        noise_sigma_px=robust_sigma_px(errs), n_frames=len(r), n_runs=int(r["run"].nunique()),
+        design=design.model_dump(mode="json"),
+        created_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+    )
+
+
+def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> list[dict]:
+    """Held-out agreement per (delay, rate): the image runs' lost-frame fraction and
+    loss-of-control rate against the calibrated measurement model's on the same references
+    (``model_replicas`` noise seeds each), each with its 95 % interval; ``agree`` when both
+    pairs of intervals overlap. Needs the model file written."""
+    runs = (records[records["holdout"]]
+            .groupby("run").first().reset_index())
+    loss = {"kind": "calibrated", "tracker": tracker}
+    twins, keys = [], []
+    for _, row in runs.iterrows():
+        for m in range(design.model_replicas):
+            twins.append(_scenario(tracker, row["delay_ms"], row["rate_rad_s"],
+                                   int(row["reference_seed"]), design, "measurement", loss,
+                                   noise_seed=int(row["reference_seed"]) + 10_000 * (m + 1)))
+            keys.append((row["delay_ms"], row["rate_rad_s"]))
+    model_runs = pd.DataFrame([(*k, r.summary["lost_frame_fraction"],
+                                r.summary["loss_of_control"])
+                               for k, r in zip(keys, run_many(twins, tables=False), strict=True)],
+                              columns=["delay_ms", "rate_rad_s", "lost", "loc"])
+    out = []
+    for (d, rate), g in runs.groupby(["delay_ms", "rate_rad_s"]):
+        m = model_runs[(model_runs["delay_ms"] == d) & (model_runs["rate_rad_s"] == rate)]
+        img_lost = bootstrap_mean_ci(g["run_lost_frame_fraction"])
+        mod_lost = bootstrap_mean_ci(m["lost"])
+        img_loc = wilson_ci(int((g["run_loss_of_control"] > 0.5).sum()), len(g))
+        mod_loc = wilson_ci(int((m["loc"] > 0.5).sum()), len(m))
+        out.append({
+            "delay_ms": float(d), "rate_rad_s": float(rate), "image_runs": len(g),
+            "model_runs": len(m),
+            "image_lost_frame_fraction": img_lost, "model_lost_frame_fraction": mod_lost,
+            "image_loss_of_control": img_loc, "model_loss_of_control": mod_loc,
+            "agree": bool(_overlap(img_lost, mod_lost) and _overlap(img_loc, mod_loc)),
+        })
+    return out
+
+
+def _overlap(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    """Two (value, low, high) intervals overlap; a degenerate one (NaN ends: all values
+    equal or one run) is its value."""
+    lo_a, hi_a = (a[1], a[2]) if np.isfinite(a[1]) else (a[0], a[0])
+    lo_b, hi_b = (b[1], b[2]) if np.isfinite(b[1]) else (b[0], b[0])
+    return bool(lo_a <= hi_b + 1e-12 and lo_b <= hi_a + 1e-12)
+
+
+def calibrate(tracker: str, design: CalibrationDesign | None = None, work: Path | None = None,
+              workers: int = 2, progress: bool = True) -> tuple[Path, LossModelFile]:
+    """Collect (or resume), fit, write (``latency.loss_model.MODELS_DIR``), validate and write
+    again with the validation rows; returns the file and its content."""
+    check_tracker(tracker)
+    design = design or CalibrationDesign()
+    work = work or Path("runs") / f"calibrate-loss-{tracker}"
+    records = collect(tracker, design, work, workers, progress=progress)
+    data = fit(tracker, records, design)
+    write_loss_model(data)
+    data = data.model_copy(update={"validation": validate(tracker, records, design)})
+    return write_loss_model(data), data
