@@ -1,0 +1,111 @@
+"""The batched image engine against the event loop, and the shared network's batching."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from experiments.scenario import Scenario, build_loop
+from latency.image_engine import run_batch, run_images
+from observer.transt.network import build_transt
+from observer.transt.service import NetworkService, shared_services
+
+MEAS = ["meas_red_u_px", "meas_red_v_px", "meas_yellow_u_px", "meas_yellow_v_px"]
+Q = ["qw", "qx", "qy", "qz"]
+
+
+def _scenario(tracker: str, seed: int, **extra) -> Scenario:
+    return Scenario.model_validate({
+        "mode": "image", "tracker": tracker, "duration_s": 0.3, "seed": seed,
+        "observer": {"kind": "solver"},
+        "reference": {"kind": "random", "args": {"seed": seed, "max_rate_rad_s": 3.0}},
+        "pipeline": {"observer": {"kind": "constant", "value_s": 0.016}}, **extra,
+    })
+
+
+def test_batched_image_runs_equal_the_event_loop_run_by_run() -> None:
+    specs = [_scenario(t, s) for t in ("transt", "dual_transt", "kcf") for s in (1, 2)]
+    event = [build_loop(s).run() for s in specs]
+    before = {id(sv): sum(n for k, n in sv.batch_sizes.items() if k > 1)
+              for sv in shared_services()}
+    batched = run_batch([build_loop(s) for s in specs], max_network_batch=8)
+    compared = 0
+    for a, b in zip(event, batched, strict=True):
+        assert len(a.frames) == len(b.frames) > 5
+        np.testing.assert_allclose(b.frames[MEAS].to_numpy(), a.frames[MEAS].to_numpy(),
+                                   atol=1e-3, equal_nan=True)
+        np.testing.assert_array_equal(b.frames["lost"], a.frames["lost"])
+        np.testing.assert_allclose(b.steps[Q].to_numpy(), a.steps[Q].to_numpy(), atol=1e-6)
+        compared += 1
+    assert compared == 6
+    # the network calls of the four TransT runs were batched (calls of more than one crop)
+    after = {id(sv): sum(n for k, n in sv.batch_sizes.items() if k > 1)
+             for sv in shared_services()}
+    assert sum(after.values()) > sum(before.get(k, 0) for k in after)
+
+
+def test_engine_refuses_measured_latencies_and_measurement_runs() -> None:
+    with pytest.raises(ValueError, match="model latencies"):
+        run_images(build_loop, [_scenario("kcf", 0, observer_latency="measured")], workers=1)
+    meas = Scenario.model_validate({"duration_s": 0.3})
+    with pytest.raises(ValueError, match="image-mode"):
+        run_images(build_loop, [meas], workers=1)
+
+
+def test_network_batching_gives_each_caller_its_own_rows() -> None:
+    torch.manual_seed(0)
+    service = NetworkService(build_transt("small"), "eager")
+    c = service.net.config
+    rng = np.random.default_rng(0)
+    n = 5
+    searches = [rng.normal(size=(1, 3, c.search_size, c.search_size)).astype(np.float32)
+                for _ in range(n)]
+    templates = [rng.normal(size=(1, 3, c.template_size, c.template_size)).astype(np.float32)
+                 for _ in range(n)]
+    zs = [service.template_tokens(t) for t in templates]
+    alone = [service.evaluate(s, z) for s, z in zip(searches, zs, strict=True)]
+    got: list = [None] * n
+
+    def client(i: int) -> None:
+        with service.client():
+            got[i] = service.evaluate(searches[i], zs[i])
+
+    with service.batching(max_batch=8):
+        threads = [threading.Thread(target=client, args=(i,)) for i in range(n)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    assert max(service.batch_sizes) > 1  # at least one call took several crops
+    for (la, ba), (lb, bb) in zip(alone, got, strict=True):
+        np.testing.assert_allclose(lb, la, atol=1e-4)
+        np.testing.assert_allclose(bb, ba, atol=1e-5)
+    # different templates give different outputs: the rows were not mixed up
+    assert not np.allclose(got[0][0], got[1][0], atol=1e-3)
+
+
+def test_a_failing_network_call_reaches_every_waiting_caller() -> None:
+    torch.manual_seed(0)
+    service = NetworkService(build_transt("small"), "eager")
+    bad = np.zeros((1, 2, 64, 64), np.float32)  # two colour channels: the conv refuses it
+    z = np.zeros((1, service.net.config.template_feature_size ** 2, service.net.config.d_model),
+                 np.float32)
+    errors: list[BaseException] = []
+
+    def client() -> None:
+        with service.client():
+            try:
+                service.evaluate(bad, z)
+            except Exception as exc:  # noqa: BLE001
+                errors.append(exc)
+
+    with service.batching(max_batch=4):
+        threads = [threading.Thread(target=client) for _ in range(3)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    assert len(errors) == 3
