@@ -488,9 +488,11 @@ SWEEP_MEANS = ("rms_error_deg", "lost_frame_fraction", "overshoot_pct", "settlin
 def sweep_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
     """Mean over seeds with 95 % intervals per controller, reference and delay (bootstrap for
     means, Wilson for the probability of loss of control and the fraction of runs that settle;
-    ``settling_time_s`` is the mean over the runs that settle). Failed runs are left out."""
+    ``settling_time_s`` is the mean over the runs that settle; the step metrics, the settled
+    fraction among them, are NaN on the random references). Failed runs are left out."""
     ok = sweep[sweep.error == ""].assign(
-        settled=lambda d: np.isfinite(d.settling_time_s).astype(float)
+        settled=lambda d: np.where(np.isfinite(d.step_size_deg),
+                                   np.isfinite(d.settling_time_s), np.nan)
     )
     return seed_intervals(ok, ["controller", "reference", "vision_delay_ms"], SWEEP_MEANS,
                           ("loss_of_control", "settled"))
