@@ -52,6 +52,17 @@ def wilson_ci(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, fl
     return k / n, float(ci.low), float(ci.high)
 
 
+def widest_wilson_width(n: int, confidence: float = CONFIDENCE) -> float:
+    """The width of the widest Wilson interval (``wilson_ci``) of a fraction of ``n`` runs:
+    the one at half the runs, k = n // 2 (the width grows with p (1 - p)). Closed form (Wilson
+    1927): ``2 z / (1 + z²/n) sqrt(p (1 - p) / n + z² / (4 n²))`` with p = k / n."""
+    if n <= 0:
+        raise ValueError(f"n must be a positive number of runs, got {n}")
+    z = float(scipy.stats.norm.ppf(0.5 + 0.5 * confidence))
+    p = (n // 2) / n
+    return 2.0 * z / (1.0 + z * z / n) * float(np.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n)))
+
+
 def seed_intervals(
     runs: pd.DataFrame,
     by: Sequence[str],

@@ -126,6 +126,17 @@ def _image_loop_section(image_loop: pd.DataFrame | None, n_seeds: int) -> list[s
     ]
 
 
+def _reference_sentence(cfg) -> str:
+    """What a point's seeds vary: the random reference with the noise, or the noise only."""
+    if getattr(cfg, "reference_mode", "per_seed") == "fixed":
+        return ("Fixed-reference mode: every run follows the same random reference (one per "
+                "peak rate), so the intervals are over pixel noise and latency draws only, not "
+                "over references.")
+    return ("Each run's random reference is drawn from its own seed (`reference_seed` in "
+            "`sweep.parquet`), so the intervals on the random references are over references, "
+            "pixel noise and latency draws together.")
+
+
 def write_report(
     out: Path, cfg, findings, margins, intervals, loss, ts: dict, measured: dict[str, float],
     facts: dict, mpc_margins=None, image_loop: pd.DataFrame | None = None,
@@ -174,7 +185,9 @@ def write_report(
         f"Sequential observer at {facts['frame_rate_hz']:g} frames/s, pixel noise "
         f"{cfg.sigma_px} px, tracker search window {cfg.search_radius_px:g} px with a "
         f"constant-velocity prediction; {cfg.duration_s:g} s per run, every run over the whole "
-        f"duration; {n_seeds} seed(s) per point. Bands and table columns `_lo`/`_hi` are 95 % "
+        f"duration; {n_seeds} seed(s) per point. "
+        + _reference_sentence(cfg)
+        + " Bands and table columns `_lo`/`_hi` are 95 % "
         "intervals over seeds: bootstrap of the mean for RMS error and lost frames, Wilson for "
         "the probability of loss of control"
         + (" (with a single seed there is no interval)" if n_seeds < 2 else "")

@@ -154,6 +154,15 @@ class TiltStepSpec(_Model):
     tilt_deg: float = Field(5.0, ge=0.0, le=15.0)
     azimuth_deg: float = 30.0
     t_step_s: float = Field(0.1, ge=0.0)
+    step_metrics: bool = Field(
+        True, description="Measure the step (overshoot, settling time, steady-state error; "
+        "latency.metrics). Our choice: on."
+    )
+
+    @property
+    def measures_steps(self) -> bool:
+        """Whether the run's summary measures the step (``LoopConfig.step_metrics``)."""
+        return self.step_metrics
 
     def build(self) -> Steps:
         q1 = pure_tilt(np.deg2rad(self.tilt_deg), np.deg2rad(self.azimuth_deg))
@@ -169,14 +178,42 @@ def _built_reference(kind: str, args_json: str):
     return cls[kind].model_validate(json.loads(args_json))
 
 
+#: The piecewise-constant generators of ``RefSpec`` (the others are smooth).
+STEP_KINDS = ("seed_steps",)
+
+
 class RefSpec(_Model):
     """Any generator of ``controller.reference`` by name, with its fields in ``args``."""
 
     kind: Literal["seed_steps", "ramp", "cone", "random"]
     args: dict = Field(default_factory=dict)
+    step_metrics: bool | None = Field(
+        None,
+        description="Measure the step after the reference's last change (overshoot, settling "
+        "time, steady-state error). None: on for the piecewise-constant seed_steps, off for "
+        "the smooth kinds (ramp, cone, random), which have no step; true on a smooth kind is "
+        "an error.",
+    )
 
     def build(self):
         return _built_reference(self.kind, json.dumps(self.args, sort_keys=True))
+
+    @model_validator(mode="after")
+    def _steps_to_measure(self) -> RefSpec:
+        if self.step_metrics and self.kind not in STEP_KINDS:
+            raise ValueError(
+                f"reference {self.kind!r}: step_metrics needs a piecewise-constant reference "
+                f"({', '.join(('tilt_step', *STEP_KINDS))}); a {self.kind} reference changes "
+                "continuously and has no step to measure overshoot, settling time or "
+                "steady-state error against (its RMS and maximum error, lost frames and loss "
+                "of control are always reported); leave step_metrics out"
+            )
+        return self
+
+    @property
+    def measures_steps(self) -> bool:
+        """Whether the run's summary measures the step (``LoopConfig.step_metrics``)."""
+        return self.kind in STEP_KINDS if self.step_metrics is None else self.step_metrics
 
     @model_validator(mode="after")
     def _args_build(self) -> RefSpec:
@@ -520,6 +557,7 @@ class Scenario(_Model):
             controller_rate_hz=self.controller_rate_hz,
             controller_latency=self.controller_latency,
             observer_latency=self.observer_latency,
+            step_metrics=self.reference.measures_steps,
         )
 
     @classmethod

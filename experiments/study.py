@@ -37,20 +37,23 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
+import itertools
 import json
 import os
 import platform
+import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Literal
 
 import control as ct
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
-from experiments.intervals import seed_intervals
+from experiments.intervals import seed_intervals, widest_wilson_width
 from experiments.report import IMAGE_LOOP_HOWTO, write_report
 from experiments.scenario import (
     MPC_CALL_MEDIAN_S,
@@ -115,6 +118,13 @@ class StudyConfig(BaseModel):
         (1.0, 3.0, 6.0), description="Peak angular rates of the random references, rad/s."
     )
     duration_s: float = Field(4.0, gt=0.5, description="Simulated time per sweep run, s.")
+    reference_mode: Literal["per_seed", "fixed"] = Field(
+        "per_seed",
+        description="Random references: 'per_seed', each run's reference drawn from its own "
+        "seed (``reference_seed`` = the run's seed), so that a point's intervals are over "
+        "references and noise together; 'fixed', every run of every point on the one reference "
+        "of seed ``FIXED_REFERENCE_SEED`` (noise-only spread: pixel noise and latency draws).",
+    )
     n_seeds: int = Field(
         32,
         ge=1,
@@ -124,6 +134,15 @@ class StudyConfig(BaseModel):
         "2,912 runs of 4 s: about 6 min of the sweep on two idle cores with the batched "
         "engine and the compiled MPC (docs/closed_loop.md, the budget), so `make study` "
         "stays under 10 minutes with the install.",
+    )
+    loss_interval_width: float | None = Field(
+        None,
+        gt=0.0,
+        le=1.0,
+        description="The widest 95 % interval of a point's probability of loss of control "
+        "wanted (Wilson over the point's ``n_seeds`` runs, at its widest: half the runs "
+        "lost). None: no check; else a warning names the width ``n_seeds`` achieves when it "
+        "is wider.",
     )
     image_loop_n_seeds: int = Field(
         2,
@@ -163,6 +182,21 @@ class StudyConfig(BaseModel):
         "TransT at their latencies measured here (``pmspm study --full``; every frame rendered "
         "and tracked by the networks, minutes per run on two cores)."
     )
+
+    @model_validator(mode="after")
+    def _warn_wide_intervals(self) -> StudyConfig:
+        """Warn when ``n_seeds`` cannot give intervals as narrow as ``loss_interval_width``."""
+        if self.loss_interval_width is None:
+            return self
+        width = widest_wilson_width(self.n_seeds)
+        if width > self.loss_interval_width:
+            need = next(n for n in itertools.count(self.n_seeds)
+                        if widest_wilson_width(n) <= self.loss_interval_width)
+            warnings.warn(
+                f"n_seeds = {self.n_seeds} gives 95 % intervals of the probability of loss of "
+                f"control up to {width:.3f} wide, not the {self.loss_interval_width:g} of "
+                f"loss_interval_width (it needs n_seeds >= {need})", stacklevel=2)
+        return self
 
 
 def study_plant(cfg: StudyConfig) -> PlantParams:
@@ -348,12 +382,30 @@ RANDOM_CONTROLLERS = ("pid", "mpc")
 
 
 STEP_REFERENCE = ("tilt_step_5deg", {"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1}, 0.0)
+#: The random references' seed in the fixed-reference mode (``StudyConfig.reference_mode``).
+FIXED_REFERENCE_SEED = 7
 
 
 def _random_reference(rate_rad_s: float) -> tuple[str, dict, float]:
-    """A smooth random reference of peak rate ``rate_rad_s``: (name, spec, rate)."""
+    """A smooth random reference of peak rate ``rate_rad_s``: (name, spec, rate); its seed is
+    set per run (``_with_reference_seed``)."""
     return (f"random_{rate_rad_s:g}rad_s",
-            {"kind": "random", "args": {"max_rate_rad_s": rate_rad_s, "seed": 7}}, rate_rad_s)
+            {"kind": "random", "args": {"max_rate_rad_s": rate_rad_s}}, rate_rad_s)
+
+
+def reference_seed(cfg: StudyConfig, seed: int) -> int:
+    """The random reference's seed of the run with seed ``seed``: the run's own seed
+    (``reference_mode`` 'per_seed') or ``FIXED_REFERENCE_SEED`` ('fixed')."""
+    return seed if cfg.reference_mode == "per_seed" else FIXED_REFERENCE_SEED
+
+
+def _with_reference_seed(ref: dict, cfg: StudyConfig, seed: int) -> tuple[dict, float]:
+    """The reference spec ``ref`` of the run with seed ``seed`` and its reference seed (NaN
+    for a reference that draws nothing, the step)."""
+    if ref["kind"] != "random":
+        return ref, float("nan")
+    r = reference_seed(cfg, seed)
+    return {**ref, "args": {**ref["args"], "seed": r}}, float(r)
 
 
 def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[dict]:
@@ -369,6 +421,7 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
         for ref_name, ref, rate, controllers in refs:
             for ctrl in controllers:
                 for seed in range(cfg.n_seeds):
+                    run_ref, ref_seed = _with_reference_seed(ref, cfg, seed)
                     s = Scenario(
                         name=f"{ctrl}-{ref_name}-{d:g}ms-s{seed}",
                         duration_s=cfg.duration_s,
@@ -376,7 +429,7 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
                         plant=params,
                         observer={"kind": "solver"},
                         controller=_controller_spec(ctrl, cfg),
-                        reference=ref,
+                        reference=run_ref,
                         pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
                         measurement={
                             "sigma_px": cfg.sigma_px,
@@ -385,7 +438,7 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
                     )
                     c = s.model_dump(mode="json")
                     c["study"] = {"controller": ctrl, "reference": ref_name, "delay_ms": d,
-                                  "max_rate_rad_s": rate}
+                                  "max_rate_rad_s": rate, "reference_seed": ref_seed}
                     out.append(c)
     return out
 
@@ -406,8 +459,9 @@ def _scenario_part(config: dict) -> dict:
 
 
 def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
-    """One row per run: the study's bookkeeping (controller, reference, delay, rate, seed, and
-    the tracker of the image-mode runs) and the run's summary metrics."""
+    """One row per run: the study's bookkeeping (controller, reference, delay, rate, seed, the
+    random reference's seed ``reference_seed``, NaN for the step, and the tracker of the
+    image-mode runs) and the run's summary metrics."""
     keep = {
         "config.study.tracker": "tracker",
         "config.study.controller": "controller",
@@ -415,6 +469,7 @@ def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
         "config.study.delay_ms": "vision_delay_ms",
         "config.study.max_rate_rad_s": "max_rate_rad_s",
         "config.seed": "seed",
+        "config.study.reference_seed": "reference_seed",
         "error": "error",
     }
     keep = {k: v for k, v in keep.items() if k in df.columns}
@@ -433,9 +488,11 @@ SWEEP_MEANS = ("rms_error_deg", "lost_frame_fraction", "overshoot_pct", "settlin
 def sweep_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
     """Mean over seeds with 95 % intervals per controller, reference and delay (bootstrap for
     means, Wilson for the probability of loss of control and the fraction of runs that settle;
-    ``settling_time_s`` is the mean over the runs that settle). Failed runs are left out."""
+    ``settling_time_s`` is the mean over the runs that settle; the step metrics, the settled
+    fraction among them, are NaN on the random references). Failed runs are left out."""
     ok = sweep[sweep.error == ""].assign(
-        settled=lambda d: np.isfinite(d.settling_time_s).astype(float)
+        settled=lambda d: np.where(np.isfinite(d.step_size_deg),
+                                   np.isfinite(d.settling_time_s), np.nan)
     )
     return seed_intervals(ok, ["controller", "reference", "vision_delay_ms"], SWEEP_MEANS,
                           ("loss_of_control", "settled"))
@@ -477,16 +534,18 @@ def image_loop_configs(
         for ref_name, ref, rate in refs:
             for ctrl in RANDOM_CONTROLLERS:
                 for seed in range(cfg.image_loop_n_seeds):
+                    run_ref, ref_seed = _with_reference_seed(ref, cfg, seed)
                     s = Scenario(
                         name=f"image-{name}-{ctrl}-{ref_name}-s{seed}",
                         duration_s=cfg.duration_s, seed=seed, mode="image",
                         tracker=IMAGE_TRACKERS[name], plant=params,
                         observer={"kind": "solver"}, controller=_controller_spec(ctrl, cfg),
-                        reference=ref, pipeline={"observer": profile},
+                        reference=run_ref, pipeline={"observer": profile},
                     )
                     c = s.model_dump(mode="json")
                     c["study"] = {"tracker": name, "controller": ctrl, "reference": ref_name,
-                                  "delay_ms": median_ms, "max_rate_rad_s": rate}
+                                  "delay_ms": median_ms, "max_rate_rad_s": rate,
+                                  "reference_seed": ref_seed}
                     out.append(c)
     return out
 

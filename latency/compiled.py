@@ -928,7 +928,8 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     if not tables:
         # The summary straight from the kernel's arrays: no tables, no events' texts.
         a = rows[:n_rows]
-        values = step_values(a[:, 0], a[:, 1:5], a[:, 8:12], a[:, 15:18], a[:, 39] > 0)
+        values = step_values(a[:, 0], a[:, 1:5], a[:, 8:12], a[:, 15:18], a[:, 39] > 0,
+                             c.step_metrics)
         frame_metrics = frame_values(fr[:, _F_T_EXP], fr[:, _F_DROPPED] > 0,
                                      fr[:, _F_LOST] == 1.0, fr[:, _F_LATENCY], a[-1, 0])
         summary = summarize_values(values, a[-1, 0], frame_metrics, len(evs), c.duration_s,
@@ -938,7 +939,7 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     steps = log.columns(n_rows)
     frames_cols = _frames_columns(fr, solver)
     events = _events_table(evs, frames_cols)
-    summary = summarize(steps, frames_cols, events, c.duration_s, stopped)
+    summary = summarize(steps, frames_cols, events, c.duration_s, stopped, c.step_metrics)
     return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
                       c.model_dump(mode="json"))
 

@@ -134,6 +134,12 @@ class LoopConfig(BaseModel):
         "integrates).",
     )
     seed: int = Field(0, ge=0, description="Random seed (numpy needs it >= 0).")
+    step_metrics: bool = Field(
+        True,
+        description="The reference is piecewise constant (steps): the summary measures the "
+        "step after its last change (overshoot, settling time, steady-state error). False for "
+        "a smooth reference (random, ramp, cone): those metrics are NaN (latency.metrics).",
+    )
     q0: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     omega0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
@@ -372,7 +378,8 @@ class ClosedLoop:
         steps = log.frame(k_log + 1, native)
         frames_df = pd.DataFrame(run.frames)
         events_df = pd.DataFrame(run.events, columns=["t_s", "kind", "detail"])
-        summary = summarize(steps, frames_df, events_df, c.duration_s, stopped)
+        summary = summarize(steps, frames_df, events_df, c.duration_s, stopped,
+                            c.step_metrics)
         return LoopResult(steps, frames_df, events_df, summary, c.model_dump(mode="json"))
 
     # --- event handlers --------------------------------------------------------------------

@@ -79,10 +79,12 @@ def _zyz_differences(a, b):
 
 
 @njit(cache=True)
-def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
+def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step_metrics):
     """The per-step metrics (``_STEP_VALUES``) of a run from its steps: times t (n,), s,
     attitudes q and references q_ref (n, 4), delivered torques (n, 3), N·m, and tilt-stop
-    flags (n,). One pass over the rows (and one backwards to the reference's last change)."""
+    flags (n,). One pass over the rows (and one backwards to the reference's last change).
+    Without ``step_metrics`` (a reference that is not piecewise constant) the step metrics
+    and the steady-state error are NaN."""
     n = t.shape[0]
     out = np.full(len(_STEP_VALUES), np.nan)
     t_end = t[n - 1]
@@ -108,7 +110,7 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
         s = math.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
         rv = 2.0 * d[1:] if s < 1e-12 else 2.0 * math.atan2(s, d[0]) * d[1:] / s
         axis = rv / size
-    stepped = i0 > 0 and size >= _MIN_STEP_RAD
+    stepped = step_metrics and i0 > 0 and size >= _MIN_STEP_RAD
     sum_e2 = sum_T2 = effort = 0.0
     max_e, nan_e = -np.inf, False
     sums = np.zeros(3)
@@ -199,7 +201,7 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
         over = 100.0 * ((np.nan if nan_prog else prog_max) - 1.0)
         out[11] = over if over > 0.0 else 0.0
         out[12] = math.degrees(size)
-    out[13] = late_sum / late_n if late_n else np.nan
+    out[13] = late_sum / late_n if late_n and step_metrics else np.nan
     out[14] = longest_stop
     out[15] = math.sqrt(q2_sum / q2_n) if q2_n else 0.0
     out[16] = math.sqrt(q4_sum / q4_n) if q4_n else 0.0
@@ -207,17 +209,19 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s):
 
 
 def step_values(t: NDArray, q: NDArray, q_ref: NDArray, torque_delivered: NDArray,
-                tilt_stop: NDArray) -> dict[str, float]:
+                tilt_stop: NDArray, step_metrics: bool = True) -> dict[str, float]:
     """The per-step metrics of a run (``_STEP_VALUES``) from its steps as arrays: times (n,),
-    s, attitudes and references (n, 4), delivered torques (n, 3), N·m, tilt-stop flags (n,)."""
+    s, attitudes and references (n, 4), delivered torques (n, 3), N·m, tilt-stop flags (n,).
+    ``step_metrics``: the reference is piecewise constant (steps), so the step metrics are
+    defined; False gives them as NaN."""
     values = _step_pass(np.asarray(t, dtype=float), np.asarray(q, dtype=float),
                         np.asarray(q_ref, dtype=float), np.asarray(torque_delivered, dtype=float),
                         np.asarray(tilt_stop, dtype=bool), SETTLE_BAND_DEG,
-                        STEADY_STATE_WINDOW_S)
+                        STEADY_STATE_WINDOW_S, bool(step_metrics))
     return dict(zip(_STEP_VALUES, values.tolist(), strict=True))
 
 
-def _steps_values(steps: Columns) -> dict[str, float]:
+def _steps_values(steps: Columns, step_metrics: bool = True) -> dict[str, float]:
     """``step_values`` of a steps table."""
     def stack(names: list[str]) -> NDArray:
         return np.column_stack([np.asarray(steps[c], dtype=float) for c in names])
@@ -225,7 +229,7 @@ def _steps_values(steps: Columns) -> dict[str, float]:
     return step_values(np.asarray(steps["t_s"], dtype=float),
                        stack([f"q{c}" for c in "wxyz"]), stack([f"ref_q{c}" for c in "wxyz"]),
                        stack([f"torque_delivered_{c}_Nm" for c in "xyz"]),
-                       np.asarray(steps["tilt_stop"], dtype=bool))
+                       np.asarray(steps["tilt_stop"], dtype=bool), step_metrics)
 
 
 def summarize(
@@ -234,6 +238,7 @@ def summarize(
     events: Columns,
     duration_s: float,
     stopped: str = "",
+    step_metrics: bool = True,
 ) -> dict[str, float]:
     """Scalar metrics of a run (all over the run's whole duration).
 
@@ -247,8 +252,12 @@ def summarize(
       rotation axis in % of the commanded step; ``settling_time_s``, from the change until the
       geodesic error stays within ``SETTLE_BAND_DEG`` (NaN if it never does);
       ``steady_state_error_deg``, the mean error over the final ``STEADY_STATE_WINDOW_S``;
+      only with ``step_metrics`` (a piecewise-constant reference: steps), NaN otherwise (a
+      smooth reference changes on every row: its "last change" is no step to measure
+      overshoot or settling against);
     * ``control_effort_N2m2s``: ∫ |T_delivered|² dt; ``rms_torque_Nm``;
     * ``lost_frame_fraction``: lost / processed frames; ``dropped_frame_fraction``;
+      ``time_to_first_loss_s``, the exposure time of the first lost frame (NaN: none lost);
     * ``mean_latency_s``; ``diverged`` (1.0 if the error ever exceeded the divergence limit,
       ``stopped`` non-empty);
     * ``loss_of_control`` (1.0 or 0.0) and its criteria (:func:`loss_of_control`).
@@ -259,7 +268,8 @@ def summarize(
     and latencies, and the events' count.
     """
     t_end = float(np.asarray(steps["t_s"])[-1])
-    return summarize_values(_steps_values(steps), t_end, _frames_values(frames, t_end),
+    return summarize_values(_steps_values(steps, step_metrics), t_end,
+                            _frames_values(frames, t_end),
                             n_rows(events), duration_s, stopped)
 
 
@@ -284,6 +294,7 @@ def summarize_values(values: dict[str, float], simulated_s: float,
         out[key] = values[key]
     frame_metrics = frame_metrics or _NO_FRAMES
     out["lost_frame_fraction"] = frame_metrics["lost_frame_fraction"]
+    out["time_to_first_loss_s"] = frame_metrics["time_to_first_loss_s"]
     if frame_metrics is not _NO_FRAMES:
         out["dropped_frame_fraction"] = frame_metrics["dropped_frame_fraction"]
         out["mean_latency_s"] = frame_metrics["mean_latency_s"]
@@ -293,10 +304,11 @@ def summarize_values(values: dict[str, float], simulated_s: float,
 
 
 #: The per-frame metrics of a run without frames.
-_NO_FRAMES = {"lost_frame_fraction": 0.0, "longest_marker_loss_s": 0.0}
+_NO_FRAMES = {"lost_frame_fraction": 0.0, "longest_marker_loss_s": 0.0,
+              "time_to_first_loss_s": np.nan}
 #: What ``_frame_pass`` returns, in its order.
 _FRAME_VALUES = ("dropped_frame_fraction", "lost_frame_fraction", "mean_latency_s",
-                 "longest_marker_loss_s")
+                 "longest_marker_loss_s", "time_to_first_loss_s")
 
 
 @njit(cache=True)
@@ -304,12 +316,13 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
     """The per-frame metrics (``_FRAME_VALUES``) from the frames' exposure times (n,), s,
     dropped and lost flags (n,) and latencies (n,), s (NaN: not released): the dropped
     fraction of all frames; over the processed (not dropped) ones the lost fraction, the mean
-    known latency and the longest run of lost frames, from its first frame's exposure to the
-    next processed frame's that is not lost (or ``t_end``, s)."""
+    known latency, the longest run of lost frames, from its first frame's exposure to the
+    next processed frame's that is not lost (or ``t_end``, s), and the first lost frame's
+    exposure time (NaN if none is lost)."""
     n = t_exposure.shape[0]
     n_dropped = n_processed = n_lost = n_known = 0
     latency_sum = 0.0
-    loss_from, longest = np.nan, 0.0
+    loss_from, longest, first_loss = np.nan, 0.0, np.nan
     for i in range(n):
         if dropped[i]:
             n_dropped += 1
@@ -319,6 +332,8 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
             latency_sum += latency[i]
             n_known += 1
         if lost[i]:
+            if n_lost == 0:
+                first_loss = t_exposure[i]
             n_lost += 1
             if math.isnan(loss_from):
                 loss_from = t_exposure[i]
@@ -328,7 +343,7 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
     if not math.isnan(loss_from):
         longest = max(longest, t_end - loss_from)
     return (n_dropped / n, n_lost / n_processed if n_processed else 0.0,
-            latency_sum / n_known if n_known else np.nan, longest)
+            latency_sum / n_known if n_known else np.nan, longest, first_loss)
 
 
 def frame_values(t_exposure: NDArray, dropped: NDArray, lost: NDArray, latency: NDArray,
