@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from experiments.intervals import bootstrap_mean_ci, wilson_ci
-from experiments.scenario import Scenario, build_loop, run_many
+from experiments.scenario import PAIR_TRACKER_OF, Scenario, build_loop, run_many
 from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
 from latency.loop import LoopResult
@@ -47,10 +47,6 @@ from latency.loss_model import (
 )
 from latency.models import SEED_LATENCY_S
 from plant.params import PlantParams
-
-#: ``make_pair_tracker`` names -> the scenario's tracker names.
-SCENARIO_TRACKER = {"gk_transt": "transt", "dual_transt": "dual_transt", "kcf_gk": "kcf",
-                    "k2cf": "k2cf"}
 
 
 class CalibrationDesign(BaseModel):
@@ -95,12 +91,13 @@ def _scenario(tracker: str, delay_ms: float, rate: float, seed: int, design: Cal
         "duration_s": design.duration_s,
         "seed": seed if noise_seed is None else noise_seed,
         "mode": mode,
-        "tracker": SCENARIO_TRACKER[tracker],
         "observer": {"kind": "solver"},
         "controller": {"kind": "pid", "config": {"crossover_rad_s": design.crossover_rad_s}},
         "reference": {"kind": "random", "args": {"max_rate_rad_s": rate, "seed": seed}},
         "pipeline": {"observer": {"kind": "constant", "value_s": delay_ms / 1e3}},
     }
+    if mode == "image":
+        body["tracker"] = {v: k for k, v in PAIR_TRACKER_OF.items()}[tracker]
     if loss is not None:
         body["measurement"] = {"loss": loss}
     return Scenario.model_validate(body)

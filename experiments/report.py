@@ -10,6 +10,7 @@ import markdown
 import numpy as np
 import pandas as pd
 
+from experiments.intervals import widest_wilson_width
 from latency import metrics
 from latency.models import SEED_LATENCY_S
 
@@ -49,7 +50,7 @@ def key_margins(margins: pd.DataFrame) -> pd.DataFrame:
 
 def key_sweep(intervals: pd.DataFrame) -> pd.DataFrame:
     """Means over seeds with 95 % intervals by controller, reference and delay."""
-    cols = ["controller", "reference", "vision_delay_ms", "n_runs"]
+    cols = ["tracker", "controller", "reference", "vision_delay_ms", "n_runs"]
     for c in ("rms_error_deg", "lost_frame_fraction"):
         cols += [c, f"{c}_lo", f"{c}_hi"]
     cols += ["p_loss_of_control", "p_loss_of_control_lo", "p_loss_of_control_hi"]
@@ -94,34 +95,70 @@ def _mpc_section(mpc_margins) -> list[str]:
     ]
 
 
-IMAGE_LOOP_HOWTO = (
-    "`pmspm study --full` adds it (`StudyConfig(image_loop=True)`): the loop closed in image "
-    "mode with GK-TransT and with the dual TransT, each at its latency measured here."
-)
+def _ends(df: pd.DataFrame, col: str, scale: float = 1.0) -> pd.Series:
+    """``mean [low, high]`` of an interval column per row (the mean alone without ends)."""
+    def one(r: pd.Series) -> str:
+        m, lo, hi = (scale * float(r[c]) for c in (col, f"{col}_lo", f"{col}_hi"))
+        return f"{m:.3g} [{lo:.3g}, {hi:.3g}]" if np.isfinite(lo) else f"{m:.3g}"
+    return df.apply(one, axis=1)
 
 
-def _image_loop_section(image_loop: pd.DataFrame | None, n_seeds: int) -> list[str]:
-    """Tracking loss with the real trackers (image mode), or how to get it."""
-    head = ["### Tracking loss with the real trackers (image mode)", ""]
+def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
+    """Tracking loss from the trackers themselves (the image engine) beside the calibrated
+    models on the same references."""
+    head = ["### Tracking loss from the trackers themselves (image engine)", ""]
     if image_loop is None:
-        return head + ["Not run in this study: every frame is rendered and tracked by the "
-                       "networks, minutes per run on two cores. " + IMAGE_LOOP_HOWTO, ""]
+        return head + ["Not run in this study (`StudyConfig.image_loop` is off).", ""]
     if not len(image_loop):
-        return head + ["Not run: no TransT latency was measured here (the network could not "
-                       "be loaded).", ""]
-    cols = ["tracker", "controller", "reference", "vision_delay_ms", "n_runs"]
-    for c in ("lost_frame_fraction", "rms_error_deg"):
-        cols += [c, f"{c}_lo", f"{c}_hi"]
-    cols += ["p_loss_of_control", "p_loss_of_control_lo", "p_loss_of_control_hi"]
+        return head + ["Not run: no tracker to run.", ""]
+    n = int(cfg.image_loop_n_seeds)
+    t = image_loop[["tracker", "vision_delay_ms", "max_rate_rad_s"]].copy()
+    t["image_runs"] = image_loop["image_n_runs"].astype(int)
+    t["lost frames image (%)"] = _ends(image_loop, "image_lost_frame_fraction", 100.0)
+    t["lost frames model (%)"] = _ends(image_loop, "model_lost_frame_fraction", 100.0)
+    t["P(loss of control) image"] = _ends(image_loop, "image_p_loss_of_control")
+    t["P(loss of control) model"] = _ends(image_loop, "model_p_loss_of_control")
+    t["agree"] = image_loop["agree"]
     return head + [
-        "Frames rendered (analytic renderer) and tracked by GK-TransT or the dual TransT, the "
-        "per-frame solver, the observer latency drawn from that tracker's profile measured "
-        f"here (`vision_delay_ms`: its median); {n_seeds} seed(s) per row, 95 % intervals "
-        "(bootstrap for lost frames and RMS error, Wilson for loss of control).",
+        "The loop closed on rendered frames (analytic renderer) tracked by each tracker itself, "
+        f"PID, the per-frame solver, at the seed's two latencies (constant), {n} reference "
+        f"seed(s) per point of {cfg.image_loop_duration_s:g} s, run by the batched image engine "
+        "(`latency.image_engine`: each run computes what the event loop computes for it; the "
+        "latency it charges is the constant above, not the batched wall time). Beside it, the "
+        "tracker's calibrated loss model in the measurement-model loop on the same references, "
+        "delays, seeds and durations. 95 % intervals over the runs (bootstrap for lost frames, "
+        f"Wilson for loss of control; with {n} runs a Wilson interval is up to "
+        f"{widest_wilson_width(n):.2f} wide). `agree`: both intervals overlap for the "
+        "lost-frame fraction and for loss of control.",
         "",
-        md_table(image_loop[cols]),
+        md_table(t),
         "",
-        "Full tables: `image_loop.parquet` (one row per run), `image_loop_intervals.parquet`.",
+        "Full tables: `image_loop.parquet` (one row per run, `side` image or model), "
+        "`image_loop_intervals.parquet`.",
+        "",
+    ]
+
+
+def _calibration_section(calibration: pd.DataFrame | None) -> list[str]:
+    """The calibrated loss models' held-out validation (from their files)."""
+    if calibration is None or not len(calibration):
+        return []
+    t = calibration[["tracker", "fit_frames", "delay_ms", "rate_rad_s", "image_runs",
+                     "model_runs"]].copy()
+    t["lost frames image (%)"] = _ends(calibration, "image_lost_frame_fraction", 100.0)
+    t["lost frames model (%)"] = _ends(calibration, "model_lost_frame_fraction", 100.0)
+    t["P(loss of control) image"] = _ends(calibration, "image_loss_of_control")
+    t["P(loss of control) model"] = _ends(calibration, "model_loss_of_control")
+    t["agree"] = calibration["agree"]
+    return [
+        "### The calibrated loss models: held-out agreement",
+        "",
+        "Each tracker's loss model was fitted by `pmspm calibrate-loss` on its own image runs "
+        "(`fit_frames` frames; `latency.loss_model`) and checked on peak rates and reference "
+        "seeds the fit did not use: the image runs against the model's runs on the same "
+        "references, 95 % intervals.",
+        "",
+        md_table(t),
         "",
     ]
 
@@ -140,10 +177,12 @@ def _reference_sentence(cfg) -> str:
 def write_report(
     out: Path, cfg, findings, margins, intervals, loss, ts: dict, measured: dict[str, float],
     facts: dict, mpc_margins=None, image_loop: pd.DataFrame | None = None,
+    calibration: pd.DataFrame | None = None,
 ) -> None:
     """Write ``report.md`` and ``report.html`` into ``out``. Facts about the machine and the
     camera come from ``facts`` (read in this run), latencies from ``measured``; the image-mode
-    section from ``image_loop`` (None: not run, the report says how to run it)."""
+    section from ``image_loop`` (None: not run), the calibrated loss models' held-out
+    agreement from ``calibration``."""
     n_seeds = int(getattr(cfg, "n_seeds", 1))
     lat = "; ".join(f"{k} {v:.2f} ms median (`latency_{k}.json`)" for k, v in measured.items())
     md = [
@@ -182,9 +221,14 @@ def write_report(
         *_mpc_section(mpc_margins),
         "## 2. Closed-loop sweep (measurement-model loop)",
         "",
-        f"Sequential observer at {facts['frame_rate_hz']:g} frames/s, pixel noise "
-        f"{cfg.sigma_px} px, tracker search window {cfg.search_radius_px:g} px with a "
-        f"constant-velocity prediction; {cfg.duration_s:g} s per run, every run over the whole "
+        f"Sequential observer at {facts['frame_rate_hz']:g} frames/s, "
+        + (f"each tracker's tracking loss and centre noise from its calibrated model "
+           f"(`tracker` column: {', '.join(cfg.trackers)}; every tracker on the PID and MPC "
+           "random-reference points at every delay, the first on the step and the variants)"
+           if cfg.loss_model == "calibrated" else
+           f"pixel noise {cfg.sigma_px} px, the hand-set tracker search window "
+           f"{cfg.search_radius_px:g} px with a constant-velocity prediction for every tracker")
+        + f"; {cfg.duration_s:g} s per run, every run over the whole "
         f"duration; {n_seeds} seed(s) per point. "
         + _reference_sentence(cfg)
         + " Bands and table columns `_lo`/`_hi` are 95 % "
@@ -215,7 +259,8 @@ def write_report(
         "Full tables: `sweep.parquet` (one row per run; every run's own file is in "
         "`sweep/runs/`), `sweep_intervals.parquet`, `loss_of_control.parquet`.",
         "",
-        *_image_loop_section(image_loop, cfg.image_loop_n_seeds),
+        *_image_loop_section(image_loop, cfg),
+        *_calibration_section(calibration),
         "## 3. Time series: 16.33 ms against 31.23 ms",
         "",
         "![time series](timeseries_16_vs_31ms.png)",

@@ -54,14 +54,17 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
 from experiments.intervals import seed_intervals, widest_wilson_width
-from experiments.report import IMAGE_LOOP_HOWTO, write_report
+from experiments.report import write_report
 from experiments.scenario import (
     MPC_CALL_MEDIAN_S,
+    PAIR_TRACKER_OF,
     Engine,
     MPCSpec,
     PIDSpec,
     Scenario,
+    build_loop,
     run,
+    run_many,
     run_summaries,
 )
 from experiments.study_plots import (
@@ -75,6 +78,8 @@ from experiments.study_plots import (
 )
 from experiments.sweep import run_sweep
 from experiments.user_files import plant_from_files
+from latency.image_engine import run_images
+from latency.loss_model import check_tracker, load_loss_model
 from latency.margins import (
     Margins,
     as_run_margins,
@@ -84,7 +89,7 @@ from latency.margins import (
     sampled_stable,
 )
 from latency.metrics import SETTLE_BAND_DEG
-from latency.models import SEED_LATENCY_S, Empirical
+from latency.models import SEED_LATENCY_S
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode
 from latency.profile import measure_pair_tracker_latency
@@ -144,13 +149,30 @@ class StudyConfig(BaseModel):
         "lost). None: no check; else a warning names the width ``n_seeds`` achieves when it "
         "is wider.",
     )
+    trackers: tuple[str, ...] = Field(
+        ("gk_transt", "dual_transt"),
+        description="Trackers whose own loss the sweep models (a calibrated loss model each, "
+        "``latency.loss_model``; the sweep's ``tracker`` column): every tracker on the PID and "
+        "MPC random-reference points, the first on the step and the controller variants.",
+    )
+    loss_model: Literal["calibrated", "search_window"] = Field(
+        "calibrated", description="The sweep's tracking loss: each tracker's calibrated model, "
+        "or the hand-set search window of ``search_radius_px`` (the same for every tracker).",
+    )
     image_loop_n_seeds: int = Field(
-        2,
+        8,
         ge=1,
-        description="Seeds per row of the image-mode section (``image_loop``, `pmspm study "
-        "--full`). Our choice: 2, as before the sweep's default rose to 32: every frame "
-        "of those runs is rendered and tracked by a network (minutes per run on two cores), "
-        "so its intervals are wide; raise it for narrower ones.",
+        description="Reference seeds per point of the image-engine section (every frame "
+        "rendered and tracked by the tracker's networks; ``latency.image_engine``). Our "
+        "choice: 8 in the default study (its budget), 32 with `pmspm study --full`.",
+    )
+    image_loop_rates_rad_s: tuple[float, ...] = Field(
+        (1.0, 3.0, 6.0), description="Peak rates of the image-engine section's random "
+        "references, rad/s (PID, at the seed's two latencies, each tracker).",
+    )
+    image_loop_duration_s: float = Field(
+        3.0, gt=0.5, description="Simulated time per image-engine run, s (our choice: 108 "
+        "frames at 36 Hz, to keep the default study in its budget).",
     )
     friction_compensation_Nm: float = Field(
         2.0e-3, ge=0.0, description="The PID variant's friction compensation, N·m (our "
@@ -178,10 +200,19 @@ class StudyConfig(BaseModel):
         "calibrate); None: the default camera."
     )
     image_loop: bool = Field(
-        False, description="Also close the loop in image mode with GK-TransT and the dual "
-        "TransT at their latencies measured here (``pmspm study --full``; every frame rendered "
-        "and tracked by the networks, minutes per run on two cores)."
+        True, description="Close the loop in image mode too (the batched image engine): "
+        "tracking loss from the trackers themselves at the seed's two latencies, beside the "
+        "calibrated models' (``image_loop_n_seeds``)."
     )
+
+    @model_validator(mode="after")
+    def _known_trackers(self) -> StudyConfig:
+        """Trackers that have a calibrated loss model (``latency.loss_model``)."""
+        if not self.trackers:
+            raise ValueError("trackers must name at least one tracker")
+        for t in self.trackers:
+            check_tracker(t)
+        return self
 
     @model_validator(mode="after")
     def _warn_wide_intervals(self) -> StudyConfig:
@@ -408,9 +439,17 @@ def _with_reference_seed(ref: dict, cfg: StudyConfig, seed: int) -> tuple[dict, 
     return {**ref, "args": {**ref["args"], "seed": r}}, float(r)
 
 
+def _loss(cfg: StudyConfig, tracker: str) -> dict:
+    """The sweep's ``measurement.loss`` for ``tracker`` (``StudyConfig.loss_model``)."""
+    if cfg.loss_model == "calibrated":
+        return {"kind": "calibrated", "tracker": tracker}
+    return {"kind": "search_window", "search_radius_px": cfg.search_radius_px}
+
+
 def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[dict]:
-    """The sweep's scenarios as dicts (delay x controller x reference x seed) on the plant
-    ``params`` (default ``study_plant(cfg)``)."""
+    """The sweep's scenarios as dicts (delay x tracker x controller x reference x seed) on the
+    plant ``params`` (default ``study_plant(cfg)``): every tracker of ``cfg.trackers`` on the
+    PID and MPC random-reference points, the first one on the step and on the variants."""
     params = params or study_plant(cfg)
     out = []
     refs = [(*STEP_REFERENCE, STEP_CONTROLLERS)]
@@ -420,26 +459,26 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
     for d in cfg.delays_ms:
         for ref_name, ref, rate, controllers in refs:
             for ctrl in controllers:
-                for seed in range(cfg.n_seeds):
-                    run_ref, ref_seed = _with_reference_seed(ref, cfg, seed)
-                    s = Scenario(
-                        name=f"{ctrl}-{ref_name}-{d:g}ms-s{seed}",
-                        duration_s=cfg.duration_s,
-                        seed=seed,
-                        plant=params,
-                        observer={"kind": "solver"},
-                        controller=_controller_spec(ctrl, cfg),
-                        reference=run_ref,
-                        pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
-                        measurement={
-                            "sigma_px": cfg.sigma_px,
-                            "search_radius_px": cfg.search_radius_px,
-                        },
-                    )
-                    c = s.model_dump(mode="json")
-                    c["study"] = {"controller": ctrl, "reference": ref_name, "delay_ms": d,
-                                  "max_rate_rad_s": rate, "reference_seed": ref_seed}
-                    out.append(c)
+                every = ref["kind"] == "random" and ctrl in RANDOM_CONTROLLERS
+                for tracker in cfg.trackers if every else cfg.trackers[:1]:
+                    for seed in range(cfg.n_seeds):
+                        run_ref, ref_seed = _with_reference_seed(ref, cfg, seed)
+                        s = Scenario(
+                            name=f"{tracker}-{ctrl}-{ref_name}-{d:g}ms-s{seed}",
+                            duration_s=cfg.duration_s,
+                            seed=seed,
+                            plant=params,
+                            observer={"kind": "solver"},
+                            controller=_controller_spec(ctrl, cfg),
+                            reference=run_ref,
+                            pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
+                            measurement={"sigma_px": cfg.sigma_px, "loss": _loss(cfg, tracker)},
+                        )
+                        c = s.model_dump(mode="json")
+                        c["study"] = {"tracker": tracker, "controller": ctrl,
+                                      "reference": ref_name, "delay_ms": d,
+                                      "max_rate_rad_s": rate, "reference_seed": ref_seed}
+                        out.append(c)
     return out
 
 
@@ -477,7 +516,8 @@ def tidy_sweep(df: pd.DataFrame) -> pd.DataFrame:
     for c in df.columns:
         if c.startswith("result."):
             out[c.removeprefix("result.")] = df[c]
-    return out.sort_values(["controller", "reference", "vision_delay_ms"]).reset_index(drop=True)
+    order = [c for c in ("tracker", "controller", "reference", "vision_delay_ms") if c in out]
+    return out.sort_values(order).reset_index(drop=True)
 
 
 #: Columns of the sweep summarised over seeds (means with bootstrap intervals).
@@ -494,7 +534,8 @@ def sweep_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
         settled=lambda d: np.where(np.isfinite(d.step_size_deg),
                                    np.isfinite(d.settling_time_s), np.nan)
     )
-    return seed_intervals(ok, ["controller", "reference", "vision_delay_ms"], SWEEP_MEANS,
+    return seed_intervals(ok, ["tracker", "controller", "reference", "vision_delay_ms"],
+                          SWEEP_MEANS,
                           ("loss_of_control", "settled"))
 
 
@@ -502,7 +543,8 @@ def loss_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
     """Probability of loss of control per controller and delay over every run (all references
     and seeds pooled), with Wilson intervals."""
     ok = sweep[(sweep.error == "") & sweep.controller.isin(RANDOM_CONTROLLERS)]
-    return seed_intervals(ok, ["controller", "vision_delay_ms"], (), ("loss_of_control",))
+    return seed_intervals(ok, ["tracker", "controller", "vision_delay_ms"], (),
+                          ("loss_of_control",))
 
 
 def predicted_boundary_ms(margins: pd.DataFrame) -> float:
@@ -512,63 +554,104 @@ def predicted_boundary_ms(margins: pd.DataFrame) -> float:
     return float(1e3 * row.headroom_s.iloc[0]) if len(row) else float("nan")
 
 
-# --- 2b. tracking loss with the real trackers (image mode) ----------------------------------
-#: Trackers of the image-mode section: the profile name of ``measure_here`` -> the scenario's
-#: ``tracker``.
-IMAGE_TRACKERS = {"gk_transt": "transt", "dual_transt": "dual_transt"}
+# --- 2b. tracking loss from the trackers themselves (the image engine) ---------------------
+#: The image-engine section's metrics, image runs and calibrated-model twins alike.
+IMAGE_MEANS = ("rms_error_deg", "lost_frame_fraction")
 
 
-def image_loop_configs(
-    cfg: StudyConfig, params: PlantParams, profiles: dict[str, Empirical]
-) -> list[dict]:
-    """Image-mode scenarios as dicts (tracker x controller x reference x
-    ``image_loop_n_seeds`` seeds): frames rendered
-    by the analytic renderer and tracked by GK-TransT or the dual TransT, the per-frame solver,
-    the observer latency drawn from that tracker's profile measured here (``profiles``, by
-    ``IMAGE_TRACKERS`` name), the 5° step and the fastest random reference, PID and MPC."""
-    refs = [STEP_REFERENCE] + ([_random_reference(max(cfg.max_rates_rad_s))]
-                               if cfg.max_rates_rad_s else [])
+def image_loop_scenarios(cfg: StudyConfig, params: PlantParams) -> list[tuple[dict, Scenario]]:
+    """The image-engine section's runs (tracker x the seed's two latencies x peak rate x
+    reference seed, PID, the per-frame solver, analytic renderer): bookkeeping and scenario."""
     out = []
-    for name, profile in profiles.items():
-        median_ms = 1e3 * float(np.median(profile.samples_s))
-        for ref_name, ref, rate in refs:
-            for ctrl in RANDOM_CONTROLLERS:
+    scenario_tracker = {v: k for k, v in PAIR_TRACKER_OF.items()}
+    for tracker in cfg.trackers:
+        for d in (GK_MS, DUAL_MS):
+            for rate in cfg.image_loop_rates_rad_s:
+                ref_name, ref, _ = _random_reference(rate)
                 for seed in range(cfg.image_loop_n_seeds):
                     run_ref, ref_seed = _with_reference_seed(ref, cfg, seed)
                     s = Scenario(
-                        name=f"image-{name}-{ctrl}-{ref_name}-s{seed}",
-                        duration_s=cfg.duration_s, seed=seed, mode="image",
-                        tracker=IMAGE_TRACKERS[name], plant=params,
-                        observer={"kind": "solver"}, controller=_controller_spec(ctrl, cfg),
-                        reference=run_ref, pipeline={"observer": profile},
+                        name=f"image-{tracker}-{ref_name}-{d:.2f}ms-s{seed}",
+                        duration_s=cfg.image_loop_duration_s, seed=seed, mode="image",
+                        tracker=scenario_tracker[tracker], plant=params,
+                        observer={"kind": "solver"}, controller=_controller_spec("pid", cfg),
+                        reference=run_ref,
+                        pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
                     )
-                    c = s.model_dump(mode="json")
-                    c["study"] = {"tracker": name, "controller": ctrl, "reference": ref_name,
-                                  "delay_ms": median_ms, "max_rate_rad_s": rate,
-                                  "reference_seed": ref_seed}
-                    out.append(c)
+                    book = {"tracker": tracker, "controller": "pid", "reference": ref_name,
+                            "vision_delay_ms": d, "max_rate_rad_s": rate, "seed": seed,
+                            "reference_seed": ref_seed}
+                    out.append((book, s))
     return out
 
 
+def _twin(s: Scenario, tracker: str) -> Scenario:
+    """The measurement-model run with ``tracker``'s calibrated loss on the same reference,
+    delay, seed and duration as the image run ``s``."""
+    body = s.model_dump(mode="json")
+    del body["tracker"]
+    body |= {"mode": "measurement", "name": s.name.replace("image-", "model-", 1),
+             "measurement": {"loss": {"kind": "calibrated", "tracker": tracker}}}
+    return Scenario.model_validate(body)
+
+
 def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame:
-    """Run the image-mode section on the latency profiles ``measure_here`` saved in ``out``
-    (``latency_<tracker>.json``; a tracker without one is left out). Returns one row per
-    tracker, controller and reference with 95 % intervals over seeds (bootstrap for RMS error
-    and lost frames, Wilson for loss of control); also written as Parquet."""
-    profiles = {name: Empirical.load(out / f"latency_{name}.json") for name in IMAGE_TRACKERS
-                if (out / f"latency_{name}.json").is_file()}
-    configs = image_loop_configs(cfg, params, profiles)
-    if not configs:
+    """Run the image-engine section (``latency.image_engine``) and the calibrated models'
+    twins on the same references; one row per tracker, delay and rate with both sides' 95 %
+    intervals (bootstrap for means, Wilson for loss of control) and ``agree`` (the image
+    runs' and the model's intervals overlap for the lost-frame fraction and for loss of
+    control). Run tables: ``image_loop.parquet`` (``side`` image or model)."""
+    jobs = image_loop_scenarios(cfg, params)
+    if not jobs:
         return pd.DataFrame()
-    raw = run_sweep("experiments.study:study_run", configs, out / "image_loop",
-                    scheduler=cfg.scheduler, workers=cfg.workers)
-    runs = tidy_sweep(raw)
+    books = [b for b, _ in jobs]
+    images = run_images(build_loop, [s for _, s in jobs], workers=cfg.workers or 2,
+                        progress=True)
+    twins = run_many([_twin(s, b["tracker"]) for b, s in jobs], tables=False)
+    runs = pd.DataFrame(
+        [b | {"side": side} | r.summary for side, res in (("image", images), ("model", twins))
+         for b, r in zip(books, res, strict=True)])
     runs.to_parquet(out / "image_loop.parquet")
-    ok = runs[runs.error == ""]
-    table = seed_intervals(ok, ["tracker", "controller", "reference", "vision_delay_ms"],
-                           ("rms_error_deg", "lost_frame_fraction"), ("loss_of_control",))
+    by = ["tracker", "vision_delay_ms", "max_rate_rad_s"]
+    sides = {side: seed_intervals(g, by, IMAGE_MEANS, ("loss_of_control",)).set_index(by)
+             for side, g in runs.groupby("side")}
+    table = sides["image"].add_prefix("image_").join(sides["model"].add_prefix("model_"))
+    table["agree"] = [
+        _overlap(r, "image_lost_frame_fraction", "model_lost_frame_fraction")
+        and _overlap(r, "image_p_loss_of_control", "model_p_loss_of_control")
+        for _, r in table.iterrows()]
+    table = table.reset_index()
     table.to_parquet(out / "image_loop_intervals.parquet")
     return table
+
+
+def _overlap(row: pd.Series, a: str, b: str) -> bool:
+    """The 95 % intervals of columns ``a`` and ``b`` overlap (an interval without ends, all
+    runs equal, is its value)."""
+    def ends(c: str) -> tuple[float, float]:
+        lo, hi = float(row[f"{c}_lo"]), float(row[f"{c}_hi"])
+        v = float(row[c])
+        return (lo, hi) if np.isfinite(lo) else (v, v)
+
+    (lo_a, hi_a), (lo_b, hi_b) = ends(a), ends(b)
+    return bool(lo_a <= hi_b + 1e-12 and lo_b <= hi_a + 1e-12)
+
+
+def calibration_table(trackers: tuple[str, ...]) -> pd.DataFrame:
+    """The held-out validation of each tracker's calibrated loss model, as written by
+    ``pmspm calibrate-loss`` (one row per tracker, delay and peak rate)."""
+    rows = []
+    for t in trackers:
+        data = load_loss_model(t).data
+        for v in data.validation:
+            row = {"tracker": t, "fit_frames": data.n_frames, "delay_ms": v["delay_ms"],
+                   "rate_rad_s": v["rate_rad_s"], "image_runs": v["image_runs"],
+                   "model_runs": v["model_runs"], "agree": v["agree"]}
+            for k in ("image_lost_frame_fraction", "model_lost_frame_fraction",
+                      "image_loss_of_control", "model_loss_of_control"):
+                row[k], row[f"{k}_lo"], row[f"{k}_hi"] = v[k]
+            rows.append(row)
+    return pd.DataFrame(rows)
 
 
 # --- 3. time series -------------------------------------------------------------------------
@@ -678,24 +761,62 @@ def _preview_lines(step: pd.DataFrame) -> list[str]:
     ]
 
 
+#: Display names of the trackers.
+TRACKER_NAMES = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT", "kcf_gk": "KCF+GK",
+                 "k2cf": "K²CF"}
+#: Each tracker's own latency in the seed (Table 1), where the study has one.
+OWN_DELAY_MS = {"gk_transt": GK_MS, "dual_transt": DUAL_MS}
+
+
+def _loss_lines(loss: pd.DataFrame, intervals: pd.DataFrame, cfg: StudyConfig) -> list[str]:
+    """Per controller: each tracker at its own seed latency (its own loss model), lost frames
+    on the random references and the probability of loss of control."""
+    lines = []
+    model = ("its calibrated loss model" if cfg.loss_model == "calibrated"
+             else f"the hand-set {cfg.search_radius_px:g} px search window")
+    rnd = intervals[intervals.reference.str.startswith("random")]
+    for ctrl in RANDOM_CONTROLLERS:
+        parts = []
+        for tracker in cfg.trackers:
+            d = OWN_DELAY_MS.get(tracker)
+            if d is None:
+                continue
+            g = loss[(loss.controller == ctrl) & (loss.tracker == tracker)
+                     & np.isclose(loss.vision_delay_ms, d)]
+            lf = rnd[(rnd.controller == ctrl) & (rnd.tracker == tracker)
+                     & np.isclose(rnd.vision_delay_ms, d)]
+            if not len(g):
+                continue
+            lost = ", ".join(f"{r.reference.removeprefix('random_').replace('rad_s', ' rad/s')}"
+                             f" {_ci(r, 'lost_frame_fraction', 100.0, '.1f')} %"
+                             for _, r in lf.iterrows())
+            parts.append(f"{TRACKER_NAMES.get(tracker, tracker)} at its {d:.2f} ms: "
+                         f"P(loss of control) {_ci(g.iloc[0], 'p_loss_of_control')} "
+                         f"({int(g.iloc[0].n_runs)} runs), lost frames {lost}")
+        if parts:
+            lines.append(f"- **{ctrl.upper()}: tracking loss and loss of control, each tracker "
+                         f"at its own latency** (random references, each tracker's loss from "
+                         f"{model}): " + "; ".join(parts) + ".")
+    return lines
+
+
 def _image_loop_lines(image: pd.DataFrame | None) -> list[str]:
-    """The image-mode section in a line per tracker (the step and the fastest reference,
-    PID and MPC pooled in the table's rows), or how to get it."""
-    title = "- **Tracking loss with the real trackers (image mode).** "
+    """The image-engine section in a line per tracker: lost frames from the trackers
+    themselves at the seed's two latencies, and the agreement of the calibrated models."""
+    title = "- **Tracking loss from the trackers themselves (image engine).** "
     if image is None:
-        return [title + "Not run in this study. " + IMAGE_LOOP_HOWTO]
+        return [title + "Not run in this study (`StudyConfig.image_loop` is off)."]
     if not len(image):
-        return [title + "Not run: no TransT latency was measured here."]
-    names = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT"}
+        return [title + "Not run: no tracker to run."]
     parts = []
     for tracker, g in image.groupby("tracker", sort=False):
-        rows = "; ".join(
-            f"{r.controller.upper()} on {r.reference}: lost frames "
-            f"{_ci(r, 'lost_frame_fraction', 100.0, '.1f')} %, RMS error "
-            f"{_ci(r, 'rms_error_deg', fmt='.2f')}°, loss of control "
-            f"{_ci(r, 'p_loss_of_control')}" for _, r in g.iterrows())
-        parts.append(f"{names.get(tracker, tracker)} at its {g.vision_delay_ms.iloc[0]:.2f} ms "
-                     f"measured here ({int(g.n_runs.iloc[0])} runs per row): {rows}")
+        at = "; ".join(
+            f"{r.vision_delay_ms:.2f} ms, {r.max_rate_rad_s:g} rad/s: "
+            f"{_ci(r, 'image_lost_frame_fraction', 100.0, '.1f')} % (model "
+            f"{_ci(r, 'model_lost_frame_fraction', 100.0, '.1f')} %)"
+            for _, r in g.iterrows())
+        parts.append(f"{TRACKER_NAMES.get(tracker, tracker)}, lost frames in PID runs: {at}; "
+                     f"the calibrated model agrees on {int(g.agree.sum())} of {len(g)} points")
     return [title + ". ".join(parts) + "."]
 
 
@@ -762,20 +883,7 @@ def summary_text(
             f"observer lowers its update rate and leaves {deg('sequential', DUAL_MS)}; a "
             f"pipelined one keeps {deg('pipelined', DUAL_MS)}."
         )
-    for ctrl in RANDOM_CONTROLLERS:
-        g = loss[loss.controller == ctrl]
-        if not len(g):
-            continue
-        rows = {round(float(r.vision_delay_ms), 2): r for _, r in g.iterrows()}
-        gk, dual = rows.get(round(GK_MS, 2)), rows.get(round(DUAL_MS, 2))
-        if gk is None or dual is None:
-            continue
-        lines.append(
-            f"- **{ctrl.upper()}: probability of loss of control** (sustained tilt-stop "
-            f"contact, marker loss, growing oscillation or divergence; every reference and "
-            f"seed, {int(gk.n_runs)} runs per delay): {_ci(gk, 'p_loss_of_control')} at "
-            f"{GK_MS:.2f} ms and {_ci(dual, 'p_loss_of_control')} at {DUAL_MS:.2f} ms."
-        )
+    lines += _loss_lines(loss, intervals, cfg)
     step = intervals[intervals.reference == "tilt_step_5deg"]
     for d in (GK_MS, DUAL_MS):
         at = step[np.isclose(step.vision_delay_ms, d)].set_index("controller")
@@ -859,6 +967,7 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     findings = summary_text(margins, intervals, loss, ts, measured, facts, cfg, mpc_margins,
                             image)
     (out / "study_config.json").write_text(json.dumps(cfg.model_dump(mode="json"), indent=1))
+    calibration = calibration_table(cfg.trackers) if cfg.loss_model == "calibrated" else None
     write_report(out, cfg, findings, margins, intervals, loss, ts, measured, facts, mpc_margins,
-                 image)
+                 image, calibration)
     return out

@@ -117,6 +117,11 @@ def plot_pm_pid_vs_mpc(
     return _save(fig, path)
 
 
+#: Line style and label of each tracker's curves in the sweep's plots.
+TRACKER_STYLE = {"gk_transt": ("o-", "GK-TransT"), "dual_transt": ("s--", "dual TransT"),
+                 "kcf_gk": ("^:", "KCF+GK"), "k2cf": ("v-.", "K²CF")}
+
+
 def _band(ax: Axes, g: pd.DataFrame, col: str, colour: str, label: str, scale: float = 1.0,
           marker: str = "o-") -> None:
     """Mean line with its 95 % band (columns ``col``, ``col_lo``, ``col_hi``)."""
@@ -138,16 +143,20 @@ def plot_sweep(
     intervals: pd.DataFrame, failed: pd.DataFrame, marks: dict[str, float], path: Path
 ) -> Figure:
     """RMS error and lost frames against vision delay on the random references, with 95 %
-    intervals over seeds; runs that failed (``failed``: rows of the sweep) marked by crosses."""
+    intervals over seeds, one colour per peak rate and one line style per tracker (its own
+    loss model); runs that failed (``failed``: rows of the sweep) marked by crosses."""
     rnd = intervals[intervals.reference.str.startswith("random")]
     fig = Figure(figsize=(12, 7.5), layout="constrained")
     ax = fig.subplots(2, 2, sharex=True)
+    refs = sorted(rnd.reference.unique())
     for j, ctrl in enumerate(("pid", "mpc")):
-        for i, (ref, g) in enumerate(rnd[rnd.controller == ctrl].groupby("reference")):
-            colour = f"C{i}"
-            name = "peak rate " + ref.removeprefix("random_").replace("rad_s", " rad/s")
-            _band(ax[0, j], g, "rms_error_deg", colour, name)
-            _band(ax[1, j], g, "lost_frame_fraction", colour, name, 100.0)
+        for (tracker, ref), g in rnd[rnd.controller == ctrl].groupby(["tracker", "reference"]):
+            colour = f"C{refs.index(ref)}"
+            style, tname = TRACKER_STYLE.get(tracker, ("o-", tracker))
+            name = f"{tname}, peak rate " + ref.removeprefix("random_").replace("rad_s",
+                                                                                " rad/s")
+            _band(ax[0, j], g, "rms_error_deg", colour, name, marker=style)
+            _band(ax[1, j], g, "lost_frame_fraction", colour, name, 100.0, marker=style)
             bad = failed[(failed.controller == ctrl) & (failed.reference == ref)]
             _mark_excluded(ax[0, j], bad.vision_delay_ms.to_numpy(), colour, "failed run")
         ax[0, j].set_title(CONTROLLER_STYLE[ctrl][1])
@@ -158,8 +167,8 @@ def plot_sweep(
         for a in ax[:, j]:
             mark_delays(a, marks, zero_line=False)
     _outside_legend(ax[0, 1])
-    fig.suptitle("Closed loop (measurement model, sequential observer): error and tracking "
-                 "loss, mean over seeds with 95 % intervals")
+    fig.suptitle("Closed loop (measurement model, each tracker's loss model, sequential "
+                 "observer): error and tracking loss, mean over seeds with 95 % intervals")
     return _save(fig, path)
 
 
@@ -201,16 +210,22 @@ def plot_boundary_overlay(
     ax = fig.subplots()
     finite = [b for b in boundaries_ms.values() if np.isfinite(b)]
     right = max([*intervals.vision_delay_ms, *finite, 0.0]) + 5.0
-    for ctrl, fmt, shift in (("pid", "o-", -0.3), ("mpc", "s--", 0.3)):
+    trackers = list(dict.fromkeys(intervals.get("tracker", pd.Series(["all"]))))
+    for c, ctrl in enumerate(("pid", "mpc")):
         colour, label = CONTROLLER_STYLE[ctrl]
-        g = intervals[intervals.controller == ctrl]
-        if not len(g):
-            continue
-        x = g.vision_delay_ms.to_numpy() + shift  # side by side where the points coincide
-        p = g.p_loss_of_control.to_numpy()
-        err = np.vstack([p - g.p_loss_of_control_lo, g.p_loss_of_control_hi - p])
-        ax.errorbar(x, p, yerr=err, fmt=fmt, color=colour, ms=5, capsize=3, mfc="none",
-                    label=f"{label}: P(loss of control), simulated")
+        for k, tracker in enumerate(trackers):
+            g = intervals[intervals.controller == ctrl]
+            if "tracker" in g:
+                g = g[g.tracker == tracker]
+            if not len(g):
+                continue
+            fmt, tname = TRACKER_STYLE.get(tracker, ("o-", tracker))
+            # side by side where the points coincide
+            x = g.vision_delay_ms.to_numpy() + 0.3 * (2 * c + k - 1.5)
+            p = g.p_loss_of_control.to_numpy()
+            err = np.vstack([p - g.p_loss_of_control_lo, g.p_loss_of_control_hi - p])
+            ax.errorbar(x, p, yerr=err, fmt=fmt, color=colour, ms=5, capsize=3, mfc="none",
+                        label=f"{label}, {tname}: P(loss of control), simulated")
         b = boundaries_ms.get(ctrl, np.nan)
         if np.isfinite(b):
             ax.axvspan(b, right, color=colour, alpha=0.08)

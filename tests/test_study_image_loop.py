@@ -1,6 +1,5 @@
-"""The study's image-mode section: the loop closed on rendered frames tracked by GK-TransT and
-by the dual TransT, each at its own measured latency profile, with intervals; without
-``--full`` the report says how to get it."""
+"""The study per tracker: the sweep's calibrated loss models and the image-engine section
+beside them, with the calibrated models' held-out agreement."""
 
 from __future__ import annotations
 
@@ -8,62 +7,126 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.report import _image_loop_section
-from experiments.scenario import Scenario
+import latency.loss_model as lm
+from experiments.report import _calibration_section, _image_loop_section
+from experiments.scenario import PAIR_TRACKER_OF, Scenario
 from experiments.study import (
-    IMAGE_TRACKERS,
+    DUAL_MS,
+    GK_MS,
     StudyConfig,
     _image_loop_lines,
+    _overlap,
+    _twin,
+    calibration_table,
     image_loop,
-    image_loop_configs,
+    image_loop_scenarios,
+    sweep_configs,
 )
-from latency.models import Empirical
 from plant.params import PlantParams
 
-#: Stand-ins for the profiles ``measure_here`` writes: fixed samples, so that the runs do not
-#: depend on this machine's speed; 25 ms apart.
-PROFILES = {"gk_transt": Empirical(samples_s=(0.019, 0.020, 0.021), source="test"),
-            "dual_transt": Empirical(samples_s=(0.044, 0.045, 0.046), source="test")}
+
+@pytest.fixture()
+def models(tmp_path, monkeypatch):
+    """Calibrations of both trackers in a private folder: a tracker that never loses a frame
+    (GK-TransT) and one that loses one in five whatever the motion (dual TransT)."""
+    folder = tmp_path / "models"
+    monkeypatch.setattr(lm, "MODELS_DIR", folder)
+    lm._load.cache_clear()
+    p = 0.2
+    for tracker, hazard in (("gk_transt", -30.0), ("dual_transt", float(np.log(p / (1 - p))))):
+        lm.write_loss_model(lm.LossModelFile(
+            format_version=lm.FORMAT_VERSION, tracker=tracker,
+            weights_sha256=lm.current_weights_sha256(tracker), hazard=(hazard, 0.0, 0.0),
+            persistence=(hazard, 0.0, 0.0, 0.0), noise_sigma_px=0.2, n_frames=10, n_runs=1,
+            design={}, created_utc="2026-01-01T00:00:00+00:00",
+            validation=[{"delay_ms": 16.33, "rate_rad_s": 2.0, "image_runs": 4, "model_runs": 16,
+                         "image_lost_frame_fraction": [0.1, 0.05, 0.15],
+                         "model_lost_frame_fraction": [0.12, 0.1, 0.14],
+                         "image_loss_of_control": [0.0, 0.0, 0.49],
+                         "model_loss_of_control": [0.0, 0.0, 0.19], "agree": True}]))
+    yield folder
+    lm._load.cache_clear()
 
 
-def test_image_loop_configs_close_the_loop_on_each_tracker_at_its_latency():
-    cfg = StudyConfig(n_seeds=5, image_loop_n_seeds=3, max_rates_rad_s=(1.0, 4.0),
-                      duration_s=1.0)
-    configs = image_loop_configs(cfg, PlantParams(), PROFILES)
-    # 2 trackers x (the step, the fastest random reference) x (PID, MPC) x 3 seeds (the image
-    # section's own seed count, not the sweep's)
-    assert len(configs) == 2 * 2 * 2 * 3
-    assert {c["seed"] for c in configs} == {0, 1, 2}
-    for c in configs:
-        study = c["study"]
-        s = Scenario.model_validate({k: v for k, v in c.items() if k != "study"})
-        assert s.mode == "image" and s.tracker == IMAGE_TRACKERS[study["tracker"]]
-        assert s.pipeline.observer == PROFILES[study["tracker"]]
-        assert study["delay_ms"] == pytest.approx(
-            1e3 * float(np.median(PROFILES[study["tracker"]].samples_s)))
-        assert study["reference"] in ("tilt_step_5deg", "random_4rad_s")
-    assert {c["study"]["tracker"] for c in configs} == {"gk_transt", "dual_transt"}
+def test_sweep_has_each_tracker_with_its_own_calibrated_loss(models):
+    cfg = StudyConfig(n_seeds=3, delays_ms=(GK_MS, DUAL_MS), max_rates_rad_s=(1.0, 3.0))
+    configs = sweep_configs(cfg, PlantParams())
+    random_pid = [c for c in configs if c["study"]["controller"] in ("pid", "mpc")
+                  and c["study"]["reference"].startswith("random")]
+    # every tracker on each PID / MPC random point: 2 delays x 2 rates x 2 controllers x
+    # 2 trackers x 3 seeds, the tracker's own model in each
+    assert len(random_pid) == 2 * 2 * 2 * 2 * 3
+    for c in random_pid:
+        assert c["measurement"]["loss"] == {"kind": "calibrated",
+                                            "tracker": c["study"]["tracker"], "noise": "calibrated"}
+    # the step and the variants with the first tracker only
+    others = [c for c in configs if c not in random_pid]
+    assert others and {c["study"]["tracker"] for c in others} == {"gk_transt"}
 
 
-def test_without_full_the_report_says_how_to_get_the_section():
-    for text in ("\n".join(_image_loop_section(None, 2)), _image_loop_lines(None)[0]):
-        assert "pmspm study --full" in text and "dual TransT" in text
+def test_search_window_mode_is_the_same_for_every_tracker(models):
+    cfg = StudyConfig(n_seeds=1, delays_ms=(GK_MS,), max_rates_rad_s=(3.0,),
+                      loss_model="search_window", search_radius_px=123.0)
+    losses = {str(c["measurement"]["loss"]) for c in sweep_configs(cfg, PlantParams())}
+    assert len(losses) == 1 and "123.0" in losses.pop()
+
+
+def test_image_loop_runs_each_tracker_at_both_seed_latencies(models):
+    cfg = StudyConfig(image_loop_n_seeds=3, image_loop_rates_rad_s=(1.0, 6.0))
+    jobs = image_loop_scenarios(cfg, PlantParams())
+    assert len(jobs) == 2 * 2 * 2 * 3
+    scenario_tracker = {v: k for k, v in PAIR_TRACKER_OF.items()}
+    seeds_per_point: dict[tuple, set] = {}
+    for book, s in jobs:
+        assert s.mode == "image" and s.tracker == scenario_tracker[book["tracker"]]
+        assert s.pipeline.observer.mean_s * 1e3 == pytest.approx(book["vision_delay_ms"])
+        assert s.reference.args["seed"] == book["reference_seed"]
+        key = (book["tracker"], book["vision_delay_ms"], book["max_rate_rad_s"])
+        seeds_per_point.setdefault(key, set()).add(book["reference_seed"])
+        twin = _twin(s, book["tracker"])
+        assert twin.mode == "measurement" and twin.reference == s.reference
+        assert twin.seed == s.seed and twin.duration_s == s.duration_s
+        assert twin.pipeline == s.pipeline
+        assert twin.measurement.loss.tracker == book["tracker"]
+    assert {round(k[1], 2) for k in seeds_per_point} == {round(GK_MS, 2), round(DUAL_MS, 2)}
+    # references vary within a point: as many reference seeds as runs
+    assert all(len(v) == 3 for v in seeds_per_point.values())
+
+
+def test_overlap_of_intervals():
+    row = pd.Series({"a": 0.1, "a_lo": 0.05, "a_hi": 0.2, "b": 0.3, "b_lo": 0.21, "b_hi": 0.4,
+                     "c": 0.0, "c_lo": np.nan, "c_hi": np.nan})
+    assert not _overlap(row, "a", "b")
+    assert _overlap(pd.concat([row.drop("b_lo"), pd.Series({"b_lo": 0.2})]), "a", "b")
+    assert not _overlap(row, "c", "a")  # an interval without ends is its value, 0 < 0.05
+
+
+def test_calibration_table_reads_the_files(models):
+    t = calibration_table(("gk_transt", "dual_transt"))
+    assert len(t) == 2 and t.agree.all()
+    assert t.image_lost_frame_fraction_lo.tolist() == [0.05, 0.05]
+    text = "\n".join(_calibration_section(t))
+    assert "held-out" in text and "dual_transt" in text
 
 
 @pytest.mark.slow
-def test_image_loop_runs_both_trackers_with_intervals(tmp_path):
-    cfg = StudyConfig(image_loop_n_seeds=1, max_rates_rad_s=(), duration_s=0.6, workers=1)
-    for name, profile in PROFILES.items():
-        profile.save(tmp_path / f"latency_{name}.json")
+def test_image_loop_side_by_side_with_the_models(models, tmp_path):
+    cfg = StudyConfig(image_loop_n_seeds=2, image_loop_rates_rad_s=(3.0,),
+                      image_loop_duration_s=0.8, workers=1)
     table = image_loop(cfg, PlantParams(), tmp_path)
-    assert set(table.tracker) == {"gk_transt", "dual_transt"}
-    assert set(table.controller) == {"pid", "mpc"} and (table.n_runs == 1).all()
-    assert table.lost_frame_fraction.between(0.0, 1.0).all()
-    assert np.isfinite(table.rms_error_deg).all()
+    assert set(table.tracker) == {"gk_transt", "dual_transt"} and len(table) == 4
+    assert (table.image_n_runs == 2).all() and (table.model_n_runs == 2).all()
     runs = pd.read_parquet(tmp_path / "image_loop.parquet")
-    assert (runs.error == "").all()
-    # each tracker ran at its own latency: the dual TransT's runs lag 25 ms more
-    lag = runs.groupby("tracker").mean_latency_s.mean()
-    assert lag["dual_transt"] - lag["gk_transt"] == pytest.approx(0.025, abs=2e-3)
-    text = "\n".join(_image_loop_section(table, cfg.image_loop_n_seeds))
-    assert "gk_transt" in text and "dual_transt" in text
+    assert set(runs.side) == {"image", "model"}
+    model = runs[runs.side == "model"].groupby("tracker").lost_frame_fraction.mean()
+    # the stand-in models: GK-TransT never loses a frame; the dual TransT about one in five
+    assert model["gk_transt"] == 0.0 and 0.05 < model["dual_transt"] < 0.4
+    text = "\n".join(_image_loop_section(table, cfg))
+    assert "up to" in text and "gk_transt" in text
+    assert "agrees on" in _image_loop_lines(table)[0]
+
+
+def test_scenario_names_for_the_study_trackers():
+    for tracker in ("gk_transt", "dual_transt"):
+        assert tracker in PAIR_TRACKER_OF.values()
+    Scenario.model_validate({"mode": "image", "tracker": "transt"})
