@@ -32,8 +32,13 @@ def test_study_writes_report_plots_and_tables(quick_study):
     html = (quick_study / "report.html").read_text()
     for img in re.findall(r'<img alt="[^"]*" src="([^"]+)"', html):
         assert (quick_study / img).exists()
-    # the image-mode section is not in the default study: the report says how to get it
-    assert "pmspm study --full" in (quick_study / "report.md").read_text()
+    # the image engine's section is in the default study, beside each tracker's model
+    assert "Tracking loss from the trackers themselves" in (quick_study / "report.md").read_text()
+    runs = pd.read_parquet(quick_study / "image_loop.parquet")
+    assert set(runs.tracker) == {"gk_transt", "dual_transt"} and set(runs.side) == {"image",
+                                                                                     "model"}
+    assert set(pd.read_parquet(quick_study / "sweep.parquet").tracker) == {"gk_transt",
+                                                                            "dual_transt"}
 
 
 def test_report_numbers_match_the_parquet_tables(quick_study):
@@ -61,12 +66,17 @@ def test_report_numbers_match_the_parquet_tables(quick_study):
         samples = json.loads((quick_study / f"latency_{name}.json").read_text())["samples_s"]
         assert f"{label} {1e3 * np.median(samples):.2f} ms (seed" in summary
     loss = pd.read_parquet(quick_study / "loss_of_control.parquet")
-    pid_loss = loss[(loss.controller == "pid") & np.isclose(loss.vision_delay_ms, 31.23)].iloc[0]
-    # independent: the fraction of the sweep's PID runs at 31.23 ms that lost control
-    runs = sweep[(sweep.controller == "pid") & np.isclose(sweep.vision_delay_ms, 31.23)]
+    pid_loss = loss[(loss.controller == "pid") & (loss.tracker == "dual_transt")
+                    & np.isclose(loss.vision_delay_ms, 31.23)].iloc[0]
+    # independent: the fraction of the sweep's PID runs of the dual TransT at 31.23 ms that
+    # lost control
+    runs = sweep[(sweep.controller == "pid") & (sweep.tracker == "dual_transt")
+                 & np.isclose(sweep.vision_delay_ms, 31.23)]
     assert pid_loss.p_loss_of_control == pytest.approx(runs.loss_of_control.mean())
-    assert (f"{pid_loss.p_loss_of_control:.2f} ({pid_loss.p_loss_of_control_lo:.2f}–"
-            f"{pid_loss.p_loss_of_control_hi:.2f}) at 31.23 ms") in summary
+    ci = (f"{pid_loss.p_loss_of_control:.2f} ({pid_loss.p_loss_of_control_lo:.2f}–"
+          f"{pid_loss.p_loss_of_control_hi:.2f})" if np.isfinite(pid_loss.p_loss_of_control_lo)
+          else f"{pid_loss.p_loss_of_control:.2f}")
+    assert f"dual TransT at its 31.23 ms: P(loss of control) {ci}" in summary
     steps = pd.read_parquet(quick_study / "sweep_intervals.parquet")
     st = steps[(steps.controller == "mpc") & (steps.reference == "tilt_step_5deg")
                & np.isclose(steps.vision_delay_ms, 31.23)].iloc[0]
