@@ -71,16 +71,13 @@ class CalibrationDesign(BaseModel):
     crossover_rad_s: float = Field(10.0, gt=0.0, description="PID crossover (rad/s).")
 
     def scenarios(self, tracker: str, holdout: bool) -> list[Scenario]:
-        """The image-mode scenarios of the fit (``holdout`` False) or the held-out part."""
+        """The image-mode scenarios of the fit (``holdout`` False) or the held-out part, seed by
+        seed (each seed covers every delay and rate, so a partial collection is balanced)."""
         rates = self.holdout_rates_rad_s if holdout else self.fit_rates_rad_s
         seeds = [1000 + i for i in range(self.holdout_seeds)] if holdout \
             else list(range(self.fit_seeds))
-        out = []
-        for d in self.delays_ms:
-            for r in rates:
-                for s in seeds:
-                    out.append(_scenario(tracker, d, r, s, self, "image"))
-        return out
+        return [_scenario(tracker, d, r, s, self, "image")
+                for s in seeds for d in self.delays_ms for r in rates]
 
 
 def _scenario(tracker: str, delay_ms: float, rate: float, seed: int, design: CalibrationDesign,
