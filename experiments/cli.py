@@ -203,8 +203,8 @@ def study(
     ] = None,
     full: Annotated[
         bool, typer.Option(help="The image-engine section at 32 reference seeds per point "
-                           "instead of 8 (GK-TransT and dual TransT in image mode at the seed's "
-                           "two latencies; about half an hour on two cores).")
+                           "instead of 8, GK-TransT and the dual TransT each at both of the "
+                           "seed's latencies (the default: each at its own).")
     ] = False,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC,
@@ -224,7 +224,7 @@ def study(
         if engine is not None:
             extra["engine"] = engine.value
         if full:
-            extra["image_loop_n_seeds"] = 32
+            extra |= {"image_loop_n_seeds": 32, "image_loop_delays": "both"}
         cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
                           camera_file=camera_file, **extra)
         study_plant(cfg)

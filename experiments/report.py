@@ -121,7 +121,9 @@ def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
     t["agree"] = image_loop["agree"]
     return head + [
         "The loop closed on rendered frames (analytic renderer) tracked by each tracker itself, "
-        f"PID, the per-frame solver, at the seed's two latencies (constant), {n} reference "
+        "PID, the per-frame solver, at the seed's latencies (constant; "
+        + ("each tracker at its own" if cfg.image_loop_delays == "own" else
+           "every tracker at both") + f"), {n} reference "
         f"seed(s) per point of {cfg.image_loop_duration_s:g} s, run by the batched image engine "
         "(`latency.image_engine`: each run computes what the event loop computes for it; the "
         "latency it charges is the constant above, not the batched wall time). Beside it, the "

@@ -97,6 +97,11 @@ from plant.params import PlantParams
 
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
 DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
+#: Display names of the trackers.
+TRACKER_NAMES = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT", "kcf_gk": "KCF+GK",
+                 "k2cf": "K²CF"}
+#: Each tracker's own latency in the seed (Table 1), where the study has one.
+OWN_DELAY_MS = {"gk_transt": GK_MS, "dual_transt": DUAL_MS}
 #: Most runs per batch of the batched engine in the study's sweep (the runs are spread evenly
 #: over the workers first). Our choice: 128, the engine's best batch size measured
 #: (docs/closed_loop.md: 45x real time against 40x at 256), and 28 batches for the default
@@ -171,8 +176,13 @@ class StudyConfig(BaseModel):
         "references, rad/s (PID, at the seed's two latencies, each tracker).",
     )
     image_loop_duration_s: float = Field(
-        3.0, gt=0.5, description="Simulated time per image-engine run, s (our choice: 108 "
+        2.0, gt=0.5, description="Simulated time per image-engine run, s (our choice: 72 "
         "frames at 36 Hz, to keep the default study in its budget).",
+    )
+    image_loop_delays: Literal["own", "both"] = Field(
+        "own", description="Delays of the image-engine section: each tracker at its own seed "
+        "latency (GK-TransT 16.33 ms, dual TransT 31.23 ms; the default study's budget), or "
+        "every tracker at both (`pmspm study --full`).",
     )
     friction_compensation_Nm: float = Field(
         2.0e-3, ge=0.0, description="The PID variant's friction compensation, N·m (our "
@@ -560,12 +570,17 @@ IMAGE_MEANS = ("rms_error_deg", "lost_frame_fraction")
 
 
 def image_loop_scenarios(cfg: StudyConfig, params: PlantParams) -> list[tuple[dict, Scenario]]:
-    """The image-engine section's runs (tracker x the seed's two latencies x peak rate x
-    reference seed, PID, the per-frame solver, analytic renderer): bookkeeping and scenario."""
+    """The image-engine section's runs (tracker x the seed's latencies, its own or both
+    (``image_loop_delays``) x peak rate x reference seed, PID, the per-frame solver, analytic
+    renderer): bookkeeping and scenario. A tracker without a seed latency of its own runs at
+    both."""
     out = []
     scenario_tracker = {v: k for k, v in PAIR_TRACKER_OF.items()}
     for tracker in cfg.trackers:
-        for d in (GK_MS, DUAL_MS):
+        own = OWN_DELAY_MS.get(tracker)
+        delays = (own,) if cfg.image_loop_delays == "own" and own is not None \
+            else (GK_MS, DUAL_MS)
+        for d in delays:
             for rate in cfg.image_loop_rates_rad_s:
                 ref_name, ref, _ = _random_reference(rate)
                 for seed in range(cfg.image_loop_n_seeds):
@@ -759,13 +774,6 @@ def _preview_lines(step: pd.DataFrame) -> list[str]:
         "long before the slow creep into the settling band (Coulomb friction) that sets "
         "those metrics."
     ]
-
-
-#: Display names of the trackers.
-TRACKER_NAMES = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT", "kcf_gk": "KCF+GK",
-                 "k2cf": "K²CF"}
-#: Each tracker's own latency in the seed (Table 1), where the study has one.
-OWN_DELAY_MS = {"gk_transt": GK_MS, "dual_transt": DUAL_MS}
 
 
 def _loss_lines(loss: pd.DataFrame, intervals: pd.DataFrame, cfg: StudyConfig) -> list[str]:

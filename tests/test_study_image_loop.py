@@ -71,8 +71,16 @@ def test_search_window_mode_is_the_same_for_every_tracker(models):
     assert len(losses) == 1 and "123.0" in losses.pop()
 
 
+def test_image_loop_runs_each_tracker_at_its_own_latency_by_default(models):
+    jobs = image_loop_scenarios(StudyConfig(image_loop_n_seeds=2), PlantParams())
+    delays = {(b["tracker"], round(b["vision_delay_ms"], 2)) for b, _ in jobs}
+    assert delays == {("gk_transt", round(GK_MS, 2)), ("dual_transt", round(DUAL_MS, 2))}
+    assert len(jobs) == 2 * 3 * 2
+
+
 def test_image_loop_runs_each_tracker_at_both_seed_latencies(models):
-    cfg = StudyConfig(image_loop_n_seeds=3, image_loop_rates_rad_s=(1.0, 6.0))
+    cfg = StudyConfig(image_loop_n_seeds=3, image_loop_rates_rad_s=(1.0, 6.0),
+                      image_loop_delays="both")
     jobs = image_loop_scenarios(cfg, PlantParams())
     assert len(jobs) == 2 * 2 * 2 * 3
     scenario_tracker = {v: k for k, v in PAIR_TRACKER_OF.items()}
@@ -114,7 +122,7 @@ def test_image_loop_side_by_side_with_the_models(models, tmp_path):
     cfg = StudyConfig(image_loop_n_seeds=2, image_loop_rates_rad_s=(3.0,),
                       image_loop_duration_s=0.8, workers=1)
     table = image_loop(cfg, PlantParams(), tmp_path)
-    assert set(table.tracker) == {"gk_transt", "dual_transt"} and len(table) == 4
+    assert set(table.tracker) == {"gk_transt", "dual_transt"} and len(table) == 2
     assert (table.image_n_runs == 2).all() and (table.model_n_runs == 2).all()
     runs = pd.read_parquet(tmp_path / "image_loop.parquet")
     assert set(runs.side) == {"image", "model"}

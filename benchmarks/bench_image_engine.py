@@ -1,0 +1,175 @@
+"""The batched image engine: frames per second and real-time factor against the event loop and
+against the tracker networks' own limit.
+
+For GK-TransT and the dual TransT (PID, per-frame solver, random references at 3 rad/s, the
+seed's latency of the tracker, analytic renderer):
+
+* the event loop's image mode: ``ClosedLoop.run`` one run after the other in this process, the
+  network already built (as every run after a process's first);
+* the engine (``latency.image_engine.run_images``, 2 worker processes) at B = 1, 8 and 64 runs:
+  aggregate frames per second and real-time factor (simulated seconds per wall second), the
+  workers' start included;
+* the *network limit*: frames per second of the tracker's networks alone on search crops, at
+  the best of 1 or 2 ONNX Runtime threads and batch sizes 1-64 (one network call per frame for
+  GK-TransT, two for the dual TransT; 1-thread figures scaled by the two cores, an upper bound);
+* where an engine run's time goes: a profile of one batch of 8 runs in this process, by part
+  (render, network, GK and trackers, physics, control, the rest).
+
+Keys: ``<tracker>_B<B>_realtime_factor``, ``<tracker>_B<B>_frames_per_s``,
+``<tracker>_B64_fraction_of_network_limit``, ``<tracker>_B64_ratio_to_event_loop``,
+``<tracker>_network_limit_frames_per_s``, ``<tracker>_event_loop_realtime_factor``,
+``<tracker>_time_fraction_<part>``, ``network_s_per_sample_threads<T>_B<B>``.
+
+Run on an idle machine: ``python benchmarks/bench_image_engine.py`` (``--quick``: a smoke run
+with small batches and short runs, printed only).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import time
+
+import numpy as np
+
+from experiments.scenario import Scenario, build_loop
+from latency.image_engine import run_batch, run_images
+from latency.models import SEED_LATENCY_S
+
+TRACKERS = {"gk_transt": ("transt", 1), "dual_transt": ("dual_transt", 2)}
+PARTS = {"render": ("plant/render", "plant/scene"), "network": ("onnxruntime",),
+         "gk_and_trackers": ("observer/gk", "observer/trackers", "observer/transt",
+                             "observer/tracking", "observer/opencv", "cv2"),
+         "physics": ("plant/dynamics", "plant/rigid_body", "plant/torque"),
+         "control": ("controller/", "observer/cor_", "observer/pixel_observer")}
+
+
+def _scenarios(tracker: str, n: int, duration_s: float, first_seed: int = 0) -> list[Scenario]:
+    name, _ = TRACKERS[tracker]
+    return [Scenario.model_validate({
+        "mode": "image", "tracker": name, "duration_s": duration_s, "seed": s,
+        "observer": {"kind": "solver"},
+        "reference": {"kind": "random", "args": {"max_rate_rad_s": 3.0, "seed": s}},
+        "pipeline": {"observer": {"kind": "constant", "value_s": SEED_LATENCY_S[tracker]}},
+    }) for s in range(first_seed, first_seed + n)]
+
+
+def _frames(results) -> int:
+    return int(sum((~r.frames["dropped"].astype(bool)).sum() for r in results))
+
+
+def event_loop(tracker: str, n: int, duration_s: float) -> tuple[float, float]:
+    """(real-time factor, frames/s) of the event loop, network built beforehand."""
+    build_loop(_scenarios(tracker, 1, 0.2)[0]).run()  # builds and exports the network
+    loops = [build_loop(s) for s in _scenarios(tracker, n, duration_s)]
+    t0 = time.perf_counter()
+    res = [lp.run() for lp in loops]
+    wall = time.perf_counter() - t0
+    return n * duration_s / wall, _frames(res) / wall
+
+
+def engine(tracker: str, B: int, duration_s: float) -> tuple[float, float]:
+    """(real-time factor, frames/s) of the engine on B runs, 2 workers, start included."""
+    specs = _scenarios(tracker, B, duration_s, first_seed=100)
+    t0 = time.perf_counter()
+    res = run_images(build_loop, specs, workers=2, runs_per_batch=max(1, -(-B // 2)))
+    wall = time.perf_counter() - t0
+    return B * duration_s / wall, _frames(res) / wall
+
+
+def network_costs(batches: tuple[int, ...], repeats: int) -> dict[tuple[int, int], float]:
+    """Median seconds per crop of the shipped network (ONNX Runtime) per (threads, batch)."""
+    from observer.transt.export import onnx_session
+    from observer.transt.weights import SMALL_WEIGHTS, load_weights
+
+    net, _ = load_weights(SMALL_WEIGHTS)
+    c = net.config
+    rng = np.random.default_rng(0)
+    out = {}
+    for threads in (1, 2):
+        session = onnx_session(net, num_threads=threads)
+        for B in batches:
+            x = rng.normal(size=(B, 3, c.search_size, c.search_size)).astype(np.float32)
+            z = rng.normal(size=(B, c.template_feature_size ** 2, c.d_model)).astype(np.float32)
+            session.run(None, {"search": x, "z": z})
+            walls = []
+            for _ in range(max(3, repeats // B)):
+                t0 = time.perf_counter()
+                session.run(None, {"search": x, "z": z})
+                walls.append(time.perf_counter() - t0)
+            out[(threads, B)] = float(np.median(walls)) / B
+    return out
+
+
+def time_split(tracker: str, duration_s: float) -> dict[str, float]:
+    """Fractions of one in-process batch of 8 runs' time by part (see ``PARTS``)."""
+    loops = [build_loop(s) for s in _scenarios(tracker, 8, duration_s, first_seed=200)]
+    prof = cProfile.Profile()
+    prof.enable()
+    run_batch(loops)
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+    parts = dict.fromkeys(PARTS, 0.0)
+    total = 0.0
+    for (path, _, func), (_, _, tottime, _, _) in stats.items():
+        total += tottime
+        where = f"{path}:{func}"
+        for part, keys in PARTS.items():
+            if any(k in where for k in keys):
+                parts[part] += tottime
+                break
+    parts["rest"] = total - sum(parts.values())
+    return {k: v / total for k, v in parts.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small batches, short runs")
+    args = ap.parse_args()
+    duration = 0.6 if args.quick else 2.0
+    sizes = (1, 4) if args.quick else (1, 8, 64)
+    batches = (1, 4) if args.quick else (1, 2, 4, 8, 16, 32, 64)
+    figures: dict[str, float] = {}
+    costs = network_costs(batches, repeats=8 if args.quick else 64)
+    for (threads, B), s in costs.items():
+        figures[f"network_s_per_sample_threads{threads}_B{B}"] = s
+    # the best frames/s of the networks on two cores: 1 thread in each of 2 processes, or 2
+    # threads in one
+    per_crop = min(min(s / 2.0 for (t, _), s in costs.items() if t == 1),
+                   min(s for (t, _), s in costs.items() if t == 2))
+    for tracker, (_, calls) in TRACKERS.items():
+        limit = 1.0 / (calls * per_crop)
+        figures[f"{tracker}_network_limit_frames_per_s"] = limit
+        rt_ev, fps_ev = event_loop(tracker, 2, duration)
+        figures[f"{tracker}_event_loop_realtime_factor"] = rt_ev
+        figures[f"{tracker}_event_loop_frames_per_s"] = fps_ev
+        for B in sizes:
+            rt, fps = engine(tracker, B, duration)
+            figures[f"{tracker}_B{B}_realtime_factor"] = rt
+            figures[f"{tracker}_B{B}_frames_per_s"] = fps
+        top = max(sizes)
+        figures[f"{tracker}_B{top}_fraction_of_network_limit"] = \
+            figures[f"{tracker}_B{top}_frames_per_s"] / limit
+        figures[f"{tracker}_B{top}_ratio_to_event_loop"] = \
+            figures[f"{tracker}_B{top}_realtime_factor"] / rt_ev
+        for part, frac in time_split(tracker, duration).items():
+            figures[f"{tracker}_time_fraction_{part}"] = frac
+
+    if args.quick:  # a smoke run: printed, not recorded
+        for k, v in figures.items():
+            print(f"{k:>50s}  {v:.4g}")
+        return
+    from _report import record
+
+    record("bench_image_engine",
+           "Batched image engine: frames/s against the event loop and the network limit",
+           figures,
+           notes=f"Runs of {duration:g} s at 36 frames/s, PID, per-frame solver, random "
+                 "references at 3 rad/s, each tracker at its seed latency; engine with 2 "
+                 "worker processes, the workers' start included. The network limit assumes "
+                 "one network call per GK-TransT frame and two per dual-TransT frame.")
+
+
+if __name__ == "__main__":
+    main()
