@@ -35,6 +35,7 @@ from pydantic import ValidationError  # noqa: E402
 
 from experiments.config_files import ConfigFileError, load_mapping  # noqa: E402
 from latency.models import seed_latency_ms  # noqa: E402
+from observer.tracking import PAIR_TRACKER_DESCRIPTIONS  # noqa: E402
 
 app = typer.Typer(
     help="Closed-loop co-design toolkit for a vision-measured spherical motor.",
@@ -719,8 +720,8 @@ def tune_kalman_cmd(
 def track(
     source: Annotated[str, typer.Argument(help="Video file, image folder, camera index or URL.")],
     out: OutOption = Path("track_run"),
-    tracker: Annotated[str, typer.Option(help="Pair tracker (observer.trackers.PAIR_TRACKERS).")]
-    = "gk_transt",
+    tracker: Annotated[str, typer.Option(help="Pair tracker: " + "; ".join(
+        f"{k} = {v}" for k, v in PAIR_TRACKER_DESCRIPTIONS.items()) + ".")] = "gk_transt",
     boxes: Annotated[
         str | None,
         typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px, or "
@@ -731,8 +732,9 @@ def track(
     ] = None,
     camera: Annotated[Path | None, typer.Option(help="Camera YAML (pmspm calibrate).")] = None,
     motor: Annotated[Path | None, typer.Option(help="Motor YAML (markers, rotor radius).")] = None,
-    fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (default: the source's).")]
-    = None,
+    fps: Annotated[float | None, typer.Option(
+        help="Frame rate, Hz; overrides the camera file's frame_rate_hz (a folder's rate) and "
+             "a video's own rate.")] = None,
     max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
     observer: Annotated[
         str, typer.Option(help="Attitude back end: solver (CoR least squares) or aekf.")
@@ -754,7 +756,11 @@ def track(
         _config_error(ValueError(f"--observer must be one of {TRACK_OBSERVERS}"), "options")
     try:
         setup = load_setup(motor, camera)
-        src = open_source(source, fps)
+        src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
+                          if camera is not None else None,
+                          camera_origin=f"frame_rate_hz of {camera}")
+        for warning in src.warnings:
+            typer.echo(f"warning: {warning}", err=True)
         outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
                             boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
                             max_frames, observer=observer)

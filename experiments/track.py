@@ -484,8 +484,10 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     fig.tight_layout()
     fig.savefig(out / "latency.png", dpi=100)
     lines = [f"# Tracking run: {source.name}", "",
-             f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}; attitude: "
-             f"{outcome.observer}.", "",
+             f"Source: {source.kind}, {source.fps:g} frames/s (from {source.fps_origin}); "
+             f"tracker: {name}; attitude: {outcome.observer}.", "",
+             *[f"**Warning:** {w}" for w in source.warnings],
+             *([""] if source.warnings else []),
              *[f"- {s}" for s in outcome.summary_lines()], "",
              "![attitude](attitude.png)", "", "![latency](latency.png)", "",
              "Files: `frames.parquet` (per frame), `annotated.mp4`, `latency_profile.json` "

@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from observer.gk.hsv_gate import check_frame, check_rgb_image
 from observer.gk.subpixel import SubpixelConfig, refine_in_box
-from observer.tracking import PairResult
+from observer.tracking import PAIR_TRACKERS, PairResult
 from plant.params import PlantParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -73,10 +73,6 @@ __all__ = [
 #: Colours of the two markers, in the order of ``Frame.marker_px`` (seed 000 §3.2.2).
 MARKERS = ("red", "yellow")
 
-#: Names accepted by ``make_pair_tracker``.
-PAIR_TRACKERS = (
-    "gk_transt", "dual_transt", "kcf", "csrt", "kcf_numpy", "k2cf", "kcf_gk", "csrt_gk"
-)
 
 
 def box_around(centre_px: ArrayLike, size_px: ArrayLike) -> NDArray[np.float64]:
