@@ -207,10 +207,13 @@ class PairTracker(Protocol):
 
     ``tilt_hint_rad`` is the latest estimated tilt β (rad, None when unknown); trackers with a
     geometric check (D_exp = L·S·cos β, seed 000 §3.2.2) use it, the others ignore it.
+    ``residual_hint_px`` is the attitude solver's RMS residual of the latest frame (sensor px,
+    None or NaN when unknown); trackers with drift detection (``observer.gk.drift``) use it.
     """
 
     name: str
     tilt_hint_rad: float | None
+    residual_hint_px: float | None
 
     def start(
         self, image: NDArray[np.uint8], boxes_sensor_px: ArrayLike, binning: int | None = None

@@ -69,6 +69,7 @@ class ScriptedTracker:
 
     def __init__(self) -> None:
         self.tilt_hint_rad = None
+        self.residual_hint_px = None
         self.clock = StepClock(1e-3)
         self._started = False
 
