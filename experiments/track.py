@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -77,7 +77,7 @@ from observer.tracking import (
 )
 from observer.types import SolverResult
 from plant import attitude
-from plant.camera import image_to_sensor, sensor_to_image
+from plant.camera import Camera, image_to_sensor, sensor_to_image
 
 
 def parse_boxes(text: str) -> NDArray[np.float64]:
@@ -167,8 +167,10 @@ def load_ground_truth(xml_path: Path | str, width: int, height: int,
 
 def cor_model(setup: UserSetup) -> CorModel:
     """The attitude solver's model (``CorModel.nominal``): the setup's camera (its calibrated
-    intrinsics when the camera file has them, ``CameraFile.params``), its markers and the CoR
-    depth R + h_c from its plant."""
+    intrinsics when the camera file has them, ``CameraFile.params``, and its mount's offset),
+    its markers and the CoR depth R + h_c from its plant. It works in the camera-aligned frame
+    (``plant.camera``): ``run_track`` turns its attitudes by the mount's roll into the stator
+    frame."""
     return CorModel.nominal(setup.params, markers_m=setup.markers_m)
 
 
@@ -339,6 +341,7 @@ def run_track(
     except ValueError as exc:
         raise UserInputError(f"cannot start the tracker: {exc}") from exc
     model = cor_model(setup)
+    camera = Camera.from_plant(setup.params)
     solver = CorSolver(model)
     filt = attitude_filter(setup) if observer == "aekf" else None
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
@@ -364,7 +367,13 @@ def run_track(
                 sol = filter_step(filt, model, given, res.reason, index / source.fps)
             solver_s = clock() - ts
             q_prev = sol.q if sol.valid else q_prev
-            row = _frame_row(index, source.fps, t_received, res, sol, read_s, solver_s)
+            # the tracker's geometry and drift checks read the latest attitude and residual
+            tracker.residual_hint_px = sol.residual_rms_px
+            if sol.valid:
+                tracker.tilt_hint_rad = attitude.tilt(sol.q)
+            # the back ends work in the camera-aligned frame; the table is in the stator frame
+            stator = replace(sol, q=camera.stator_attitude(sol.q)) if sol.valid else sol
+            row = _frame_row(index, source.fps, t_received, res, stator, read_s, solver_s)
             rows.append(row)
             if writer is not None:
                 text = (f"#{index} tilt {row['tilt_deg']:.2f} yaw {row['yaw_deg']:.1f} spin "
