@@ -114,7 +114,7 @@ class Source:
     fps: float
     n_frames: int | None
     name: str
-    fps_origin: str = "given"
+    fps_origin: str = "the caller"
     warnings: list[str] = field(default_factory=list)
 
 
