@@ -35,6 +35,7 @@ from pydantic import ValidationError  # noqa: E402
 
 from experiments.config_files import ConfigFileError, load_mapping  # noqa: E402
 from latency.models import seed_latency_ms  # noqa: E402
+from observer.tracking import PAIR_TRACKER_DESCRIPTIONS  # noqa: E402
 
 app = typer.Typer(
     help="Closed-loop co-design toolkit for a vision-measured spherical motor.",
@@ -768,8 +769,8 @@ def tune_kalman_cmd(
 def track(
     source: Annotated[str, typer.Argument(help="Video file, image folder, camera index or URL.")],
     out: OutOption = Path("track_run"),
-    tracker: Annotated[str, typer.Option(help="Pair tracker (observer.trackers.PAIR_TRACKERS).")]
-    = "gk_transt",
+    tracker: Annotated[str, typer.Option(help="Pair tracker: " + "; ".join(
+        f"{k} = {v}" for k, v in PAIR_TRACKER_DESCRIPTIONS.items()) + ".")] = "gk_transt",
     boxes: Annotated[
         str | None,
         typer.Option(help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px, or "
@@ -780,8 +781,9 @@ def track(
     ] = None,
     camera: Annotated[Path | None, typer.Option(help="Camera YAML (pmspm calibrate).")] = None,
     motor: Annotated[Path | None, typer.Option(help="Motor YAML (markers, rotor radius).")] = None,
-    fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (default: the source's).")]
-    = None,
+    fps: Annotated[float | None, typer.Option(
+        help="Frame rate, Hz; overrides the camera file's frame_rate_hz (a folder's rate) and "
+             "a video's own rate.")] = None,
     max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
     observer: Annotated[
         str, typer.Option(help="Attitude back end: solver (CoR least squares) or aekf.")
@@ -790,7 +792,7 @@ def track(
     """Track the two markers on a recording or a live camera; write the per-frame table, the
     attitudes, an annotated MP4, a latency profile and a report.
 
-    Example: pmspm track lab.mp4 --boxes "300,240,12,12;330,240,12,12" --tracker kcf_gk --out run
+    Example: pmspm track lab.mp4 --boxes "196,231,48,48;367,231,48,48" --tracker kcf_gk --out run
     """
     from experiments.sources import UserInputError, open_source
     from experiments.track import TRACK_OBSERVERS, parse_boxes, run_track
@@ -803,7 +805,11 @@ def track(
         _config_error(ValueError(f"--observer must be one of {TRACK_OBSERVERS}"), "options")
     try:
         setup = load_setup(motor, camera)
-        src = open_source(source, fps)
+        src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
+                          if camera is not None else None,
+                          camera_origin=f"frame_rate_hz of {camera}")
+        for warning in src.warnings:
+            typer.echo(f"warning: {warning}", err=True)
         outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
                             boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
                             max_frames, observer=observer)
@@ -811,6 +817,51 @@ def track(
         _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
     typer.echo("\n".join(outcome.summary_lines()))
     typer.echo(f"results: {out}")
+
+
+@app.command("calibrate-mount")
+def calibrate_mount(
+    source: Annotated[str, typer.Argument(help="Video file or image folder of the rotor.")],
+    out: OutOption = Path("mount"),
+    known: Annotated[Path | None, typer.Option(
+        help="CSV of the resting attitudes: first_frame,last_frame,spin_deg,tilt_deg,yaw_deg "
+             "(without it: the rotor spinning at zero tilt).")] = None,
+    tracker: Annotated[str, typer.Option(help="Pair tracker (see pmspm track --help).")]
+    = "kcf_gk",
+    boxes: Annotated[str | None, typer.Option(
+        help="First-frame boxes 'x,y,w,h;x,y,w,h' (red;yellow), image px, or 'auto'.")]
+    = "auto",
+    camera: Annotated[Path | None, typer.Option(help="Camera YAML (pmspm calibrate).")] = None,
+    motor: Annotated[Path | None, typer.Option(help="Motor YAML (markers, rotor radius).")] = None,
+    fps: Annotated[float | None, typer.Option(help="Frame rate, Hz (as pmspm track).")] = None,
+    max_frames: Annotated[int | None, typer.Option(help="Stop after this many frames.")] = None,
+) -> None:
+    """Estimate the camera's roll about its optical axis and its optical centre's offset from
+    the rotation axis, with their uncertainties, from a recording of the rotor resting at known
+    attitudes (--known) or spinning at zero tilt; write the camera file with the mount.
+
+    Example: pmspm calibrate-mount rest/ --known poses.csv --camera cam.yaml --out mount
+    """
+    from experiments.mount import run_calibrate_mount
+    from experiments.sources import UserInputError, open_source
+    from experiments.track import parse_boxes
+    from experiments.user_files import load_setup
+    from observer.trackers import PAIR_TRACKERS, make_pair_tracker
+
+    if tracker not in PAIR_TRACKERS:
+        _config_error(ValueError(f"--tracker must be one of {PAIR_TRACKERS}"), "options")
+    try:
+        setup = load_setup(motor, camera)
+        src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
+                          if camera is not None else None,
+                          camera_origin=f"frame_rate_hz of {camera}")
+        est = run_calibrate_mount(src, make_pair_tracker(tracker, setup.params), out,
+                                  boxes if boxes in (None, "auto") else parse_boxes(boxes),
+                                  setup, known, max_frames)
+    except (ValidationError, ValueError) as exc:
+        _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
+    typer.echo("\n".join(est.summary_lines()))
+    typer.echo(f"camera file: {out / 'camera.yaml'}")
 
 
 @app.command()

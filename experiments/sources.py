@@ -5,13 +5,20 @@ A live camera delivers a frame every ``1/fps`` s. When the consumer is slower, t
 delivered while it was busy are grabbed (taken off the camera without decoding) and dropped, and
 only the newest is processed, so no backlog builds up (``LiveSchedule``). The capture object and
 the clock are injectable: tests drive the schedule on a simulated clock.
+
+**Frame rate** (``open_source``; a frame's capture time is its index / rate): ``--fps`` when
+given; else for a folder of images the camera file's ``frame_rate_hz`` (the rate the images were
+captured at); for a video or a live camera its own rate, checked against the camera file's (a
+warning names both when they differ by more than ``RATE_TOLERANCE``); without either, the
+default camera's 36 Hz (seed 000 §5). ``Source.fps_origin`` says which, for the report. A rate
+that is zero, negative or not finite is refused.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -98,6 +105,8 @@ class Source:
     fps : frame rate, Hz (the video's, or the camera's nominal rate).
     n_frames : frames in a recording (None for a live camera or when the container omits it).
     name : what was opened.
+    fps_origin : where ``fps`` came from (module docstring), for the report.
+    warnings : what the user should check (e.g. a video rate differing from the camera file's).
     """
 
     capture: Capture
@@ -105,32 +114,71 @@ class Source:
     fps: float
     n_frames: int | None
     name: str
+    fps_origin: str = "the caller"
+    warnings: list[str] = field(default_factory=list)
+
+
+#: Relative difference between a video's own rate and the camera file's beyond which a warning
+#: names both (our choice: 1 %, above the rounding of container rates such as 29.97 Hz).
+RATE_TOLERANCE = 0.01
+
+
+def check_rate(name: str, rate_hz: float) -> float:
+    """``rate_hz`` as a float, or ``UserInputError`` naming ``name`` unless finite and > 0."""
+    r = float(rate_hz)
+    if not (math.isfinite(r) and r > 0.0):
+        raise UserInputError(f"{name} must be a finite frame rate > 0 Hz, got {rate_hz}")
+    return r
+
+
+def _choose_rate(own_hz: float, fps: float | None, camera_rate_hz: float | None,
+                 camera_origin: str, kind: str) -> tuple[float, str, list[str]]:
+    """(rate, where it came from, warnings) by the rule of the module docstring; ``own_hz`` is
+    the source's own rate (0 when it has none)."""
+    if fps is not None:
+        return check_rate("--fps", fps), "--fps", []
+    cam = None if camera_rate_hz is None else check_rate(camera_origin, camera_rate_hz)
+    has_own = math.isfinite(own_hz) and own_hz > 0.0
+    if has_own:
+        warnings = []
+        if cam is not None and abs(own_hz - cam) > RATE_TOLERANCE * cam:
+            warnings.append(f"the {kind}'s own frame rate is {own_hz:g} Hz but {camera_origin} "
+                            f"is {cam:g} Hz: using the {kind}'s; pass --fps to choose")
+        return own_hz, f"the {kind}'s own rate", warnings
+    if cam is not None:
+        return cam, camera_origin, []
+    return PlantParams().camera.frame_rate_hz, "the default camera's rate (seed 000 §5)", []
 
 
 def open_source(spec: str, fps: float | None = None,
-                capture_factory: Callable[[int | str], Capture] | None = None) -> Source:
+                capture_factory: Callable[[int | str], Capture] | None = None,
+                camera_rate_hz: float | None = None,
+                camera_origin: str = "the camera file's frame_rate_hz") -> Source:
     """Open ``spec``: a folder of images, a video file, a camera index (``"0"``) or a URL.
 
-    ``fps`` overrides the frame rate (default: the video's, else 36 Hz, seed 000 §5).
-    ``capture_factory`` (default ``cv2.VideoCapture``) opens files, indices and URLs.
-    Raises ``UserInputError`` when the source cannot be opened.
+    The frame rate (Hz) follows the module docstring's rule: ``fps`` (the ``--fps`` option)
+    overrides; ``camera_rate_hz`` is the camera file's ``frame_rate_hz`` (None: no camera
+    file), named ``camera_origin`` in the report and the warnings. ``capture_factory``
+    (default ``cv2.VideoCapture``) opens files, indices and URLs. Raises ``UserInputError``
+    when the source cannot be opened or a rate is zero, negative or not finite.
     """
     factory = capture_factory or cv2.VideoCapture
-    default_fps = PlantParams().camera.frame_rate_hz
     path = Path(spec)
     if path.is_dir():
         cap = FolderCapture(path)
-        return Source(cap, "folder", fps or default_fps, len(cap), str(path))
+        rate, origin, warnings = _choose_rate(0.0, fps, camera_rate_hz, camera_origin, "folder")
+        return Source(cap, "folder", rate, len(cap), str(path), origin, warnings)
     live = spec.isdigit() or "://" in spec
     if not live and not path.is_file():
         raise UserInputError(f"{spec}: no such file, folder or camera")
     cap = factory(int(spec) if spec.isdigit() else spec)
     if not cap.isOpened():
         raise UserInputError(f"{spec}: cannot open (unreadable video or camera)")
-    rate = float(cap.get(cv2.CAP_PROP_FPS))
+    kind = "live" if live else "video"
+    rate, origin, warnings = _choose_rate(float(cap.get(cv2.CAP_PROP_FPS)), fps, camera_rate_hz,
+                                          camera_origin, "camera" if live else kind)
     count = 0 if live else int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    return Source(cap, "live" if live else "video", fps or (rate if rate > 0 else default_fps),
-                  count if count > 0 else None, spec)
+    return Source(cap, kind, rate, count if count > 0 else None, spec, origin, warnings)
 
 
 class LiveSchedule:

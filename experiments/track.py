@@ -13,14 +13,23 @@ Outputs in the run folder:
 * ``frames.parquet``: one row per processed frame: frame index, capture time (s; frame index /
   fps: a live camera's frame k is taken as delivered at k / fps after the first), the time the
   frame was in hand (s after the first frame, on the run's clock), both centres
-  (sensor px), lost flags and reasons, the attitude (quaternion; spin, tilt, yaw in deg) and the
-  per-stage compute times (read, tracker step, of which inside the single-object trackers or
-  networks, solver; s);
+  (sensor px), lost flags and reasons, the tracker's own ``red_measured`` / ``yellow_measured``
+  flags (the centre was measured in this frame, not predicted), ``attitude_source`` (what the
+  attitude rests on: "both measured", "one predicted", "both predicted"), the attitude
+  (quaternion; spin, tilt, yaw in deg) and the per-stage compute times (read, tracker step, of
+  which inside the single-object trackers or networks, solver; s);
 * ``annotated.mp4``: the frames with boxes, centres and the attitude;
 * ``latency_profile.json``: an ``latency.models.Empirical`` profile of tracker + back-end time
   (``solver_time_s`` is the back end's time, solver or AEKF),
   the format ``pipeline.observer`` of a scenario (``pmspm simulate``) takes;
-* ``report.md`` with ``attitude.png`` and ``latency.png``.
+* ``report.md`` with ``attitude.png`` (stretches whose attitude does not rest on two measured
+  markers shaded) and ``latency.png``.
+
+The back ends receive only the markers the tracker measured (``observer.tracking.attitude_input``,
+the boundary rule of docs/architecture.md): with one marker measured the least-squares solve
+has too few markers and gives no attitude, the AEKF fuses the one marker; with none the frame is
+lost. Accuracy summaries (``score``, ``attitude_accuracy``) count the frames whose markers were
+measured unless asked otherwise, and say how many predicted frames they left out.
 
 Sources (``experiments.sources``): a folder of images, a video file, or a live camera (an
 integer or a URL). Recorded sources are processed frame by frame; a live camera in real time,
@@ -35,7 +44,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -59,10 +68,16 @@ from observer.gk.hsv_gate import (
     colour_mask,
 )
 from observer.pixel_observer import FilterObserver
-from observer.tracking import PairResult, PairTracker
+from observer.tracking import (
+    ATTITUDE_SOURCES,
+    AttitudeInput,
+    PairResult,
+    PairTracker,
+    attitude_input,
+)
 from observer.types import SolverResult
 from plant import attitude
-from plant.camera import image_to_sensor, sensor_to_image
+from plant.camera import Camera, image_to_sensor, sensor_to_image
 
 
 def parse_boxes(text: str) -> NDArray[np.float64]:
@@ -152,8 +167,10 @@ def load_ground_truth(xml_path: Path | str, width: int, height: int,
 
 def cor_model(setup: UserSetup) -> CorModel:
     """The attitude solver's model (``CorModel.nominal``): the setup's camera (its calibrated
-    intrinsics when the camera file has them, ``CameraFile.params``), its markers and the CoR
-    depth R + h_c from its plant."""
+    intrinsics when the camera file has them, ``CameraFile.params``, and its mount's offset),
+    its markers and the CoR depth R + h_c from its plant. It works in the camera-aligned frame
+    (``plant.camera``): ``run_track`` turns its attitudes by the mount's roll into the stator
+    frame."""
     return CorModel.nominal(setup.params, markers_m=setup.markers_m)
 
 
@@ -182,16 +199,17 @@ def attitude_filter(setup: UserSetup) -> FilterObserver:
                           solver=CorSolver(cor_model(setup)))
 
 
-def filter_step(filt: FilterObserver, model: CorModel, res: PairResult,
+def filter_step(filt: FilterObserver, model: CorModel, given: AttitudeInput, reason: str,
                 t_capture_s: float) -> SolverResult:
-    """Fuse one frame's centres into the AEKF at its capture time (s) and release the
-    estimate there, as a ``SolverResult`` (residual: the centres against the estimate's
-    projection through ``model``, sensor px)."""
-    filt.process(res.marker_px, t_capture_s, lost=res.lost, reason=res.reason)
+    """Fuse one frame's measured centres (``attitude_input``) into the AEKF at its capture
+    time (s) and release the estimate there, as a ``SolverResult`` (residual: the measured
+    centres against the estimate's projection through ``model``, sensor px); ``reason`` is the
+    tracker's."""
+    filt.process(given.marker_px, t_capture_s, lost=given.lost, reason=reason)
     est = filt.release(t_capture_s)
     if not est.valid:
         return SolverResult.invalid(est.reason or "filter estimate invalid")
-    d = np.asarray(res.marker_px, float) - model.project(est.q)
+    d = np.asarray(given.marker_px, float) - model.project(est.q)
     seen = np.all(np.isfinite(d), axis=1)
     rms = float(np.sqrt(np.mean(d[seen] ** 2))) if seen.any() else np.nan
     return SolverResult(q=est.q, covariance=est.covariance, reason=est.reason,
@@ -233,11 +251,14 @@ class TrackOutcome:
                  "markers lost on "
                  f"{int(t['lost'].sum()) if len(t) else 0}"]
         if len(t):
+            counts = t["attitude_source"].value_counts()
+            lines.append("attitude rests on: " + ", ".join(
+                f"{src} {int(counts.get(src, 0))}" for src in ATTITUDE_SOURCES) + " frames")
             total = (t["tracker_time_s"] + t["solver_time_s"]).to_numpy() * 1e3
             lines.append(f"tracker + {self.observer} time: median {np.median(total):.2f} ms, "
                          f"p95 {np.percentile(total, 95):.2f} ms")
         for k, v in self.metrics.items():
-            lines.append(f"{k}: {v:.3f}")
+            lines.append(f"{k}: {int(v)}" if k.endswith("left out") else f"{k}: {v:.3f}")
         return lines
 
 
@@ -320,6 +341,7 @@ def run_track(
     except ValueError as exc:
         raise UserInputError(f"cannot start the tracker: {exc}") from exc
     model = cor_model(setup)
+    camera = Camera.from_plant(setup.params)
     solver = CorSolver(model)
     filt = attitude_filter(setup) if observer == "aekf" else None
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
@@ -334,16 +356,24 @@ def run_track(
             t_received = clock() - t0
             rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
             res = tracker.step(rgb)
+            given = attitude_input(res)
             ts = clock()
             if filt is None:
-                sol = solver.solve(res.marker_px, q_prev)
+                sol = solver.solve(given.marker_px, q_prev) if not given.lost else \
+                    SolverResult.invalid("no marker measured in this frame")
             else:
                 if not rows:
-                    filt.reset(_first_attitude(solver, res), index / source.fps)
-                sol = filter_step(filt, model, res, index / source.fps)
+                    filt.reset(_first_attitude(solver, given), index / source.fps)
+                sol = filter_step(filt, model, given, res.reason, index / source.fps)
             solver_s = clock() - ts
             q_prev = sol.q if sol.valid else q_prev
-            row = _frame_row(index, source.fps, t_received, res, sol, read_s, solver_s)
+            # the tracker's geometry and drift checks read the latest attitude and residual
+            tracker.residual_hint_px = sol.residual_rms_px
+            if sol.valid:
+                tracker.tilt_hint_rad = attitude.tilt(sol.q)
+            # the back ends work in the camera-aligned frame; the table is in the stator frame
+            stator = replace(sol, q=camera.stator_attitude(sol.q)) if sol.valid else sol
+            row = _frame_row(index, source.fps, t_received, res, stator, read_s, solver_s)
             rows.append(row)
             if writer is not None:
                 text = (f"#{index} tilt {row['tilt_deg']:.2f} yaw {row['yaw_deg']:.1f} spin "
@@ -371,9 +401,10 @@ def run_track(
     return outcome
 
 
-def _first_attitude(solver: CorSolver, res: PairResult) -> NDArray[np.float64]:
-    """The AEKF's starting attitude: the least-squares solve of the first frame, else rest."""
-    sol = solver.solve(res.marker_px)
+def _first_attitude(solver: CorSolver, given: AttitudeInput) -> NDArray[np.float64]:
+    """The AEKF's starting attitude: the least-squares solve of the first frame's measured
+    centres, else rest."""
+    sol = solver.solve(given.marker_px)
     return sol.q if sol.valid else np.array([1.0, 0.0, 0.0, 0.0])
 
 
@@ -387,7 +418,9 @@ def _frame_row(index: int, fps: float, received_s: float, res: PairResult, sol: 
         "red_u_px": res.red_px[0], "red_v_px": res.red_px[1],
         "yellow_u_px": res.yellow_px[0], "yellow_v_px": res.yellow_px[1],
         "lost": res.lost, "red_lost": res.red_lost, "yellow_lost": res.yellow_lost,
-        "reason": res.reason, "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
+        "red_measured": res.red_measured, "yellow_measured": res.yellow_measured,
+        "attitude_source": attitude_input(res).source, "reason": res.reason,
+        "q_w": q[0], "q_x": q[1], "q_y": q[2], "q_z": q[3],
         "spin_deg": angles[0], "tilt_deg": angles[1], "yaw_deg": angles[2],
         "attitude_valid": sol.valid, "attitude_reason": sol.reason,
         "residual_rms_px": sol.residual_rms_px,
@@ -396,16 +429,25 @@ def _frame_row(index: int, fps: float, received_s: float, res: PairResult, sol: 
     }
 
 
-def score(table: pd.DataFrame, truth: GroundTruth, binning: int) -> dict[str, float]:
+def score(table: pd.DataFrame, truth: GroundTruth, binning: int,
+          include_predicted: bool = False) -> dict[str, float]:
     """Precision at 20 px and mean / median centre errors (sensor px, as the benchmark) of each
-    marker against the annotated centres of the processed frames."""
+    marker against the annotated centres of the processed frames: the frames in which the
+    tracker measured that marker, unless ``include_predicted``; ``"<marker> predicted frames
+    left out"`` counts the others."""
     idx = table["frame_index"].to_numpy(int)
-    idx = idx[idx < len(truth.centres_image_px)]
+    keep = idx < len(truth.centres_image_px)
+    idx = idx[keep]
     metrics: dict[str, float] = {}
     for m, name in enumerate(("red", "yellow")):
-        pred = table[[f"{name}_u_px", f"{name}_v_px"]].to_numpy()[: len(idx)]
+        pred = table[[f"{name}_u_px", f"{name}_v_px"]].to_numpy()[keep]
         true = image_to_sensor(truth.centres_image_px[idx, m], binning)
         e = centre_errors(pred, true)
+        predicted = ~table[f"{name}_measured"].to_numpy(bool)[keep]
+        if not include_predicted:
+            e[predicted] = np.nan  # not scored
+        metrics[f"{name} predicted frames left out"] = \
+            0.0 if include_predicted else float(predicted.sum())
         scored = e[~np.isnan(e)]
         metrics[f"{name} precision@{PRECISION_PX:g}px"] = precision_at(e)
         metrics[f"{name} mean centre error px"] = float(np.mean(scored)) if scored.size else np.nan
@@ -431,10 +473,12 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     for col in ("tilt_deg", "yaw_deg", "spin_deg"):
         if len(t):
             ax.plot(t["capture_time_s"], t[col], label=col.replace("_deg", ""))
+    if len(t):
+        _shade_predicted(ax, t)
     ax.set_xlabel("capture time, s")
     ax.set_ylabel("angle, deg")
     ax.legend()
-    ax.set_title("attitude (ZYZ spin, tilt, yaw)")
+    ax.set_title("attitude (ZYZ spin, tilt, yaw); shaded: a marker predicted")
     fig.tight_layout()
     fig.savefig(out / "attitude.png", dpi=100)
     fig = Figure(figsize=(7, 3.5))
@@ -449,8 +493,10 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     fig.tight_layout()
     fig.savefig(out / "latency.png", dpi=100)
     lines = [f"# Tracking run: {source.name}", "",
-             f"Source: {source.kind}, {source.fps:g} frames/s; tracker: {name}; attitude: "
-             f"{outcome.observer}.", "",
+             f"Source: {source.kind}, {source.fps:g} frames/s (from {source.fps_origin}); "
+             f"tracker: {name}; attitude: {outcome.observer}.", "",
+             *[f"**Warning:** {w}" for w in source.warnings],
+             *([""] if source.warnings else []),
              *[f"- {s}" for s in outcome.summary_lines()], "",
              "![attitude](attitude.png)", "", "![latency](latency.png)", "",
              "Files: `frames.parquet` (per frame), `annotated.mp4`, `latency_profile.json` "
@@ -458,13 +504,70 @@ def write_outputs(outcome: TrackOutcome, source: Source, tracker: PairTracker) -
     (out / "report.md").write_text("\n".join(lines))
 
 
-def attitude_errors_deg(table: pd.DataFrame, q_true: Sequence[ArrayLike]) -> NDArray[np.float64]:
+#: Shading of the attitude plot's stretches per ``attitude_source`` (None: not shaded).
+_SHADES = {ATTITUDE_SOURCES[1]: "#f5c26b", ATTITUDE_SOURCES[2]: "#b0b0b0"}
+
+
+def predicted_stretches(table: pd.DataFrame) -> list[tuple[float, float, str]]:
+    """(start, end, attitude_source) of each run of consecutive rows whose attitude does not
+    rest on two measured markers; times are capture times (s), each row covering half a frame
+    period on either side."""
+    times = table["capture_time_s"].to_numpy(float)
+    sources = table["attitude_source"].to_numpy(str)
+    half = 0.5 * float(np.median(np.diff(times))) if len(times) > 1 else 0.5
+    out: list[tuple[float, float, str]] = []
+    for k, (t, src) in enumerate(zip(times, sources, strict=True)):
+        if src == ATTITUDE_SOURCES[0]:
+            continue
+        if out and out[-1][2] == src and sources[k - 1] == src:
+            out[-1] = (out[-1][0], t + half, src)
+        else:
+            out.append((t - half, t + half, src))
+    return out
+
+
+def _shade_predicted(ax, table: pd.DataFrame) -> None:
+    """Shade the attitude plot where a marker was predicted (one: orange, both: grey)."""
+    labelled: set[str] = set()
+    for t0, t1, src in predicted_stretches(table):
+        ax.axvspan(t0, t1, color=_SHADES[src], alpha=0.4, lw=0,
+                   label=None if src in labelled else src)
+        labelled.add(src)
+
+
+def attitude_errors_deg(table: pd.DataFrame, q_true: Sequence[ArrayLike],
+                        include_predicted: bool = False) -> NDArray[np.float64]:
     """Geodesic angle (deg) between each row's attitude and ``q_true[frame_index]``; NaN where
-    the run has no attitude."""
+    the run has no attitude and, unless ``include_predicted``, where the attitude does not rest
+    on two measured markers (``attitude_source``)."""
     q = table[["q_w", "q_x", "q_y", "q_z"]].to_numpy()
     qt = np.asarray(q_true, dtype=float)[table["frame_index"].to_numpy(int)]
     err = np.full(len(q), np.nan)
     ok = np.all(np.isfinite(q), axis=1)
+    if not include_predicted:
+        ok &= _measured_rows(table)
     if ok.any():
         err[ok] = np.rad2deg(attitude.geodesic_angle(q[ok], qt[ok]))
     return err
+
+
+def _measured_rows(table: pd.DataFrame) -> NDArray[np.bool_]:
+    """Rows whose attitude rests on two measured markers."""
+    return (table["attitude_source"] == ATTITUDE_SOURCES[0]).to_numpy(bool)
+
+
+def attitude_accuracy(table: pd.DataFrame, q_true: Sequence[ArrayLike],
+                      include_predicted: bool = False) -> dict[str, float]:
+    """Median, RMS and largest geodesic attitude error (deg) against ``q_true[frame_index]``
+    over the frames with an attitude resting on two measured markers (all frames with an
+    attitude when ``include_predicted``), how many frames were scored and how many frames with
+    a predicted marker were left out."""
+    err = attitude_errors_deg(table, q_true, include_predicted)
+    scored = err[np.isfinite(err)]
+    left_out = 0 if include_predicted else int((~_measured_rows(table)).sum())
+    stats = {"median_deg": float(np.median(scored)),
+             "rms_deg": float(np.sqrt(np.mean(scored ** 2))),
+             "max_deg": float(scored.max())} if scored.size else \
+        {"median_deg": np.nan, "rms_deg": np.nan, "max_deg": np.nan}
+    return {**stats, "frames_scored": float(scored.size),
+            "predicted_frames_left_out": float(left_out)}

@@ -22,6 +22,9 @@ and measured flags and the tracker's measured compute time (``PairResult.compute
   with IoU > t for t = 0, 0.05, …, 1 and its AUC the mean over those 21 thresholds (OTB).
 * latency: median, p95 and mean of the compute time; FPS = 1 / mean (seed 000 Table 1:
   61.23 FPS = 1/16.33 ms).
+* the same precision over the frames in which the tracker *measured* the marker
+  (``*_precision_20px_measured``; ``*_predicted_frames`` counts the frames left out): the
+  accuracy of what an attitude back end is given (``observer.tracking.attitude_input``);
 * re-acquisition after the occlusion (frames 100-110): the number of frames after the last
   occluded frame until the marker is again *measured* (not predicted) within 20 px and stays
   within 20 px for 5 frames (our choice); 0 = on the first visible frame, inf = never.
@@ -50,7 +53,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
 from latency.models import SEED_FPS, seed_latency_ms
-from observer.tracking import PairResult, PairTracker
+from observer.trackers import MARKERS
+from observer.tracking import PairResult, PairTracker, attitude_source
 
 #: Centre-error thresholds of the precision curve, full-sensor px (seed 000 §4.2, Figure 11).
 THRESHOLDS_PX = np.arange(0.0, 51.0)
@@ -212,6 +216,22 @@ class TrackRun:
         e[0] = np.nan
         return e
 
+    def frames_table(self, seq: TrackingSequence) -> pd.DataFrame:
+        """One row per frame: the reported centres (sensor px), the lost and measured flags
+        (the tracker's own), ``attitude_source``, the centre errors (sensor px) and the compute
+        time (s); frame 0 is the start (the true boxes)."""
+        e = self.errors(seq)
+        rows = {"tracker": self.tracker, "sequence": self.sequence, "case": self.case,
+                "frame": np.arange(len(self.marker_px))}
+        for m, colour in enumerate(MARKERS):
+            rows |= {f"{colour}_u_px": self.marker_px[:, m, 0],
+                     f"{colour}_v_px": self.marker_px[:, m, 1],
+                     f"{colour}_lost": self.lost[:, m], f"{colour}_measured": self.measured[:, m],
+                     f"{colour}_error_px": e[:, m]}
+        rows["attitude_source"] = [attitude_source(*f) for f in self.measured]
+        rows["compute_time_s"] = self.compute_time_s
+        return pd.DataFrame(rows)
+
     def ious(self, seq: TrackingSequence) -> NDArray[np.float64]:
         """(N, 2) IoU with the true boxes (frame 0 NaN)."""
         v = np.stack([box_iou(self.boxes_px[:, m], seq.boxes_px[:, m]) for m in range(2)],
@@ -286,6 +306,9 @@ def evaluate(run: TrackRun, seq: TrackingSequence) -> dict[str, float | str]:
     for m, name in enumerate(MARKER_NAMES):
         em = e[1:, m]
         row[f"{name}_precision_20px"] = precision_at(em)
+        measured = run.measured[1:, m]
+        row[f"{name}_precision_20px_measured"] = precision_at(np.where(measured, em, np.nan))
+        row[f"{name}_predicted_frames"] = float(np.sum(~measured))
         row[f"{name}_success_auc"] = success_auc(v[1:, m])
         row[f"{name}_err_median_px"] = float(np.nanmedian(np.where(np.isinf(em), 1e9, em)))
         row[f"{name}_lost_fraction"] = float(np.mean(run.lost[1:, m]))
@@ -593,7 +616,8 @@ class BenchmarkReport:
     checks : the targets, met or not, one line each (GK-TransT only).
     figures : flat figures for ``benchmarks/RESULTS.md`` (SI units in the names).
     notes : the tables and notes as markdown.
-    files : the files written (CSV, plots).
+    files : the files written (metrics CSV, per-frame Parquet ``tracking_frames.parquet``,
+        plots).
     wall_s : wall time of the runs, s.
     """
 
@@ -859,6 +883,9 @@ def run_tracking_benchmark(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics.to_csv(out / "tracking_metrics.csv", index=False)
+    by_name = {s.name: s for s in seqs}
+    pd.concat([r.frames_table(by_name[r.sequence]) for r in runs], ignore_index=True) \
+        .to_parquet(out / "tracking_frames.parquet", index=False)
     plots = _write_plots(out, runs, seqs, cases)
 
     summary = summary_table(metrics)
@@ -875,7 +902,8 @@ def run_tracking_benchmark(
     ] if x)
     return BenchmarkReport(metrics, summary, t1, runs, seqs, ratios.default[3], ratios.default[4],
                            checks, _figures(summary, t1, ratios), notes,
-                           [out / "tracking_metrics.csv", *plots], wall)
+                           [out / "tracking_metrics.csv", out / "tracking_frames.parquet",
+                            *plots], wall)
 
 
 __all__ = [

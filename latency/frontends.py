@@ -36,7 +36,7 @@ from latency.loss_model import (
 )
 from observer.orb import OrbConfig, OrbMeasurement, OrbReference
 from observer.trackers import make_pair_tracker
-from observer.tracking import PairTracker
+from observer.tracking import PairTracker, attitude_input
 from plant.camera import marker_pixels, sensor_to_image
 from plant.camera_mode import RegionOfInterest
 from plant.params import PlantParams
@@ -56,6 +56,9 @@ class Capture:
     reason : why the frame is not a clean measurement ("" when it is).
     compute_time_s : the front end's measured compute time, s.
     orb : the ORB matches of a textured rotor (``OrbFrontEnd``), None for marker front ends.
+    red_measured, yellow_measured : the pair tracker's own flags (``PairResult``): the centre
+        was measured in this frame, not predicted; None for a front end without a tracker
+        (the measurement model: every finite centre is a measurement).
     """
 
     marker_px: NDArray[np.float64]
@@ -64,11 +67,24 @@ class Capture:
     reason: str = ""
     compute_time_s: float = 0.0
     orb: OrbMeasurement | None = None
+    red_measured: bool | None = None
+    yellow_measured: bool | None = None
+
+    @property
+    def measured(self) -> NDArray[np.bool_]:
+        """(2,) red, yellow: measured in this frame (the flag unless None, and a finite
+        centre)."""
+        flags = np.array([f is None or f for f in (self.red_measured, self.yellow_measured)])
+        return flags & np.all(np.isfinite(self.marker_px), axis=1)
 
     @property
     def measurement(self) -> NDArray[np.float64] | OrbMeasurement:
-        """What the observer fuses: the ORB matches if any, else the marker centres."""
-        return self.marker_px if self.orb is None else self.orb
+        """What the observer fuses: the ORB matches if any, else the measured marker centres
+        (NaN for a marker the tracker did not measure: the boundary rule of
+        ``observer.tracking.attitude_input``)."""
+        if self.orb is not None:
+            return self.orb
+        return np.where(self.measured[:, None], self.marker_px, np.nan)
 
 
 class FrontEnd(Protocol):
@@ -410,17 +426,21 @@ class ImageFrontEnd:
             boxes = np.asarray(frame.boxes_px, dtype=float)
             centres = boxes[:, :2] + 0.5 * boxes[:, 2:]
             if self._outside_roi(centres):  # nothing to annotate yet
-                return Capture(np.full((2, 2), np.nan), frame.marker_px, True, LOST_OUTSIDE_ROI)
+                return Capture(np.full((2, 2), np.nan), frame.marker_px, True, LOST_OUTSIDE_ROI,
+                               red_measured=False, yellow_measured=False)
             self.locator.start(image, frame.boxes_px, frame.binning)
             self._prediction.measured(centres)
-            return Capture(centres, frame.marker_px)
+            return Capture(centres, frame.marker_px, red_measured=True, yellow_measured=True)
         loc = self.locator.step(image)
         if self._outside_roi(loc.marker_px):
             return Capture(np.full((2, 2), np.nan), frame.marker_px, True, LOST_OUTSIDE_ROI,
-                           loc.compute_time_s)
+                           loc.compute_time_s, red_measured=False, yellow_measured=False)
         if not loc.lost and loc.red_measured and loc.yellow_measured:
             self._prediction.measured(loc.marker_px)  # not a coasting tracker's prediction
-        return Capture(loc.marker_px, frame.marker_px, loc.lost, loc.reason, loc.compute_time_s)
+        # the boundary rule (observer.tracking.attitude_input): no marker measured, a lost frame
+        lost = loc.lost or attitude_input(loc).lost
+        return Capture(loc.marker_px, frame.marker_px, lost, loc.reason, loc.compute_time_s,
+                       red_measured=loc.red_measured, yellow_measured=loc.yellow_measured)
 
     def _outside_roi(self, centres_px: NDArray[np.float64]) -> bool:
         """Finite centres (2, 2), sensor px, not all inside this frame's region of interest."""

@@ -55,6 +55,7 @@ from latency.metrics import summarize
 from latency.models import Constant, LatencyModel
 from latency.pipeline import FrameScheduler, PipelineConfig
 from observer.pixel_observer import PixelObserver
+from observer.tracking import attitude_source
 from plant import attitude
 from plant.dynamics import MujocoPlant
 from plant.estimate import Estimate
@@ -438,6 +439,10 @@ class ClosedLoop:
                 "observer_compute_s": cap.compute_time_s,
             }
         )
+        if cap.red_measured is not None:  # a pair tracker's own flags (image mode)
+            row.update({"red_measured": bool(cap.measured[0]),
+                        "yellow_measured": bool(cap.measured[1]),
+                        "attitude_source": attitude_source(*cap.measured)})
         run.frames.append(row)
         run.push(timing.t_release, "release", (len(run.frames) - 1, cap, t))
 

@@ -311,8 +311,11 @@ class CorModel:
 
         (fx, fy, cx, cy) of ``plant.camera.Camera.matrix(1)`` in sensor px (the calibrated
         ``camera.intrinsics_px`` when set, else f/pixel size and the sensor centre),
-        (k1, k2, k3) from ``dist_coeffs``, and
-        ``t_cor = (0, 0, R + h_c)``. ``markers_m`` defaults to ``vfc_markers(p, n_markers)``.
+        (k1, k2, k3) from ``dist_coeffs``, and ``t_cor = -Camera.center_m = (-d_u, -d_v,
+        R + h_c)`` with the camera mount's offset (0 by default). The model lives in the
+        camera-aligned frame (``plant.camera``): with a mount roll the attitudes it fits are
+        ``Rz(-ρ) ⊗ q``; ``Camera.stator_attitude`` turns them back.
+        ``markers_m`` defaults to ``vfc_markers(p, n_markers)``.
         Raises ValueError if the plant's lens has tangential distortion, which this model lacks.
         """
         c = p.camera
@@ -324,7 +327,7 @@ class CorModel:
         K = Camera.from_plant(p).matrix(1)
         intr = Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], k1, k2, k3)
         P = vfc_markers(p, n_markers) if markers_m is None else np.asarray(markers_m, float)
-        return cls(intr, np.array([0.0, 0.0, p.rotor.radius_m + c.h_c_m]), P)
+        return cls(intr, -Camera.from_plant(p).center_m, P)
 
     @property
     def n_markers(self) -> int:

@@ -13,9 +13,11 @@ separately, so that it can release the estimate after the observer's latency.
 Bad frames (never a crash in the middle of a loop, never a silent wrong number): a frame that
 fails ``observer.gk.hsv_gate.check_frame`` is not given to the tracker; the pair tracker's result
 is ``lost`` with the problem in ``bad_frame`` and the estimate is flagged ``valid=False``,
-``lost=True``, with a reason that starts with ``"bad frame: "``. A frame whose red marker was
-not measured makes the estimate coast: flagged ``lost`` with a ``"coasting: "`` reason, and
-``valid=False`` once no marker has been measured for more than ``max_coast_s``.
+``lost=True``, with a reason that starts with ``"bad frame: "``. The back end receives only the
+markers the tracker measured (``observer.tracking.attitude_input``, the boundary rule of
+docs/architecture.md); a frame whose markers were not both measured makes the estimate coast:
+flagged ``lost`` with a ``"coasting: "`` reason, and ``valid=False`` once the markers have not
+both been measured for more than ``max_coast_s``.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from observer.pixel_observer import PixelObserver
-from observer.tracking import PairTracker
+from observer.tracking import ATTITUDE_SOURCES, PairTracker, attitude_input
 from plant import attitude
 from plant.estimate import Estimate
 from plant.scene import Frame
@@ -46,23 +48,25 @@ class FrameObserver:
     tracker's reasons (for example that the Kalman prediction stood in for the tracker) are
     kept in the estimate's ``reason``.
 
-    Coasting: a frame whose red marker was not measured (``PairResult.red_measured`` False: the
-    GK Kalman prediction stood in, the track is lost, or the frame is bad) reaches the back end
-    as a lost frame (a filter predicts through it with its model, a per-frame solver holds its
-    last solution) and gives an estimate flagged ``lost=True`` whose reason says
-    ``"coasting: ..."`` (first, or right after a bad frame's reason); once no marker has been
-    measured for more than ``max_coast_s`` the estimate is also ``valid=False``, until the
-    tracker measures the marker again.
+    Coasting: a marker that was not measured (``PairResult.red_measured`` or
+    ``yellow_measured`` False: the GK Kalman prediction or the P_red + V_rel fallback stood in,
+    the track is lost, or the frame is bad) reaches the back end as missing
+    (``observer.tracking.attitude_input``): with one marker left a filter fuses it and a
+    per-frame solver holds its last solution; with none the frame is lost (a filter predicts
+    through it with its model). Such a frame gives an estimate flagged ``lost=True`` whose
+    reason says ``"coasting: ..."`` (first, or right after a bad frame's reason); once the
+    markers have not both been measured for more than ``max_coast_s`` the estimate is also
+    ``valid=False``, until the tracker measures both again.
 
     Parameters
     ----------
     locator : PairTracker
     backend : PixelObserver
     max_coast_s : float
-        The longest time (s) since the last measured marker for which a coasting estimate is
-        still ``valid``. Default 0.1 s (3 frames at 36 fps): on an 8° cone whose azimuth turns
-        at 1 rad/s (a body rate of 8°/s) a held or predicted attitude drifts by up to about
-        0.8° in that time.
+        The longest time (s) since the last frame with both markers measured for which a
+        coasting estimate is still ``valid``. Default 0.1 s (3 frames at 36 fps): on an 8°
+        cone whose azimuth turns at 1 rad/s (a body rate of 8°/s) a held or predicted attitude
+        drifts by up to about 0.8° in that time.
     clock : callable returning seconds, optional
         Times ``update`` (the release time). Default: the pair tracker's ``clock`` when it has
         one (``observer.trackers.MarkerPairTracker``), else ``time.perf_counter``; tests inject
@@ -100,9 +104,10 @@ class FrameObserver:
         t0 = self.clock()
         loc = self.locator.step(getattr(frame, "image", None))  # type: ignore[arg-type]
         # A predicted marker is not a measurement: the back end predicts (or holds) through it
-        # with its own model rather than fusing the GK prediction as if it were measured.
-        measured = not loc.lost and loc.red_measured
-        self.backend.process(loc.marker_px, t_exposure, not measured, loc.reason,
+        # with its own model rather than fusing the tracker's prediction as if it were measured.
+        given = attitude_input(loc)
+        measured = given.source == ATTITUDE_SOURCES[0]
+        self.backend.process(given.marker_px, t_exposure, given.lost, loc.reason,
                              loc.compute_time_s)
         elapsed = self.clock() - t0
         est = self.backend.release(t_exposure + elapsed)
@@ -115,8 +120,8 @@ class FrameObserver:
         valid = est.valid and not loc.bad_frame and coast_s <= self.max_coast_s
         if not measured:
             limit = "over" if coast_s > self.max_coast_s else "within"
-            note = (f"coasting: no marker measured for {coast_s:.3f} s ({limit} max_coast_s = "
-                    f"{self.max_coast_s} s)")
+            note = (f"coasting: {given.source}, markers not both measured for {coast_s:.3f} s "
+                    f"({limit} max_coast_s = {self.max_coast_s} s)")
             # A bad frame's reason stays first ("bad frame: ..."); else the coasting note is.
             parts = [reason, note] if loc.bad_frame else [note, reason]
             reason = "; ".join(r for r in parts if r)

@@ -15,6 +15,15 @@ Every tracker in the project has one of these two shapes.
   of marker centres goes through it: the image front end of the loop
   (``latency.frontends.ImageFrontEnd``), the frame observer, the tracking benchmark and the
   reproduction. Implementations: ``observer.trackers``.
+
+**The tracker -> attitude boundary** (``attitude_input``; docs/architecture.md): only a marker
+the tracker measured in this frame (``PairResult.red_measured`` / ``yellow_measured``) reaches an
+attitude back end. Any other centre (the GK Kalman prediction, the P_red + V_rel fallback, a
+plate inference, a coasting tracker's guess) is passed as missing (NaN); a frame with neither
+marker measured is a lost frame, through which the back end predicts (a filter) or holds (a
+per-frame solver). The frame observer, the image front end of the loop and ``pmspm track`` all
+apply this one rule, and their frames tables say what each attitude rests on
+(``attitude_source``).
 """
 
 from __future__ import annotations
@@ -136,15 +145,75 @@ class PairResult:
         return cls(nan2, nan2.copy(), True, reason, compute_time_s, True, True, False, False)
 
 
+#: The pair trackers ``observer.trackers.make_pair_tracker`` builds, by name, with what each is.
+PAIR_TRACKER_DESCRIPTIONS = {
+    "gk_transt": "GK-TransT: one TransT network on the red marker inside the GK assistance "
+                 "(seed 000 §3.2)",
+    "dual_transt": "two independent TransT networks, one per marker (the seed's original "
+                   "TransT)",
+    "kcf": "OpenCV KCF, one per marker",
+    "csrt": "OpenCV CSRT, one per marker",
+    "kcf_numpy": "the numpy KCF, one per marker",
+    "k2cf": "K²CF, one per marker (seed 004 §3.2)",
+    "kcf_gk": "OpenCV KCF on the red marker inside the GK assistance (no network)",
+    "csrt_gk": "OpenCV CSRT on the red marker inside the GK assistance (no network)",
+}
+#: Names accepted by ``observer.trackers.make_pair_tracker``.
+PAIR_TRACKERS = tuple(PAIR_TRACKER_DESCRIPTIONS)
+
+#: What an attitude rests on (``attitude_source``), in order of trust.
+ATTITUDE_SOURCES = ("both measured", "one predicted", "both predicted")
+
+
+def attitude_source(red_measured: bool, yellow_measured: bool) -> str:
+    """What a frame's attitude rests on: "both measured", "one predicted" (one marker was not
+    measured in this frame: predicted, inferred or lost) or "both predicted" (neither was)."""
+    return ATTITUDE_SOURCES[2 - int(bool(red_measured)) - int(bool(yellow_measured))]
+
+
+@dataclass(frozen=True)
+class AttitudeInput:
+    """What the attitude back end is given for one frame (module docstring: the boundary rule).
+
+    Attributes
+    ----------
+    marker_px : (2, 2) red then yellow centre, sensor px; NaN for a marker not measured.
+    lost : neither marker was measured (a lost frame for the back end).
+    source : ``attitude_source`` of the frame.
+    """
+
+    marker_px: NDArray[np.float64]
+    lost: bool
+    source: str
+
+
+def attitude_input(res: PairResult) -> AttitudeInput:
+    """The tracker -> attitude boundary rule (module docstring): keep the measured centres,
+    replace the others by NaN; lost when neither marker was measured.
+
+    Why not fuse a prediction as a measurement: the tracker's prediction is a pixel-space
+    constant-velocity guess that knows nothing of the rotor or of the other marker; a back end
+    has its own model of the motion (the AEKF's dynamics, or the last solution held), and
+    fusing the guess both double-counts the past frames it was made from and hides the gap
+    (a finger over the red marker: the prediction drifts 50 px and the attitude 4 deg, all
+    reported as valid)."""
+    measured = np.array([res.red_measured, res.yellow_measured], dtype=bool)
+    z = np.where(measured[:, None], np.asarray(res.marker_px, dtype=float), np.nan)
+    return AttitudeInput(z, not bool(measured.any()), attitude_source(*measured))
+
+
 class PairTracker(Protocol):
     """Frame -> both marker centres (see the module docstring).
 
     ``tilt_hint_rad`` is the latest estimated tilt β (rad, None when unknown); trackers with a
     geometric check (D_exp = L·S·cos β, seed 000 §3.2.2) use it, the others ignore it.
+    ``residual_hint_px`` is the attitude solver's RMS residual of the latest frame (sensor px,
+    None or NaN when unknown); trackers with drift detection (``observer.gk.drift``) use it.
     """
 
     name: str
     tilt_hint_rad: float | None
+    residual_hint_px: float | None
 
     def start(
         self, image: NDArray[np.uint8], boxes_sensor_px: ArrayLike, binning: int | None = None

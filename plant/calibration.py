@@ -160,9 +160,10 @@ def _square_polygons(pattern: tuple[int, int], square_mm: float) -> tuple[NDArra
 
 
 def _project(cam: Camera, pts_cam: NDArray, binning: int) -> NDArray[np.float64]:
-    """Camera-frame points (..., 3), m -> image pixels (..., 2) via ``Camera.project``."""
+    """Camera-frame points (..., 3), m -> image pixels (..., 2) via
+    ``Camera.project_camera_frame``."""
     flat = pts_cam.reshape(-1, 3)
-    return cam.project(flat + cam.center_m, binning).reshape(pts_cam.shape[:-1] + (2,))
+    return cam.project_camera_frame(flat, binning).reshape(pts_cam.shape[:-1] + (2,))
 
 
 def render_checkerboard(

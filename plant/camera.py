@@ -8,6 +8,17 @@ image v; we align x with the stator X axis, so y is the stator Y axis and ``p_ca
 C``. Looking up mirrors the scene as seen from above: a counter-clockwise rotation about +Z (X
 toward Y) turns u toward v, which on screen (v down) is clockwise.
 
+**Mounting** (``CameraParams.mount_roll_deg``, ``mount_offset_mm``; both 0 by default): a real
+camera is turned about its optical axis by a roll ρ (image u lies along the stator X axis turned
+by ρ about +Z) and its optical centre sits off the rotation axis by (d_u, d_v) along the image
+axes. We describe it in the *camera-aligned frame*, the stator frame turned by ρ about Z: there
+the optical centre is ``center_m = (d_u, d_v, -(R + h_c))`` and the camera frame is that frame
+shifted to it, ``p_cam = Rz(ρ)ᵀ p_stator - center_m``. Models of the camera that write
+``R(q) P - center_m`` (the attitude solver's ``CorModel.nominal``, the AEKF, ORB) therefore
+estimate the attitude in the camera-aligned frame, ``q_aligned = Rz(-ρ) ⊗ q``;
+``Camera.stator_attitude`` turns it back. A roll not accounted for shows as a constant yaw
+offset of -ρ (at zero tilt, where yaw and spin merge, a spin offset).
+
 Pixels follow OpenCV's convention: integer coordinates are pixel centres and the image centre of
 a W x H image is ((W - 1)/2, (H - 1)/2). *Sensor* pixels are full-resolution (the seed's unit);
 *image* pixels are those of a frame rendered with ``binning``:
@@ -57,9 +68,31 @@ class Camera:
         return cls(p.camera, p.rotor.radius_m)
 
     @property
+    def roll_rad(self) -> float:
+        """The mount's roll ρ about the optical axis, rad (module docstring)."""
+        return float(np.deg2rad(self.params.mount_roll_deg))
+
+    @property
     def center_m(self) -> NDArray[np.float64]:
-        """Optical centre in the stator frame (m)."""
-        return np.array([0.0, 0.0, -(self.rotor_radius_m + self.params.h_c_m)])
+        """Optical centre in the camera-aligned frame (m; the stator frame when the mount has
+        no roll): ``(d_u, d_v, -(R + h_c))`` with the mount's offset (module docstring)."""
+        du, dv = self.params.mount_offset_mm
+        return np.array([du / 1000.0, dv / 1000.0, -(self.rotor_radius_m + self.params.h_c_m)])
+
+    @property
+    def center_stator_m(self) -> NDArray[np.float64]:
+        """Optical centre in the stator frame (m): ``Rz(ρ) center_m``."""
+        return attitude.to_matrix(self.mount_quaternion) @ self.center_m
+
+    @property
+    def mount_quaternion(self) -> NDArray[np.float64]:
+        """Rz(ρ): the camera-aligned frame in the stator frame."""
+        return attitude.axis_angle([0.0, 0.0, 1.0], self.roll_rad)
+
+    def stator_attitude(self, q_aligned: ArrayLike) -> NDArray[np.float64]:
+        """An attitude estimated in the camera-aligned frame -> the stator frame:
+        ``Rz(ρ) ⊗ q_aligned`` (module docstring)."""
+        return attitude.multiply(self.mount_quaternion, q_aligned)
 
     def size(self, binning: int | None = None) -> tuple[int, int]:
         """(width, height) in pixels of a frame binned by ``binning`` (default: the params')."""
@@ -81,13 +114,22 @@ class Camera:
         return np.array([[fx / binning, 0.0, u0], [0.0, fy / binning, v0], [0.0, 0.0, 1.0]])
 
     def to_camera_frame(self, points_stator: ArrayLike) -> NDArray[np.float64]:
-        """Stator-frame points (N, 3) in m -> camera-frame points (N, 3) in m."""
-        return np.atleast_2d(np.asarray(points_stator, dtype=float)) - self.center_m
+        """Stator-frame points (N, 3) in m -> camera-frame points (N, 3) in m:
+        ``Rz(ρ)ᵀ p - center_m``."""
+        p = np.atleast_2d(np.asarray(points_stator, dtype=float))
+        if self.roll_rad != 0.0:
+            p = p @ attitude.to_matrix(self.mount_quaternion)
+        return p - self.center_m
 
     def project(self, points_stator: ArrayLike, binning: int = 1) -> NDArray[np.float64]:
         """Project stator-frame points (N, 3), m, to pixels (N, 2) of a frame binned by
         ``binning`` (1 = full-sensor pixels), with the lens distortion applied."""
-        pc = self.to_camera_frame(points_stator)
+        return self.project_camera_frame(self.to_camera_frame(points_stator), binning)
+
+    def project_camera_frame(self, points_camera: ArrayLike,
+                             binning: int = 1) -> NDArray[np.float64]:
+        """Project camera-frame points (N, 3), m, to pixels (N, 2) as ``project``."""
+        pc = np.atleast_2d(np.asarray(points_camera, dtype=float))
         if np.any(pc[:, 2] <= 0.0):
             raise ValueError("cannot project points at or behind the camera plane")
         uv, _ = cv2.projectPoints(

@@ -8,6 +8,7 @@ a field outside its range fails with a message that names the field.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -130,6 +131,19 @@ class CameraParams(_Strict):
         36.0, gt=0.0, description="Seed 000 §5: 90 frames span 2.5 s, i.e. 36 frames/s."
     )
     exposure_s: float = Field(2.0e-3, gt=0.0, description="Our choice: 2 ms with a ring LED.")
+    mount_roll_deg: float = Field(
+        0.0,
+        ge=-180.0,
+        le=180.0,
+        description="Our choice: 0 (an ideal mount). The camera's roll about its optical axis: "
+        "image u points along the stator X axis turned by this angle about +Z (toward +Y); "
+        "``pmspm calibrate-mount`` estimates it (plant.camera).",
+    )
+    mount_offset_mm: tuple[float, float] = Field(
+        (0.0, 0.0),
+        description="Our choice: (0, 0). The optical centre's offset from the rotor's rotation "
+        "axis along the image u and v directions, mm; ``pmspm calibrate-mount`` estimates it.",
+    )
     intrinsics_px: tuple[float, float, float, float] | None = Field(
         None,
         description="Calibrated (fx, fy, cx, cy), full-sensor px, OpenCV pixel-centre "
@@ -144,6 +158,12 @@ class CameraParams(_Strict):
                 f"exposure_s = {self.exposure_s} exceeds the frame period 1/frame_rate_hz = "
                 f"{1.0 / self.frame_rate_hz:.4g} s"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _mount_is_finite(self) -> CameraParams:
+        if not all(math.isfinite(v) for v in self.mount_offset_mm):
+            raise ValueError(f"mount_offset_mm must be finite, got {self.mount_offset_mm}")
         return self
 
     @model_validator(mode="after")

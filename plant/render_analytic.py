@@ -316,6 +316,9 @@ class AnalyticRenderer:
         self._discs = disc_outlines_rotor(self.params)
         self.texture = None
         if self.options.texture is not None:
+            if self.camera.roll_rad != 0.0:
+                raise ValueError("camera.mount_roll_deg must be 0 with a texture: the textured "
+                                 "plate is drawn for a camera without roll")
             self.texture = generate_texture(self.params, self.options.texture)
             self._plate = outline_rotor(self.texture)
             self._texture_level = self._choose_texture_level()
@@ -340,21 +343,27 @@ class AnalyticRenderer:
     def _draw_background(self) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """Coverage mask (H, W) of the rotor and the static image: housing plus shaded sphere."""
         r = self.params.rotor.radius_m - 1e-3  # the sphere of plant.mjcf
-        dist = float(-self.camera.center_m[2])  # optical centre to the rotor centre O
+        c = self.camera.to_camera_frame(np.zeros(3))[0]  # the rotor centre O, camera frame
+        dist = float(np.linalg.norm(c))  # optical centre to O
         rays = self._pixel_rays()
-        b = rays[..., 2] * dist  # ray . c with c = (0, 0, dist)
+        b = rays @ c
         disc = np.maximum(b * b - (dist * dist - r * r), 0.0)
         t_hit = b - np.sqrt(disc)
-        normal = (rays * t_hit[..., None] - np.array([0.0, 0.0, dist])) / r
+        normal = (rays * t_hit[..., None] - c) / r
         cos = np.clip(-np.sum(normal * rays, axis=-1), 0.0, 1.0)
         shade = SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
         sphere = shade[..., None] * _rgb255(self.options.rotor_rgb or ROTOR_RGB)
         if self.options.rotor_pattern != "none":
             sphere = sphere * self._rotor_pattern()[..., None]
-        # Silhouette: the circle where the viewing cone touches the sphere (stator frame).
+        # Silhouette: the circle where the viewing cone touches the sphere (stator frame): in
+        # the plane normal to d (O toward the optical centre) at r²/dist from O.
         rho = r * np.sqrt(dist * dist - r * r) / dist
+        d = self.camera.center_stator_m / dist
+        e1 = np.cross(d, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(d, e1)
         t = np.linspace(0.0, 2.0 * np.pi, _SILHOUETTE_POINTS, endpoint=False)
-        rim = np.column_stack([rho * np.cos(t), rho * np.sin(t), np.full_like(t, -r * r / dist)])
+        rim = (r * r / dist) * d + rho * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
         uv = self.camera.project(rim, self.binning)
         mask = np.zeros((self.height, self.width, 1), np.float32)
         cov = polygon_coverage(uv, self.width, self.height, SUPERSAMPLE_PLATE)
@@ -446,7 +455,7 @@ class AnalyticRenderer:
     # --- per frame ----------------------------------------------------------------------------
     def _shade(self, point: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
         """Shading factor of a surface at ``point`` (stator frame, m) with unit ``normal``."""
-        to_cam = self.camera.center_m - point
+        to_cam = self.camera.center_stator_m - point
         cos = max(float(normal @ to_cam / np.linalg.norm(to_cam)), 0.0)
         return SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
 
@@ -481,7 +490,7 @@ class AnalyticRenderer:
             if li == 0 and self._distractor is not None:
                 for k in range(len(qs)):
                     centre = stator[k, : counts[0]].mean(axis=0)  # its normal is along centre
-                    if centre @ (self.camera.center_m - centre) <= 0.0:
+                    if centre @ (self.camera.center_stator_m - centre) <= 0.0:
                         polys[k] = None
             out.append((colour, ss, polys))
         return out

@@ -92,6 +92,9 @@ class MujocoRenderer:
         self.blur_step_px = float(blur_step_px)
         self.max_sub_frames = int(max_sub_frames)
         self.camera = Camera.from_plant(self.params)
+        if self.camera.roll_rad != 0.0:
+            raise ValueError("camera.mount_roll_deg must be 0 for the MuJoCo renderer (its "
+                             "camera has no roll); use the analytic renderer")
         self.width, self.height = self.camera.size(self.binning)
         self.texture = None if texture is None else generate_texture(self.params, texture)
         if self.texture is None:

@@ -230,6 +230,7 @@ def test_bad_input_exits_2_with_a_clear_message(recording, tmp_path):
     (tmp_path / "cam.yaml").write_text(yaml.safe_dump({"camera": {"binning": 2}}))
     res = _cli([str(d / "rec.mp4"), *good, "--camera", str(tmp_path / "cam.yaml")])
     assert res.exit_code == 2 and "image size" in res.output, res.output
+    assert "1224 x 1024" in res.output and f"{w} x {h}" in res.output, res.output
     res = _cli([str(d / "rec.mp4"), *good, "--observer", "kalman"])
     assert res.exit_code == 2 and "--observer must be one of" in res.output, res.output
 
@@ -351,3 +352,59 @@ def test_aekf_back_end_refuses_a_marker_layout_it_does_not_model(recording, tmp_
         run_track(open_source(str(recording["dir"] / "png")),
                   make_pair_tracker("kcf_gk", setup.params), tmp_path / "run",
                   recording["boxes"], setup=setup, observer="aekf", write_video=False)
+
+
+# --- the frame rate ------------------------------------------------------------------------------
+def _camera_file(tmp_path, rate):
+    path = tmp_path / f"cam_{rate}.yaml"
+    path.write_text(yaml.safe_dump({"camera": {"frame_rate_hz": rate}}))
+    return path
+
+
+def test_a_folder_is_timed_at_the_camera_files_rate_and_the_report_says_so(recording, tmp_path):
+    cam = _camera_file(tmp_path, 50.0)
+    res = _cli([str(recording["dir"] / "png"), "--boxes", _boxes_arg(recording["boxes"]),
+                "--camera", str(cam), "--max-frames", "4", "--out", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(tmp_path / "run" / "frames.parquet")
+    assert np.allclose(table["capture_time_s"], np.arange(4) / 50.0)
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert f"50 frames/s (from frame_rate_hz of {cam})" in report
+    # --fps overrides the camera file
+    res = _cli([str(recording["dir"] / "png"), "--boxes", _boxes_arg(recording["boxes"]),
+                "--camera", str(cam), "--fps", "25", "--max-frames", "4", "--out",
+                str(tmp_path / "fps")])
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(tmp_path / "fps" / "frames.parquet")
+    assert np.allclose(table["capture_time_s"], np.arange(4) / 25.0)
+    assert "25 frames/s (from --fps)" in (tmp_path / "fps" / "report.md").read_text()
+
+
+def test_a_videos_own_rate_is_checked_against_the_camera_file(recording, tmp_path):
+    """The video was written at 36 frames/s; a camera file saying 50 Hz gives a warning naming
+    both, and the video's rate is used."""
+    res = _cli([str(recording["dir"] / "rec.mp4"), "--boxes", _boxes_arg(recording["boxes"]),
+                "--camera", str(_camera_file(tmp_path, 50.0)), "--max-frames", "3", "--out",
+                str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    assert "warning: the video's own frame rate is 36 Hz" in res.output, res.output
+    assert "is 50 Hz" in res.output
+    table = pd.read_parquet(tmp_path / "run" / "frames.parquet")
+    assert np.allclose(table["capture_time_s"], np.arange(3) / 36.0)
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert "36 frames/s (from the video's own rate)" in report and "Warning" in report
+    same = _cli([str(recording["dir"] / "rec.mp4"), "--boxes", _boxes_arg(recording["boxes"]),
+                 "--camera", str(_camera_file(tmp_path, 36.0)), "--max-frames", "2", "--out",
+                 str(tmp_path / "same")])
+    assert same.exit_code == 0 and "warning" not in same.output, same.output
+
+
+@pytest.mark.parametrize("rate", ["0", "-5", "nan", "inf"])
+def test_a_frame_rate_that_is_not_positive_and_finite_is_refused(recording, tmp_path, rate):
+    good = ["--boxes", _boxes_arg(recording["boxes"]), "--out", str(tmp_path / "o")]
+    res = _cli([str(recording["dir"] / "png"), *good, "--fps", rate])
+    assert res.exit_code == 2 and "--fps must be a finite frame rate > 0 Hz" in res.output, \
+        res.output
+    res = _cli([str(recording["dir"] / "png"), *good, "--camera",
+                str(_camera_file(tmp_path, float(rate)))])
+    assert res.exit_code == 2 and "frame_rate_hz" in res.output, res.output

@@ -230,6 +230,39 @@ def test_benchmark_pipeline_with_known_errors(tmp_path):
     assert evaluate(runs[0], seq)["frames"] == 19
 
 
+class FlaggedTracker(OffsetTracker):
+    """Reports the truth, except on odd frames the yellow marker 30 px off and flagged as not
+    measured (a prediction)."""
+
+    name = "flagged"
+
+    def _step(self, image):
+        self.k += 1
+        r, y = self.truth[self.k]
+        odd = self.k % 2 == 1
+        y = y + [30.0, 0.0] if odd else y
+        return PairResult(r, y, False, "", 0.0, yellow_measured=not odd,
+                          red_box_px=box_around(r, self.boxes[self.k, 0, 2:]),
+                          yellow_box_px=box_around(y, self.boxes[self.k, 1, 2:]))
+
+
+def test_measured_precision_leaves_out_predicted_frames_and_the_frames_table_says_so():
+    seq = render_sequence(SequenceSpec(seed=SEED, case="clean", n_frames=11))
+    metrics, runs, _ = run_benchmark(
+        {"flagged": lambda: FlaggedTracker(seq.marker_px, seq.boxes_px)}, [seq])
+    row = metrics.iloc[0]
+    assert row["aux_precision_20px"] == pytest.approx(0.5)  # the seed's: every frame counts
+    assert row["aux_precision_20px_measured"] == 1.0
+    assert row["aux_predicted_frames"] == 5 and row["main_predicted_frames"] == 0
+    table = runs[0].frames_table(seq)
+    assert len(table) == 11 and table["yellow_measured"].tolist() == [k % 2 == 0
+                                                                     for k in range(11)]
+    assert table["red_measured"].all()
+    assert table["attitude_source"].tolist() == ["both measured" if k % 2 == 0
+                                                 else "one predicted" for k in range(11)]
+    assert table["yellow_error_px"][1::2].to_numpy() == pytest.approx(30.0)
+
+
 def test_interleaved_runs_equal_separate_runs():
     """Taking turns frame by frame changes nothing but the timing: same tracks as one by one."""
     from observer.trackers import make_pair_tracker

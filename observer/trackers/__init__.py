@@ -29,6 +29,11 @@ for GK-TransT, a flagged Kalman prediction, ``red_measured`` False) with a ``rea
 frame's reason starts with ``"bad frame: "`` and ``PairResult.bad_frame`` says what is wrong
 with it.
 
+Drift: every pair tracker checks its markers against the rigid geometry (D_exp = L·S·cos β,
+seed 000 §3.2.2) and, when the caller sets ``residual_hint_px``, the attitude solver's residual;
+a marker that fails for a few frames in a row is flagged lost and re-detected from colour, and
+its tracker restarts there (``observer.gk.drift``; option ``drift``, None to switch it off).
+
 Timing: ``compute_time_s`` of a step is read from the tracker's ``clock`` (default
 ``time.perf_counter``; ``make_pair_tracker(..., clock=...)`` or setting ``tracker.clock``
 injects a stand-in, so that tests of the latency bookkeeping do not depend on machine load).
@@ -45,9 +50,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from observer.gk.drift import DriftConfig, DriftMonitor
 from observer.gk.hsv_gate import check_frame, check_rgb_image
 from observer.gk.subpixel import SubpixelConfig, refine_in_box
-from observer.tracking import PairResult
+from observer.tracking import PAIR_TRACKERS, PairResult
 from plant.params import PlantParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -73,10 +79,6 @@ __all__ = [
 #: Colours of the two markers, in the order of ``Frame.marker_px`` (seed 000 §3.2.2).
 MARKERS = ("red", "yellow")
 
-#: Names accepted by ``make_pair_tracker``.
-PAIR_TRACKERS = (
-    "gk_transt", "dual_transt", "kcf", "csrt", "kcf_numpy", "k2cf", "kcf_gk", "csrt_gk"
-)
 
 
 def box_around(centre_px: ArrayLike, size_px: ArrayLike) -> NDArray[np.float64]:
@@ -115,9 +117,15 @@ class MarkerPairTracker(ABC):
         Times ``step`` (``PairResult.compute_time_s``); tests inject a stand-in so that the
         measured latency does not depend on machine load. Subclasses that do not pass it on
         keep the default; assign ``clock`` after construction (``make_pair_tracker`` does).
+    drift : DriftConfig or None, optional
+        Drift detection (``observer.gk.drift``; default on with ``DriftConfig()``); None
+        switches it off.
 
-    Subclasses implement ``_start`` and ``_step`` (and may override ``_bad_frame``); the public
-    ``start`` and ``step`` add the checks and the timing.
+    Subclasses implement ``_start`` and ``_step`` (and may override ``_restart_marker`` and
+    ``_bad_frame``); the public ``start`` and ``step`` add the checks, the drift detection and
+    the timing. ``tilt_hint_rad`` (the latest tilt, rad) and ``residual_hint_px`` (the attitude
+    solver's RMS residual of the latest frame, sensor px) are set by the caller, None when
+    unknown.
     """
 
     #: Short name used in tables and plots.
@@ -129,6 +137,7 @@ class MarkerPairTracker(ABC):
         refine: bool = False,
         subpixel: SubpixelConfig | None = None,
         clock: Callable[[], float] = time.perf_counter,
+        drift: DriftConfig | None = DriftConfig(),  # noqa: B008 - frozen pydantic model
     ) -> None:
         self.params = params or PlantParams()
         self.clock = clock
@@ -138,6 +147,8 @@ class MarkerPairTracker(ABC):
         self.frame_shape: tuple[int, int, int] | None = None
         self.box_size_px = np.full((2, 2), np.nan)  # (w, h) per marker at start, sensor px
         self.tilt_hint_rad: float | None = None
+        self.residual_hint_px: float | None = None
+        self.drift = None if drift is None else DriftMonitor(self.params, drift)
 
     @property
     def started(self) -> bool:
@@ -149,6 +160,9 @@ class MarkerPairTracker(ABC):
         self.binning = None
         self.frame_shape = None
         self.tilt_hint_rad = None
+        self.residual_hint_px = None
+        if self.drift is not None:
+            self.drift.reset()
 
     # --- checks ---------------------------------------------------------------------------------
     def _infer_binning(self, image: NDArray[np.uint8]) -> int:
@@ -211,6 +225,8 @@ class MarkerPairTracker(ABC):
         bad = self.check_frame(image)
         try:
             res = self._bad_frame(image, bad) if bad else self._step(image)
+            if not bad and self.drift is not None:
+                res = self._check_drift(image, res)
         except Exception as exc:  # noqa: BLE001 - a sequence must never crash mid-way
             res = PairResult.failed(f"{type(exc).__name__} in {self.name}: {exc}")
         if bad:
@@ -220,6 +236,36 @@ class MarkerPairTracker(ABC):
                           yellow_measured=False, reason="; ".join([f"bad frame: {bad}", *rest]))
         return replace(res, compute_time_s=self.clock() - t0)
 
+    def _check_drift(self, image: NDArray[np.uint8], res: PairResult) -> PairResult:
+        """Flag the markers that have drifted (``observer.gk.drift``) as lost and not measured,
+        re-detect them from colour and restart their trackers there; the result then carries
+        the re-detected centres (still flagged: they are measured again from the next frame)."""
+        assert self.binning is not None and self.drift is not None
+        concerned, why = self.drift.check(image, self.binning, res, self.tilt_hint_rad,
+                                          self.residual_hint_px)
+        if not concerned.any():
+            return res
+        self.residual_hint_px = None  # that residual belongs to the drifted track
+        found = self.drift.redetect(image, self.binning, concerned, res.marker_px,
+                                    self.tilt_hint_rad)
+        names = " and ".join(m for m, c in zip(MARKERS, concerned, strict=True) if c)
+        if found is None:
+            why = f"{why}; {names} not re-detected from colour"
+            centres, boxes = res.marker_px, res.boxes_px
+        else:
+            why = f"{why}; {names} re-detected from colour"
+            centres = np.where(concerned[:, None], found, res.marker_px)
+            boxes = np.vstack([box_around(centres[k], self.box_size_px[k]) for k in (0, 1)])
+            for k in np.flatnonzero(concerned):
+                self._restart_marker(image, int(k), centres)
+        red_lost, yellow_lost = res.red_lost or concerned[0], res.yellow_lost or concerned[1]
+        return replace(
+            res, red_px=centres[0], yellow_px=centres[1], red_box_px=boxes[0],
+            yellow_box_px=boxes[1], red_lost=bool(red_lost), yellow_lost=bool(yellow_lost),
+            lost=True, red_measured=res.red_measured and not concerned[0],
+            yellow_measured=res.yellow_measured and not concerned[1],
+            reason="; ".join(r for r in (res.reason, why) if r))
+
     # --- for subclasses -------------------------------------------------------------------------
     @abstractmethod
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
@@ -228,6 +274,13 @@ class MarkerPairTracker(ABC):
     @abstractmethod
     def _step(self, image: NDArray[np.uint8]) -> PairResult:
         """Process a validated frame."""
+
+    def _restart_marker(self, image: NDArray[np.uint8], k: int,
+                        centres_px: NDArray[np.float64]) -> None:
+        """Restart the tracking of marker ``k`` (0 red, 1 yellow) on this frame at
+        ``centres_px[k]`` (both centres (2, 2), sensor px) after a re-detection (default:
+        nothing, for a tracker that cannot restart; the drift is then flagged again)."""
+        return None
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """Result for an unusable frame (default: no estimate, both lost; ``step`` adds the

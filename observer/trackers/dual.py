@@ -28,6 +28,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from observer.gk.drift import DriftConfig
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
 from observer.gk.subpixel import SubpixelConfig
 from observer.trackers import MARKERS, MarkerPairTracker, box_around
@@ -52,6 +53,9 @@ class IndependentPairTracker(MarkerPairTracker):
     coast_on_bad_frames : bool
         Step the trackers on an unusable frame too (they coast on their own prediction and
         handle bad frames themselves, as ``K2CF`` does).
+    drift : DriftConfig or None, optional
+        Drift detection (``MarkerPairTracker``); a drifted marker's tracker is started again
+        on the re-detected marker.
     """
 
     def __init__(
@@ -63,8 +67,9 @@ class IndependentPairTracker(MarkerPairTracker):
         name: str = "independent",
         lost_score: float = 0.2,
         coast_on_bad_frames: bool = False,
+        drift: DriftConfig | None = DriftConfig(),  # noqa: B008 - frozen pydantic model
     ) -> None:
-        super().__init__(params, refine, subpixel)
+        super().__init__(params, refine, subpixel, drift=drift)
         self.factory = factory
         self.name = name
         self.lost_score = float(lost_score)
@@ -115,6 +120,15 @@ class IndependentPairTracker(MarkerPairTracker):
             yellow_measured=ym, red_box_px=rb, yellow_box_px=yb, red_score=rs,
             yellow_score=ys, tracker_time_s=rt + yt,
         )
+
+    def _restart_marker(self, image: NDArray[np.uint8], k: int,
+                        centres_px: NDArray[np.float64]) -> None:
+        """A new single-object tracker on marker ``k``'s start-size box at its centre."""
+        assert self.binning is not None
+        tr = self.factory()
+        tr.initialize(image, box_sensor_to_image(box_around(centres_px[k], self.box_size_px[k]),
+                                                 self.binning))
+        self.trackers[k] = tr
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """An unusable frame: with ``coast_on_bad_frames`` the trackers are stepped so that

@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from observer.gk.assist import GKAssist, GKConfig, GKResult, JudgedObservation
+from observer.gk.drift import DriftConfig
 from observer.gk.hsv_gate import box_image_to_sensor, box_sensor_to_image
 from observer.gk.plate import PlateConfig, PlateTracker
 from observer.gk.trust import MarkerTrust, TrustConfig, TrustDecision
@@ -97,6 +98,9 @@ class GKTransTPairTracker(MarkerPairTracker):
         The VFC plate as the hidden red marker's stand-in (``observer.gk.plate``; default on,
         used with the trust rule); None coasts on the Kalman prediction alone.
     name : str
+    drift : DriftConfig or None, optional
+        Drift detection (``MarkerPairTracker``): a drifted red marker restarts the network and
+        the Kalman filter on the re-detected marker; a drifted yellow one resets V_rel.
     """
 
     def __init__(
@@ -110,6 +114,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         trust: TrustConfig | None = TrustConfig(),  # noqa: B008 - frozen pydantic model
         plate: PlateConfig | None = PlateConfig(),  # noqa: B008 - frozen pydantic model
         name: str = "gk_transt",
+        drift: DriftConfig | None = DriftConfig(),  # noqa: B008 - frozen pydantic model
     ) -> None:
         cfg = gk_config or GKConfig()
         if refine is not None:
@@ -117,7 +122,7 @@ class GKTransTPairTracker(MarkerPairTracker):
                 "refine_red": bool(refine),
                 "aux": cfg.aux.model_copy(update={"refine": bool(refine)}),
             })
-        super().__init__(params, bool(cfg.refine_red), cfg.subpixel)
+        super().__init__(params, bool(cfg.refine_red), cfg.subpixel, drift=drift)
         self.tracker = tracker
         self.gk = GKAssist(self.params, cfg)
         self.guide_search = bool(guide_search)
@@ -296,6 +301,18 @@ class GKTransTPairTracker(MarkerPairTracker):
         tr = self.tracker.track(image, search_centre_image_px=centre_img)
         box = np.asarray(tr.box_image_px, dtype=float).reshape(-1)
         return box[:2] + 0.5 * box[2:], float(tr.score)
+
+    def _restart_marker(self, image: NDArray[np.uint8], k: int,
+                        centres_px: NDArray[np.float64]) -> None:
+        """Red: the network on the re-detected marker and the Kalman filter restarted (the
+        next confident observation initialises it); yellow: V_rel from the two centres."""
+        assert self.binning is not None
+        if k == 0:
+            box = box_around(centres_px[0], self.box_size_px[0])
+            self.tracker.initialize(image, box_sensor_to_image(box, self.binning))
+            self.gk.restart()
+        else:
+            self.gk.aux.V_rel = centres_px[1] - centres_px[0]
 
     def _bad_frame(self, image: object, reason: str) -> PairResult:
         """An unusable frame: the network does not run; GK coasts on its prediction."""
