@@ -359,6 +359,43 @@ def _margin_row(d_ms: float, timing: LoopTiming, m: Margins) -> dict:
     }
 
 
+class _MPCLoop:
+    """The axis-1 loop of the MPC's linearised law (``latency.mpc_law``) on ``params``: the
+    plant ``1/(J s² + b s)``, the law at a loop timing, the MPC's compute time (s) that the
+    loop's delay adds (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here)."""
+
+    def __init__(self, params: PlantParams, mpc: MPCConfig) -> None:
+        self.params = params
+        self.compute_s = MPC_CALL_MEDIAN_S[(mpc.solver, mpc.hessian)]
+        self.K = mpc_state_gain(mpc, params)
+        self.J = float(params.rotor.inertia_about_centre_kgm2[1, 1])
+        self.b = params.rotor.viscous_Nms_per_rad
+        self.plant = attitude_plant(self.J, self.b)
+
+    def law(self, t: LoopTiming, aware: bool) -> ct.StateSpace:
+        """The law at the timing ``t``, delay-aware (the MPC knows its latency) or not."""
+        return mpc_discrete_law((self.K[1, 1], self.K[1, 4]), inertia_kgm2=self.J,
+                                damping_Nms_per_rad=self.b, period_s=t.update_period_s,
+                                delay_s=t.delay_s, delay_aware=aware)
+
+    def stable_at(self, mode: PipelineMode, aware: bool) -> Callable[[float], bool]:
+        """Stability as a function of the vision delay (s), scanned through the pipeline."""
+        def stable(d: float) -> bool:
+            t = loop_timing_for(self.params, d, mode, self.compute_s)
+            return sampled_stable(self.plant, self.law(t, aware), delay_s=t.delay_s)
+
+        return stable
+
+
+def mpc_headroom_s(
+    params: PlantParams, vision_delay_s: float, mode: PipelineMode, mpc: MPCConfig | None = None
+) -> float:
+    """Extra vision delay (s) the delay-aware MPC's linearised law tolerates, scanned through
+    the pipeline (NaN where it is unstable): :func:`pid_headroom_s` for the MPC."""
+    loop = _MPCLoop(params, mpc or MPCConfig())
+    return _headroom_column([vision_delay_s], loop.stable_at(mode, True))[0]
+
+
 def mpc_margins_table(
     params: PlantParams, cfg: StudyConfig, mpc: MPCConfig | None = None
 ) -> pd.DataFrame:
@@ -368,30 +405,15 @@ def mpc_margins_table(
     ``delay_aware`` (no jitter margin: the law's state-space form is analysed sampled only).
     The loop's delay adds the MPC's own compute time, as the scenarios do
     (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here), and the MPC predicts across it."""
-    mpc = mpc or MPCConfig()
-    compute_s = MPC_CALL_MEDIAN_S[(mpc.solver, mpc.hessian)]
-    K = mpc_state_gain(mpc, params)
-    J = float(params.rotor.inertia_about_centre_kgm2[1, 1])
-    b = params.rotor.viscous_Nms_per_rad
-    plant = attitude_plant(J, b)
-
-    def law(t: LoopTiming, aware: bool) -> ct.StateSpace:
-        return mpc_discrete_law((K[1, 1], K[1, 4]), inertia_kgm2=J, damping_Nms_per_rad=b,
-                                period_s=t.update_period_s, delay_s=t.delay_s,
-                                delay_aware=aware)
-
+    loop = _MPCLoop(params, mpc or MPCConfig())
     rows = []
     for mode in OBSERVER_MODES:
         for aware in (True, False):
-            def stable_at(d: float, mode: PipelineMode = mode, aware: bool = aware) -> bool:
-                t = loop_timing_for(params, d, mode, compute_s)
-                return sampled_stable(plant, law(t, aware), delay_s=t.delay_s)
-
             delays = _vision_delays_ms()
-            head = _headroom_column([d / 1e3 for d in delays], stable_at)
+            head = _headroom_column([d / 1e3 for d in delays], loop.stable_at(mode, aware))
             for d_ms, h in zip(delays, head, strict=True):
-                t = loop_timing_for(params, d_ms / 1e3, mode, compute_s)
-                mg = sampled_margins(plant, law(t, aware), delay_s=t.delay_s)
+                t = loop_timing_for(params, d_ms / 1e3, mode, loop.compute_s)
+                mg = sampled_margins(loop.plant, loop.law(t, aware), delay_s=t.delay_s)
                 rows.append(_margin_row(d_ms, t, mg)
                             | {"delay_aware": aware, "headroom_s": h, "jitter_margin_s": np.nan})
     return (pd.DataFrame(rows).sort_values(["observer", "delay_aware", "vision_delay_ms"])
@@ -804,7 +826,9 @@ def _loss_lines(loss: pd.DataFrame, intervals: pd.DataFrame, cfg: StudyConfig) -
         if parts:
             lines.append(f"- **{ctrl.upper()}: tracking loss and loss of control, each tracker "
                          f"at its own latency** (random references, each tracker's loss from "
-                         f"{model}): " + "; ".join(parts) + ".")
+                         f"{model}; loss of control: sustained tilt-stop contact, marker loss, "
+                         f"an error beyond what the reference demands, or divergence): "
+                         + "; ".join(parts) + ".")
     return lines
 
 
@@ -962,10 +986,11 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     intervals.to_parquet(out / "sweep_intervals.parquet")
     loss = loss_intervals(sweep)
     loss.to_parquet(out / "loss_of_control.parquet")
-    plot_sweep(intervals, sweep[sweep.error != ""], marks, out / "sweep_error_loss.png")
-    plot_steps(intervals, marks, out / "step_vs_delay.png")
     mpc_aware = mpc_margins[mpc_margins.delay_aware]
     boundaries = {"pid": predicted_boundary_ms(margins), "mpc": predicted_boundary_ms(mpc_aware)}
+    plot_sweep(intervals, sweep[sweep.error != ""], marks, out / "sweep_error_loss.png",
+               boundaries)
+    plot_steps(intervals, marks, out / "step_vs_delay.png")
     plot_boundary_overlay(loss, boundaries, marks, out / "boundary_vs_loss_of_control.png")
 
     image = image_loop(cfg, params, out) if cfg.image_loop else None

@@ -139,15 +139,31 @@ def _mark_excluded(ax: Axes, x: np.ndarray, colour: str, label: str) -> None:
                 transform=ax.get_xaxis_transform(), label=label)
 
 
+def _mark_onset(ax: Axes, onset_ms: float, colour: str, label: str) -> None:
+    """The delay (ms) from which the analysis says the loop is unstable: a solid line and a
+    shade beyond it (nothing if the analysis found no onset)."""
+    if np.isfinite(onset_ms):
+        lo, hi = ax.get_xlim()
+        if onset_ms >= hi:  # beyond the sweep's delays: widen the axis to show it
+            hi = onset_ms + 0.05 * (hi - lo)
+            ax.set_xlim(lo, hi)
+        ax.axvspan(onset_ms, hi, color=colour, alpha=0.08, lw=0)
+        ax.axvline(onset_ms, color=colour, lw=2,
+                   label=f"{label}: analysis unstable from {onset_ms:.1f} ms")
+
+
 def plot_sweep(
-    intervals: pd.DataFrame, failed: pd.DataFrame, marks: dict[str, float], path: Path
+    intervals: pd.DataFrame, failed: pd.DataFrame, marks: dict[str, float], path: Path,
+    onsets_ms: dict[str, float] | None = None,
 ) -> Figure:
-    """RMS error and lost frames against vision delay on the random references, with 95 %
-    intervals over seeds, one colour per peak rate and one line style per tracker (its own
-    loss model); runs that failed (``failed``: rows of the sweep) marked by crosses."""
+    """RMS error, lost frames and probability of loss of control against vision delay on the
+    random references, with 95 % intervals over seeds, one colour per peak rate and one line
+    style per tracker (its own loss model); runs that failed (``failed``: rows of the sweep)
+    marked by crosses; beside each controller's loss-of-control curves the delay from which the
+    analysis says its loop is unstable (``onsets_ms``, per controller)."""
     rnd = intervals[intervals.reference.str.startswith("random")]
-    fig = Figure(figsize=(12, 7.5), layout="constrained")
-    ax = fig.subplots(2, 2, sharex=True)
+    fig = Figure(figsize=(12, 10), layout="constrained")
+    ax = fig.subplots(3, 2, sharex=True)
     refs = sorted(rnd.reference.unique())
     for j, ctrl in enumerate(("pid", "mpc")):
         for (tracker, ref), g in rnd[rnd.controller == ctrl].groupby(["tracker", "reference"]):
@@ -157,18 +173,25 @@ def plot_sweep(
                                                                                 " rad/s")
             _band(ax[0, j], g, "rms_error_deg", colour, name, marker=style)
             _band(ax[1, j], g, "lost_frame_fraction", colour, name, 100.0, marker=style)
+            _band(ax[2, j], g, "p_loss_of_control", colour, name, marker=style)
             bad = failed[(failed.controller == ctrl) & (failed.reference == ref)]
             _mark_excluded(ax[0, j], bad.vision_delay_ms.to_numpy(), colour, "failed run")
         ax[0, j].set_title(CONTROLLER_STYLE[ctrl][1])
         ax[0, j].set_yscale("log")
         ax[0, j].set_ylabel("RMS attitude error (deg)")
         ax[1, j].set_ylabel("lost frames (%)")
-        ax[1, j].set_xlabel("vision delay (ms)")
+        ax[2, j].set_ylabel("P(loss of control)")
+        ax[2, j].set_ylim(-0.03, 1.03)
+        ax[2, j].set_xlabel("vision delay (ms)")
         for a in ax[:, j]:
             mark_delays(a, marks, zero_line=False)
+        _mark_onset(ax[2, j], (onsets_ms or {}).get(ctrl, np.nan), "k",
+                    CONTROLLER_STYLE[ctrl][1])
+        _outside_legend(ax[2, j])
     _outside_legend(ax[0, 1])
     fig.suptitle("Closed loop (measurement model, each tracker's loss model, sequential "
-                 "observer): error and tracking loss, mean over seeds with 95 % intervals")
+                 "observer): error, tracking loss and loss of control, mean over seeds with "
+                 "95 % intervals")
     return _save(fig, path)
 
 
@@ -226,11 +249,10 @@ def plot_boundary_overlay(
             err = np.vstack([p - g.p_loss_of_control_lo, g.p_loss_of_control_hi - p])
             ax.errorbar(x, p, yerr=err, fmt=fmt, color=colour, ms=5, capsize=3, mfc="none",
                         label=f"{label}, {tname}: P(loss of control), simulated")
-        b = boundaries_ms.get(ctrl, np.nan)
-        if np.isfinite(b):
-            ax.axvspan(b, right, color=colour, alpha=0.08)
-            ax.axvline(b, color=colour, lw=2, label=f"{label}: predicted unstable from {b:.1f} ms")
     ax.set_xlim(min(0.0, float(intervals.vision_delay_ms.min())) - 2.0, right)
+    for ctrl in ("pid", "mpc"):
+        colour, label = CONTROLLER_STYLE[ctrl]
+        _mark_onset(ax, boundaries_ms.get(ctrl, np.nan), colour, label)
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel("vision delay (ms), sequential observer")
     ax.set_ylabel("probability of loss of control")
