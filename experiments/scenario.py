@@ -50,6 +50,7 @@ from latency.frontends import (
     OrbFrontEnd,
     orb_reference,
 )
+from latency.image_engine import run_images
 from latency.loop import ClosedLoop, LoopConfig, LoopResult
 from latency.models import Constant, LatencyModel
 from latency.pipeline import PipelineConfig
@@ -642,18 +643,23 @@ Engine = Literal["batched", "event"]
 
 
 def default_engine(s: Scenario) -> Engine:
-    """Measurement-model work runs batched, image-in-the-loop work on the event loop."""
+    """Measurement-model work runs batched, image-in-the-loop work on the event loop (a single
+    image run gains nothing from the image engine; ``run_many`` with ``engine="batched"``
+    batches many)."""
     return "batched" if s.mode == "measurement" else "event"
 
 
 def check_engine(s: Scenario, engine: Engine) -> None:
-    """``ValueError`` if ``engine`` cannot run ``s`` (the batched engine needs mode:
-    measurement)."""
-    if engine == "batched" and s.mode != "measurement":
-        raise ValueError(
-            f"scenario {s.name!r} has mode {s.mode!r}: the batched engine runs measurement-model "
-            "scenarios only (rendering and tracking dominate image runs); use --engine event"
-        )
+    """``ValueError`` if ``engine`` cannot run ``s``: the batched image engine needs model
+    latencies (``latency.image_engine``) and the marker front end."""
+    if engine == "batched" and s.mode == "image":
+        if s.observer.is_orb:
+            raise ValueError(f"scenario {s.name!r}: the batched image engine runs marker "
+                             "trackers, not the ORB observer; use --engine event")
+        if s.observer_latency == "measured" or s.controller_latency == "measured":
+            raise ValueError(f"scenario {s.name!r}: the batched image engine needs model "
+                             "latencies (observer_latency: model and a controller_latency "
+                             "model); use --engine event to measure them")
 
 
 def run(s: Scenario, progress: bool = False, engine: Engine | None = None) -> LoopResult:
@@ -665,17 +671,24 @@ def run_many(
     scenarios: list[Scenario], progress: bool = False, engine: Engine | None = None,
     tables: bool = True,
 ) -> list[LoopResult]:
-    """Run scenarios, in order: those on the batched engine together, the others one by one
-    on the event loop. ``engine`` None: each scenario's ``default_engine``. ``tables=False``
-    allows results without their steps, frames and events tables (``latency.batched.run_batched``)
-    where only the summaries are wanted."""
+    """Run scenarios, in order: on the batched engines those that take them (measurement-model
+    runs together in ``latency.batched``; image runs together in this process on
+    ``latency.image_engine``, their network calls batched), the others one by one on the event
+    loop. ``engine`` None: each scenario's ``default_engine``. ``tables=False`` allows results
+    without their steps, frames and events tables (``latency.batched.run_batched``) where only
+    the summaries are wanted."""
     engines = [engine or default_engine(s) for s in scenarios]
     for s, e in zip(scenarios, engines, strict=True):
         check_engine(s, e)
     out: list[LoopResult | None] = [None] * len(scenarios)
     batched = [i for i, e in enumerate(engines) if e == "batched"]
-    for i, res in zip(batched, run_batched([build_loop(scenarios[i]) for i in batched],
-                                           progress, tables), strict=True):
+    measured = [i for i in batched if scenarios[i].mode == "measurement"]
+    images = [i for i in batched if scenarios[i].mode == "image"]
+    for i, res in zip(measured, run_batched([build_loop(scenarios[i]) for i in measured],
+                                            progress, tables), strict=True):
+        out[i] = res
+    for i, res in zip(images, run_images(build_loop, [scenarios[i] for i in images], workers=1,
+                                         progress=progress), strict=True):
         out[i] = res
     for i, e in enumerate(engines):
         if e == "event":

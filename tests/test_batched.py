@@ -167,13 +167,16 @@ def test_the_grid_covers_what_it_claims(both_engines):
     assert (coasting.lost.astype(bool) & ~coasting.est_reason.str.contains("dropout")).any()
 
 
-def test_run_many_keeps_the_order_and_refuses_batched_image_runs():
+def test_run_many_keeps_the_order_and_sends_image_runs_to_the_image_engine():
     a, b = _scenario(seed=7, duration_s=0.3), _scenario(seed=8, duration_s=0.3)
-    ra, rb = run_many([a, b])
-    assert ra.config["seed"] == 7 and rb.config["seed"] == 8
-    image = Scenario(mode="image", duration_s=0.3)
-    with pytest.raises(ValueError, match="batched engine runs measurement-model"):
-        run_many([image], engine="batched")
+    image = Scenario(mode="image", duration_s=0.3, seed=9)
+    ra, ri, rb = run_many([a, image, b], engine="batched")
+    assert ra.config["seed"] == 7 and rb.config["seed"] == 8 and ri.config["seed"] == 9
+    assert ri.summary == pytest.approx(run_many([image], engine="event")[0].summary,
+                                       nan_ok=True)
+    measured = Scenario(mode="image", duration_s=0.3, observer_latency="measured")
+    with pytest.raises(ValueError, match="needs model latencies"):
+        run_many([measured], engine="batched")
 
 
 def test_summary_only_runs_give_the_event_loops_summary_without_tables():
@@ -195,7 +198,8 @@ def test_summary_only_runs_give_the_event_loops_summary_without_tables():
 
 def test_cli_engine_option(tmp_path):
     """``--engine event`` and the default (batched) give the same summary; batched on an image
-    scenario is a configuration error (exit status 2, the reason named)."""
+    scenario that measures its latency is a configuration error (exit status 2, the reason
+    named)."""
     runner = CliRunner()
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump({"duration_s": 0.3, "observer": {"kind": "solver"}}))
@@ -206,10 +210,11 @@ def test_cli_engine_option(tmp_path):
         assert res.exit_code == 0, res.output
         out[engine] = [ln for ln in res.output.splitlines() if "rms_error_deg" in ln]
     assert out["event"] == out[None] and out["event"]
-    path.write_text(yaml.safe_dump({"duration_s": 0.3, "mode": "image"}))
+    path.write_text(yaml.safe_dump({"duration_s": 0.3, "mode": "image",
+                                    "observer_latency": "measured"}))
     res = runner.invoke(app, ["simulate", str(path), "--engine", "batched"])
     assert res.exit_code == 2
-    assert "batched engine runs measurement-model" in res.output
+    assert "needs model latencies" in res.output
 
 
 def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
