@@ -56,9 +56,10 @@ class EngineChoice(str, Enum):
 
 EngineOption = Annotated[
     EngineChoice | None,
-    typer.Option(help="batched (measurement-model runs advanced together) or event (one run "
-                 "at a time; image-in-the-loop needs it). Default: batched for measurement-model "
-                 "scenarios, event for image-in-the-loop ones."),
+    typer.Option(help="batched (runs advanced together: measurement-model runs in the compiled "
+                 "engine, image runs with their network calls batched) or event (one run at a "
+                 "time; image runs that measure their latency need it). Default: batched for "
+                 "measurement-model scenarios, event for image-in-the-loop ones."),
 ]
 #: Runs per batch of the batched engine in a sweep (our choice: past the knee of the engine's
 #: throughput curve, benchmarks/bench_engine.py).
