@@ -121,6 +121,7 @@ def machine_mpc(problem) -> MachineMPC | None:
     nlp = problem._nlp_graph(step)[0]
     options = {k: v for k, v in problem._solver_options().items() if k != "jac_fg"}
     options["hess_lag"] = problem.hess_gn
+    options["calc_lam_p"] = False  # the multipliers of the parameters: not used, not computed
     solver = ca.nlpsol("mpc_machine", "sqpmethod", nlp, options)
     rk4_chunk = problem.rk4.mapaccum("mpc_machine_rk4", problem.chunk)
     main = ca.CodeGenerator("mpc_machine.c", {"with_header": False})
