@@ -76,8 +76,9 @@ def call_casadi(typingctx, fn, arg, res, iw, w):
 class MachineFunction:
     """A generated function ready for ``call_casadi``: its address, the pointer arrays and
     work arrays, and its inputs and outputs packed into two flat arrays (``inputs[offsets_in[k]
-    : offsets_in[k + 1]]`` is input k). Write the inputs, call, read the outputs. One caller at
-    a time (the arrays are shared)."""
+    : offsets_in[k + 1]]`` is input k). Write the inputs, call, read the outputs, all in one
+    compiled function: the arrays (and the generated code's static memory) are shared by the
+    process, and a numba function without ``nogil`` holds the GIL, so threads take turns."""
 
     address: int
     arg: NDArray[np.int64]
