@@ -165,3 +165,25 @@ def test_the_studys_mpc_runs_take_the_compiled_path():
         s = Scenario.model_validate(study._scenario_part(c))
         paths.setdefault(s.controller.kind, set()).add(compiled.coverage(build_loop(s)).path)
     assert paths == {"pid": {"compiled"}, "mpc": {"compiled"}}
+
+
+def test_simulate_says_which_path_computes_the_run(tmp_path):
+    """``pmspm simulate`` names the engine and path, and the reason when a run is not the
+    compiled run loop's (here an MPC behind the AEKF)."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    path = tmp_path / "s.yaml"
+    lines = {}
+    for name, observer in (("solver", "solver"), ("aekf", "aekf")):
+        path.write_text(yaml.safe_dump({"duration_s": 0.2, "observer": {"kind": observer},
+                                        "controller": {"kind": "mpc"}}))
+        res = CliRunner().invoke(app, ["simulate", str(path), "--out", str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+        lines[name] = [ln for ln in res.output.splitlines() if ln.startswith("engine:")]
+    assert lines["solver"] == ["engine: batched, compiled run loop"]
+    assert len(lines["aekf"]) == 1
+    assert lines["aekf"][0].startswith("engine: batched, not the compiled run loop (observer "
+                                       "FilterObserver")
