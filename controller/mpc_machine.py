@@ -12,8 +12,14 @@ generated function through its address, with CasADi's calling convention
 
 The NLP is the one of ``_Problem`` with its shooting steps as calls of one function (the form
 of its compiled Jacobian, ``_Problem._compile``), with the same solver options, so a solve is
-the event loop's solve to rounding (tests/test_mpc_machine.py: the same iterate to 1e-9 on
-cold and warm starts). One correction to CasADi's C code: its HPIPM interface writes only
+the event loop's solve to rounding (tests/test_compiled_mpc.py: the same iterate to 1e-9 on
+cold and warm starts). Its cost's weights (``_Problem.weights``: the bandwidth rule's q_θ, q_ω,
+r, the terminal P_i, the tilt slack's ρ1, ρ2) are parameters appended to the NLP's, and the
+torque limit and the tilt limit enter through the bounds, which are inputs already: one machine
+code serves every MPC that differs only in ``WEIGHT_FIELDS`` (a co-design varies the bandwidth
+continuously), built once per process and compiled once per machine.
+
+One correction to CasADi's C code: its HPIPM interface writes only
 some fields of HPIPM's ``d_ocp_qp_ipm_arg`` (CasADi 3.8 with the HPIPM it ships): the others
 (``dual_gap_max``, ``lam0_min``, ``t0_min``, ``t0_init``, ``update_fact_exit``) were left as
 stack garbage and the QPs failed in speed mode; the patch sets them to HPIPM's defaults for
@@ -25,7 +31,7 @@ Mirrors: ``latency.compiled._mpc`` runs ``MPCController._command`` with these fu
 from __future__ import annotations
 
 import ctypes
-import functools
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +43,13 @@ from numba.extending import intrinsic
 from numpy.typing import NDArray
 
 from controller.codegen import compiled_library
+from controller.mpc import RUNTIME_FIELDS
+
+#: ``MPCConfig`` fields that set only the cost's weights or the bounds: parameters and inputs
+#: of the machine code, not part of its key.
+WEIGHT_FIELDS = frozenset({"bandwidth_rad_s", "damping", "torque_limit_Nm",
+                           "torque_limit_margin", "tilt_slack_l1", "tilt_slack_l2",
+                           "tilt_max_deg"})
 
 #: The line of CasADi's generated HPIPM set-up after which the missing options are set.
 _HPIPM_LAST_OPTION = "  p.hpipm_options.memsize = 0;"
@@ -107,11 +120,32 @@ class MachineMPC:
     library: Path
 
 
-@functools.lru_cache(maxsize=16)
+def weight_values(problem) -> NDArray[np.float64]:
+    """The weights of ``problem`` (``_Problem.weights``) as the machine code's extra parameters:
+    q_θ (3), q_ω (3), r, P_1..P_3 (each 2 x 2 column by column), ρ1, ρ2."""
+    Qth, Qw, r, P, rho1, rho2 = problem.weights()
+    return np.concatenate([Qth, Qw, [r], *(np.ravel(Pi, order="F") for Pi in P), [rho1, rho2]])
+
+
 def machine_mpc(problem) -> MachineMPC | None:
     """The machine code of ``problem`` (a ``controller.mpc._Problem`` with the SQP + HPIPM
-    solver and the Gauss-Newton Hessian), built once per problem and process; None without a
-    C compiler or when compiling fails (a warning says why)."""
+    solver and the Gauss-Newton Hessian), built once per process for all problems that differ
+    only in ``WEIGHT_FIELDS`` (their weights are parameters: ``weight_values``); None without
+    a C compiler or when compiling fails (a warning says why)."""
+    key = json.dumps([problem.config.model_dump(mode="json",
+                                                exclude=set(RUNTIME_FIELDS | WEIGHT_FIELDS)),
+                      problem.params.model_dump(mode="json")], sort_keys=True)
+    if key not in _MACHINES:
+        _MACHINES[key] = _build(problem)
+    return _MACHINES[key]
+
+
+#: The machine codes built in this process, by ``machine_mpc``'s key.
+_MACHINES: dict[str, MachineMPC | None] = {}
+
+
+def _build(problem) -> MachineMPC | None:
+    """Generate, compile (or load) and open the machine code of ``problem``'s structure."""
     cfg = problem.config
     if cfg.solver != "sqp_hpipm" or cfg.hessian != "gauss_newton":
         raise ValueError(f"the machine-code MPC needs solver 'sqp_hpipm' with the Gauss-Newton "
@@ -119,9 +153,14 @@ def machine_mpc(problem) -> MachineMPC | None:
     x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
     phi = problem._shooting_step(cfg.step_s, cfg.rk4_substeps)
     step = ca.Function("mpc_phi", [x, T], [phi(x, T)], {"never_inline": True})
-    nlp = problem._nlp_graph(step)[0]
+    Qth, Qw, r = ca.SX.sym("q_theta", 3), ca.SX.sym("q_omega", 3), ca.SX.sym("r")
+    P = [ca.SX.sym(f"P{i}", 2, 2) for i in range(3)]
+    rho1, rho2 = ca.SX.sym("rho1"), ca.SX.sym("rho2")
+    nlp, _, tilt_rows, ball_rows = problem._nlp_graph(step, (Qth, Qw, r, P, rho1, rho2))
+    nlp["p"] = ca.vertcat(nlp["p"], Qth, Qw, r, *(ca.vec(Pi) for Pi in P), rho1, rho2)
+    hess = problem._gauss_newton_hessian(nlp, tilt_rows, ball_rows)
     options = {k: v for k, v in problem._solver_options().items() if k != "jac_fg"}
-    options["hess_lag"] = problem.hess_gn
+    options["hess_lag"] = hess
     options["calc_lam_p"] = False  # the multipliers of the parameters: not used, not computed
     solver = ca.nlpsol("mpc_machine", "sqpmethod", nlp, options)
     rk4_chunk = problem.rk4.mapaccum("mpc_machine_rk4", problem.chunk)
@@ -133,12 +172,12 @@ def machine_mpc(problem) -> MachineMPC | None:
         raise RuntimeError("CasADi's generated HPIPM set-up changed: check the options patch")
     source = source.replace(_HPIPM_LAST_OPTION, _HPIPM_LAST_OPTION + _HPIPM_DEFAULTS)
     # The Hessian is an external dependency of the generated solver: its own unit.
-    hess = ca.CodeGenerator("mpc_machine_hess.c", {"with_header": False})
-    hess.add(problem.hess_gn)
+    hess_code = ca.CodeGenerator("mpc_machine_hess.c", {"with_header": False})
+    hess_code.add(hess)
     folder = Path(ca.__file__).parent
     flags = (f"-I{folder / 'include'}", f"-L{folder}", "-lhpipm", "-lblasfeo",
              f"-Wl,-rpath,{folder}", "-Wl,-Bsymbolic")
-    lib_path = compiled_library([source, hess.dump()], "mpc_machine", flags)
+    lib_path = compiled_library([source, hess_code.dump()], "mpc_machine", flags)
     if lib_path is None:
         return None
     lib = ctypes.CDLL(str(lib_path))

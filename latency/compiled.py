@@ -56,7 +56,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from controller.mpc import MPCController
-from controller.mpc_machine import MachineMPC, call_casadi, machine_mpc
+from controller.mpc_machine import MachineMPC, call_casadi, machine_mpc, weight_values
 from controller.pid import PIDController
 from latency.frontends import (
     LOST_BLUR,
@@ -1137,10 +1137,10 @@ def _mpc_arrays(loop: ClosedLoop, ev_t: NDArray, ev_kind: NDArray, ev_idx: NDArr
                 n_frames: int) -> tuple:
     """The ``mpc`` argument of ``_run_events``: the MPC's settings (``_MP_*``), the NLP's
     parameters of each frame's release (as ``MPCController._parameters`` makes them before
-    it aligns the signs; row = frame), the bounds (lbx, ubx, lbg, ubg), the decision vector's
-    layout (X, U, S positions), the MPC's state and command history, the generated functions'
-    call arguments (solver, RK4 chunk) and their input and output arrays. A PID run gets
-    placeholders of the same types."""
+    it aligns the signs, then the cost's weights, ``weight_values``; row = frame), the bounds
+    (lbx, ubx, lbg, ubg), the decision vector's layout (X, U, S positions), the MPC's state
+    and command history, the generated functions' call arguments (solver, RK4 chunk) and
+    their input and output arrays. A PID run gets placeholders of the same types."""
     ctrl = loop.controller
     if not isinstance(ctrl, MPCController):
         f1, f2 = np.zeros(1), np.zeros((1, 1))
@@ -1169,10 +1169,11 @@ def _mpc_arrays(loop: ClosedLoop, ev_t: NDArray, ev_kind: NDArray, ev_idx: NDArr
     J = pr.J
     tau = J * ar + np.cross(wr[:, :N], J * wr[:, :N])  # body frame of the reference
     tff = np.einsum("rkij,rkj->rki", attitude.to_matrix(qr[:, :N]), tau)  # R(q) = R(-q)
-    n_p = 7 * (N + 1) + 3 * N
+    weights = weight_values(pr)  # the machine code's extra parameters, the same at each release
+    n_p = 7 * (N + 1) + 3 * N + len(weights)
     mref = np.zeros((n_frames, n_p))
     mref[rows] = np.concatenate([qr.reshape(n_rel, -1), wr.reshape(n_rel, -1),
-                                 tff.reshape(n_rel, -1)], axis=1)
+                                 tff.reshape(n_rel, -1), np.tile(weights, (n_rel, 1))], axis=1)
     mpar = np.zeros(12)
     mpar[_MP_N], mpar[_MP_H], mpar[_MP_NW], mpar[_MP_NG], mpar[_MP_NP] = N, h, nw, ng, n_p
     mpar[_MP_LIMIT], mpar[_MP_LEAD] = ctrl.torque_limit, lead

@@ -7,7 +7,7 @@ from numba import njit
 
 from controller import codegen
 from controller.mpc import MPCConfig, MPCController
-from controller.mpc_machine import call_casadi, machine_mpc
+from controller.mpc_machine import call_casadi, machine_mpc, weight_values
 from experiments import study
 from experiments.scenario import Scenario, build_loop
 from latency import compiled
@@ -26,37 +26,47 @@ def _call(fn, arg, res, iw, w):
     return call_casadi(fn, arg, res, iw, w)
 
 
-def _machine_solve(machine, args: dict) -> np.ndarray:
-    """The machine solver on the inputs of a ``casadi.nlpsol`` call: its x."""
+def _machine_solve(machine, args: dict, problem) -> np.ndarray:
+    """The machine solver on the inputs of a ``casadi.nlpsol`` call of ``problem`` (its
+    parameters followed by the problem's weights): its x."""
     s = machine.solver
     o = s.offsets_in
+    args = {**args, "p": np.r_[args["p"], weight_values(problem)]}
     for k, name in enumerate(("x0", "p", "lbx", "ubx", "lbg", "ubg", "lam_x0", "lam_g0")):
         s.inputs[o[k] : o[k + 1]] = args.get(name, 0.0)
     assert _call(*s.call_args()) == 0
     return s.outputs[: s.offsets_out[1]].copy()
 
 
-def test_the_machine_solver_gives_the_event_loops_solves():
+@pytest.mark.parametrize("config", [
+    MPCConfig(compute_latency_s=0.0),
+    MPCConfig(compute_latency_s=0.0, bandwidth_rad_s=9.0, damping=1.0, torque_limit_Nm=0.02,
+              tilt_max_deg=5.0, tilt_slack_l1=500.0, tilt_slack_l2=2e4),
+], ids=["default", "other weights and limits"])
+def test_the_machine_solver_gives_the_event_loops_solves(config):
     """Cold start from a tilted, turning rotor, then a warm start with the multipliers of the
     first solve and a moved initial state: the same iterate as ``MPCController.solver`` (the
-    SQP with the compiled derivatives) to 1e-9."""
-    mpc = MPCController(MPCConfig(compute_latency_s=0.0), PlantParams())
+    SQP with the compiled derivatives) to 1e-9, for the default MPC and for one with other
+    weights and limits, which shares the default's machine code (its weights are
+    parameters)."""
+    mpc = MPCController(config, PlantParams())
     pr = mpc.problem
     machine = machine_mpc(pr)
     assert machine is not None
+    assert machine is machine_mpc(MPCController(MPCConfig(), PlantParams()).problem)
     ref = _Hold(A.from_rotvec([0.08, 0.0, 0.0]))
     x0 = np.r_[A.from_rotvec([0.05, -0.03, 0.02]), 0.1, 0.0, -0.2]
     cold = dict(**pr.bounds(x0), p=mpc._parameters(ref, 0.0, x0[:4]),
                 x0=pr.pack(np.tile(x0, (pr.N + 1, 1)), np.zeros((pr.N, 3)), np.zeros(pr.N)))
     sol = mpc.solver(**cold)
     w = np.asarray(sol["x"]).ravel()
-    assert np.max(np.abs(_machine_solve(machine, cold) - w)) < 1e-9
+    assert np.max(np.abs(_machine_solve(machine, cold, pr) - w)) < 1e-9
     x1 = np.r_[A.from_rotvec([0.045, -0.02, 0.02]), 0.2, 0.1, -0.1]
     warm = dict(**pr.bounds(x1), p=mpc._parameters(ref, 0.0, x1[:4]), x0=w,
                 lam_x0=np.asarray(sol["lam_x"]).ravel(), lam_g0=np.asarray(sol["lam_g"]).ravel())
     w_warm = np.asarray(mpc.solver(**warm)["x"]).ravel()
     assert np.max(np.abs(w_warm - w)) > 1e-3  # a different problem
-    assert np.max(np.abs(_machine_solve(machine, warm) - w_warm)) < 1e-9
+    assert np.max(np.abs(_machine_solve(machine, warm, pr) - w_warm)) < 1e-9
 
 
 def _mpc_scenario(**kw) -> Scenario:
