@@ -14,13 +14,19 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   loop takes it, 256 rotors each stepped ``REUSE_STEPS`` times, its pair lists made again at
   every step or kept while they cover its turn:
   ``physics_step_{fresh,reused}_lists_B256_s_per_rotor``;
+* the same for the MPC (the scenario with ``controller: {kind: mpc}``, its default SQP + HPIPM
+  solver and the constant compute latency of ``experiments.scenario.MPC_CALL_MEDIAN_S``), whose
+  runs the compiled run loop computes with the solver as machine code
+  (``controller.mpc_machine``): ``mpc_batched_B64_realtime_factor`` (with tables),
+  ``mpc_batched_summaries_B64_realtime_factor``, ``mpc_event_loop_realtime_factor`` and their
+  ratios (target: the batched B = 64 at least 50 times the event loop);
 * wall time of the study's closed-loop sweep (``experiments.study.sweep_configs``), of a small
   ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
   loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
   key).
 
 Run: python benchmarks/bench_engine.py          (the full benchmark; a quiet machine, hours)
-     python benchmarks/bench_engine.py --parts throughput,study
+     python benchmarks/bench_engine.py --parts throughput,mpc,study
                                                   (only those parts; the record names them)
      python benchmarks/bench_engine.py --quick --out /tmp/bench_engine.json
                                                   (a smoke test in seconds; writes only --out)
@@ -45,17 +51,21 @@ from latency.batched import run_batched  # noqa: E402
 
 #: The benchmark's scenario: measurement model, PID, per-frame least squares, 5° tilt step.
 CASE = {"observer": {"kind": "solver"}}
+#: The same with the MPC.
+MPC_CASE = {**CASE, "controller": {"kind": "mpc"}}
+#: Runs of the MPC's batched figure.
+MPC_BATCH = 64
 #: Event-loop runs timed for the 10,000-run sweep's extrapolated figure.
 EVENT_SAMPLE_RUNS = 100
 #: Physics steps per rotor of the reused-lists figure (the compiled run loop's way).
 REUSE_STEPS = 50
-#: The benchmark's parts: the throughput curve over B, the study's sweep, tune-kalman, and the
-#: 10,000-run sweep.
-PARTS = ("throughput", "study", "tune", "sweep")
+#: The benchmark's parts: the throughput curve over B, the MPC's throughput, the study's sweep,
+#: tune-kalman, and the 10,000-run sweep.
+PARTS = ("throughput", "mpc", "study", "tune", "sweep")
 
 
-def _configs(n: int, duration_s: float) -> list[dict]:
-    return [{**CASE, "duration_s": duration_s, "seed": s} for s in range(n)]
+def _configs(n: int, duration_s: float, case: dict = CASE) -> list[dict]:
+    return [{**case, "duration_s": duration_s, "seed": s} for s in range(n)]
 
 
 def _wall(fn) -> float:
@@ -64,16 +74,16 @@ def _wall(fn) -> float:
     return time.perf_counter() - t0
 
 
-def throughput(batch: int, duration_s: float, tables: bool = True) -> float:
-    """Aggregate simulated s per wall s of ``batch`` runs on the batched engine, with their
-    tables or (``tables=False``) their summaries only, as a sweep keeps them."""
-    loops = [build_loop(Scenario.model_validate(c)) for c in _configs(batch, duration_s)]
+def throughput(batch: int, duration_s: float, tables: bool = True, case: dict = CASE) -> float:
+    """Aggregate simulated s per wall s of ``batch`` runs of ``case`` on the batched engine,
+    with their tables or (``tables=False``) their summaries only, as a sweep keeps them."""
+    loops = [build_loop(Scenario.model_validate(c)) for c in _configs(batch, duration_s, case)]
     return batch * duration_s / _wall(lambda: run_batched(loops, tables=tables))
 
 
-def event_loop_speed(duration_s: float) -> float:
-    """Simulated s per wall s of one run on the event loop."""
-    loop = build_loop(Scenario.model_validate(_configs(1, duration_s)[0]))
+def event_loop_speed(duration_s: float, case: dict = CASE) -> float:
+    """Simulated s per wall s of one run of ``case`` on the event loop."""
+    loop = build_loop(Scenario.model_validate(_configs(1, duration_s, case)[0]))
     return duration_s / _wall(loop.run)
 
 
@@ -166,6 +176,24 @@ def main() -> None:
         figures[f"batched_B{ref}_over_event_loop"] = (
             figures[f"batched_B{ref}_realtime_factor"] / figures["event_loop_realtime_factor"]
         )
+    if "mpc" in parts:
+        from latency import compiled
+
+        loop = build_loop(Scenario.model_validate(_configs(1, duration, MPC_CASE)[0]))
+        if (cov := compiled.coverage(loop)).path != "compiled":
+            raise SystemExit(f"the MPC's runs take the {cov.path} path here: {cov.reason}")
+        for tables in (True, False):  # warm-up: the solver's machine code, numba's caches
+            throughput(2, 0.2, tables, MPC_CASE)
+        event_loop_speed(0.2, MPC_CASE)
+        b = 2 if quick else MPC_BATCH
+        figures[f"mpc_batched_B{b}_realtime_factor"] = throughput(b, duration, case=MPC_CASE)
+        figures[f"mpc_batched_summaries_B{b}_realtime_factor"] = throughput(
+            b, duration, False, MPC_CASE)
+        figures["mpc_event_loop_realtime_factor"] = event_loop_speed(duration, MPC_CASE)
+        for kind in ("", "summaries_"):
+            figures[f"mpc_batched_{kind}B{b}_over_event_loop"] = (
+                figures[f"mpc_batched_{kind}B{b}_realtime_factor"]
+                / figures["mpc_event_loop_realtime_factor"])
     if "study" in parts:
         # The 2-seed sweep (224 runs), comparable across engines and with earlier records; the
         # default 32-seed study's wall time is bench_study's.
@@ -199,7 +227,9 @@ def main() -> None:
         figures,
         notes="Default measurement-model scenario (PID, per-frame least squares, 5° tilt step, "
         "GK-TransT seed latency), 2 s runs, one BLAS/OpenMP thread. Target: "
-        "batched B = 256 >= 1000x real time. The study sweep, tune-kalman (defaults) and the "
+        "batched B = 256 >= 1000x real time; MPC (same scenario with the default MPC, its "
+        "solver as machine code in the compiled run loop): batched B = 64 >= 50x the event "
+        "loop. The study sweep, tune-kalman (defaults) and the "
         "10,000-run sweep in one process; the event loop's 10,000-run wall time is "
         f"extrapolated from {EVENT_SAMPLE_RUNS} runs. Parts run: {', '.join(parts)}"
         + ("" if parts == list(PARTS) else

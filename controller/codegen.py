@@ -62,39 +62,48 @@ def compiled(functions: list[ca.Function], prefix: str) -> list[ca.Function] | N
     from it, in order, under their own names (which must be distinct C identifiers). None
     without a C compiler or when compiling fails (a warning says why). ``prefix`` names the
     library file (``<prefix>_<hash>.so``)."""
-    cc = compiler()
-    if cc is None:
-        return None
     gen = ca.CodeGenerator(f"{prefix}.c", {"with_header": False})
     for f in functions:
         gen.add(f)
-    source = gen.dump()
+    lib = compiled_library([gen.dump()], prefix)
+    return None if lib is None else [ca.external(f.name(), str(lib)) for f in functions]
+
+
+def compiled_library(sources: list[str], prefix: str, flags: tuple[str, ...] = ()) -> Path | None:
+    """The shared library of the C ``sources`` (one translation unit each), compiled with the
+    extra compiler and linker ``flags`` (include folders, libraries) and cached as
+    ``compiled`` caches (module docstring): its path, or None without a C compiler or when
+    compiling fails (a warning says why)."""
+    cc = compiler()
+    if cc is None:
+        return None
     command = [cc, *OPT_FLAGS, "-shared", "-fPIC"]
-    digest = hashlib.sha256("\0".join([*command[1:], ca.__version__, source]).encode())
+    digest = hashlib.sha256("\0".join([*command[1:], *flags, ca.__version__, *sources]).encode())
     folder = cache_dir()
     lib = folder / f"{prefix}_{digest.hexdigest()[:20]}.so"
     if not lib.exists():
         with open(folder / f"{lib.name}.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be compiling it
             if not lib.exists():
-                failure = _compile(command, source, lib)
+                failure = _compile(command, sources, flags, lib)
                 if failure:
                     warnings.warn(f"compiling {prefix} with {cc} failed ({failure}); CasADi's "
                                   "virtual machine evaluates the functions instead",
-                                  stacklevel=2)
+                                  stacklevel=3)
                     return None
-    return [ca.external(f.name(), str(lib)) for f in functions]
+    return lib
 
 
-def _compile(command: list[str], source: str, lib: Path) -> str:
-    """Compile ``source`` into ``lib`` atomically (a temporary file, then a rename). Returns
+def _compile(command: list[str], sources: list[str], flags: tuple[str, ...], lib: Path) -> str:
+    """Compile ``sources`` into ``lib`` atomically (temporary files, then a rename). Returns
     "" on success, else why it failed (the end of the compiler's messages)."""
     with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
-        c_file = Path(tmp) / "code.c"
-        c_file.write_text(source)
+        c_files = [Path(tmp) / f"code{i}.c" for i in range(len(sources))]
+        for c_file, source in zip(c_files, sources, strict=True):
+            c_file.write_text(source)
         out = Path(tmp) / lib.name
         try:
-            subprocess.run([*command, str(c_file), "-o", str(out)], check=True,
+            subprocess.run([*command, *map(str, c_files), "-o", str(out), *flags], check=True,
                            capture_output=True)
         except subprocess.CalledProcessError as exc:
             return f"exit status {exc.returncode}: {exc.stderr.decode(errors='replace')[-300:]}"

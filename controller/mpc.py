@@ -355,13 +355,10 @@ class _Problem:
         loaded = compiled(list(functions.values()), "mpc")
         return {} if loaded is None else dict(zip(functions, loaded, strict=True))
 
-    def _nlp_graph(
-        self, Phi: ca.Function
-    ) -> tuple[dict, tuple[NDArray, ...], list[int], list[int]]:
-        """The NLP (casadi dict x, f, g, p) with the shooting step ``Phi``, its bounds (lbw,
-        ubw, lbg, ubg) and the rows of the tilt and torque-ball constraints."""
+    def weights(self) -> tuple:
+        """The cost's weights: q_θ (3,), q_ω (3,), r, the terminal P_i (3 of 2 x 2) and the tilt
+        slack's ρ1 and ρ2 (module docstring)."""
         cfg = self.config
-        N, h = cfg.horizon_steps, cfg.step_s
         weights = [
             lqr_weights(self.J[i], cfg.bandwidth_rad_s, cfg.damping, self.torque_limit)
             for i in range(3)
@@ -369,7 +366,19 @@ class _Problem:
         Qth = np.array([w[0] for w in weights])
         Qw = np.array([w[1] for w in weights])
         r = weights[0][2]
-        P = [terminal_weight(self.J[i], h, *weights[i]) for i in range(3)]
+        P = [terminal_weight(self.J[i], cfg.step_s, *weights[i]) for i in range(3)]
+        return Qth, Qw, r, P, cfg.tilt_slack_l1, cfg.tilt_slack_l2
+
+    def _nlp_graph(
+        self, Phi: ca.Function, weights: tuple | None = None
+    ) -> tuple[dict, tuple[NDArray, ...], list[int], list[int]]:
+        """The NLP (casadi dict x, f, g, p) with the shooting step ``Phi``, its bounds (lbw,
+        ubw, lbg, ubg) and the rows of the tilt and torque-ball constraints. ``weights``
+        (default ``weights()``) may be CasADi symbols of the same shapes (P_i as 2 x 2 SX):
+        ``controller.mpc_machine`` makes them parameters."""
+        cfg = self.config
+        N, h = cfg.horizon_steps, cfg.step_s
+        Qth, Qw, r, P, rho1, rho2 = self.weights() if weights is None else weights
 
         Xs = [ca.SX.sym(f"X{k}", 7) for k in range(N + 1)]
         Us = [ca.SX.sym(f"U{k}", 3) for k in range(N)]
@@ -418,7 +427,8 @@ class _Problem:
             else:
                 for i in range(3):
                     z = ca.vertcat(e[i], dw[i])
-                    J_cost += ca.mtimes([z.T, ca.DM(P[i]), z])
+                    Pi = P[i] if isinstance(P[i], ca.SX) else ca.DM(P[i])
+                    J_cost += ca.mtimes([z.T, Pi, z])
             if k >= 1:
                 qk = Xs[k]
                 tilt_rows.append(len(lbg))
@@ -426,7 +436,7 @@ class _Problem:
                 lbg.append(cos_max)
                 ubg.append(ca.inf)
             if k < N:
-                J_cost += cfg.tilt_slack_l1 * Ss[k] + cfg.tilt_slack_l2 * Ss[k] ** 2
+                J_cost += rho1 * Ss[k] + rho2 * Ss[k] ** 2
 
         bounds = tuple(np.array(b, dtype=float) for b in (lbw, ubw, lbg, ubg))
         pvec = ca.vertcat(ca.vec(p_qref), ca.vec(p_wref), ca.vec(p_tff))

@@ -257,7 +257,7 @@ def simulate(
 
     Example: pmspm simulate examples/scenario.yaml --out runs --engine event
     """
-    from experiments.scenario import Scenario, check_engine, run
+    from experiments.scenario import Scenario, check_engine, describe_path, run
 
     try:
         s = Scenario.model_validate(_load_yaml(scenario))
@@ -268,6 +268,7 @@ def simulate(
     for reason in s.reach_warnings():
         _warn(reason)
     _writable_folder(out)
+    typer.echo(describe_path(s, None if engine is None else engine.value))
     try:
         result = run(s, progress=True, engine=None if engine is None else engine.value)
     except KeyboardInterrupt:

@@ -42,6 +42,7 @@ from controller.pid import reach_warnings as pid_reach_warnings
 from controller.reference import Cone, Ramp, RandomSmooth, SeedSteps, Steps, pure_tilt
 from experiments.config_files import load_mapping
 from experiments.user_files import plant_from_files
+from latency import compiled
 from latency.batched import run_batched
 from latency.frontends import (
     ImageFrontEnd,
@@ -660,6 +661,18 @@ def check_engine(s: Scenario, engine: Engine) -> None:
             raise ValueError(f"scenario {s.name!r}: the batched image engine needs model "
                              "latencies (observer_latency: model and a controller_latency "
                              "model); use --engine event to measure them")
+
+
+def describe_path(s: Scenario, engine: Engine | None = None) -> str:
+    """Which engine and, on the batched engine, which path computes ``s``, with the reason
+    when it is not the compiled run loop (``latency.compiled.coverage``), in words."""
+    e = engine or default_engine(s)
+    if e == "event":
+        return "engine: event loop"
+    cov = compiled.coverage(build_loop(s))
+    if cov.path == "compiled":
+        return "engine: batched, compiled run loop"
+    return f"engine: batched, not the compiled run loop ({cov.reason})"
 
 
 def run(s: Scenario, progress: bool = False, engine: Engine | None = None) -> LoopResult:

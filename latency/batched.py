@@ -1,12 +1,13 @@
 """The batched engine: many measurement-model runs of the timed loop.
 
 Each run is a ``latency.loop.ClosedLoop`` (its own seed, delays, observer settings, gains and
-reference). The engine decides per run (``latency.compiled.covers``, from the types of its
-parts and its settings) which path computes it:
+reference). The engine decides per run (``latency.compiled.coverage``, from the types of its
+parts and its settings, with the reason for a run it leaves to the rounds) which path computes
+it:
 
 * the compiled run loop (``latency.compiled``): the default case (measurement front end,
-  per-frame least squares with or without the pixel Kalman filter, PID, model latencies), a
-  whole run, events and physics, in one numba call;
+  per-frame least squares with or without the pixel Kalman filter, the PID or the MPC with its
+  solver as machine code, model latencies), a whole run, events and physics, in one numba call;
 * the lockstep rounds (``_run_group``) for the others: each run's events go through the loop's
   own timeline (``ClosedLoop.timeline``), which, between two events, asks for the physics to
   move to the next event with its currents held (an ``Advance``). The engine serves the open

@@ -4,7 +4,9 @@ The default measurement-model case (``covers``): the measurement front end (pixe
 dropouts, outliers, the tracker-window loss model, the blur limit, the region of interest), the
 per-frame least-squares observer (``observer.pixel_observer.SolverObserver`` with
 ``observer.cor_solver.CorSolver``) alone or behind the pixel Kalman filters
-(``PixelKalmanObserver``), the PID (``controller.pid.PIDController``), sequential or pipelined
+(``PixelKalmanObserver``), the PID (``controller.pid.PIDController``) or the MPC
+(``controller.mpc.MPCController`` with its default SQP + HPIPM solver and a fixed compute
+latency, its whole solver as machine code: ``controller.mpc_machine``), sequential or pipelined
 frames, an observer and a controller latency from a model (any ``latency.models`` kind), no
 disturbance, the controller on each released estimate. The event loop
 (``latency.loop.ClosedLoop``) stays the reference: this module computes the same run, run by
@@ -24,27 +26,37 @@ records the steps table's rows and the tilt-stop events; on a frame it runs the 
 drawing its noise from the front end's own ``numpy.random.Generator`` (numba draws the same
 numbers as numpy from the same Generator, in the same order as ``MeasurementFrontEnd.capture``);
 on a release the pixel Kalman filters (when the run has them), the warm-started
-Levenberg-Marquardt solve (``observer.cor_solver._lm``) and the PID law; on a command the
-least-norm current allocation. A command whose least-norm currents break the limits returns
-to Python for the LP of ``plant.torque.allocate`` and the kernel resumes from it. The per-step
-and per-frame logs are arrays; the events are codes with their
-numbers, written out as the event loop's texts at the end.
+Levenberg-Marquardt solve (``observer.cor_solver._lm``) and the PID law (``_pid``) or the
+MPC's command (``_mpc``: the delay compensation, the warm start and the generated SQP solver,
+called through its address); on a command the least-norm current allocation. A command whose
+least-norm currents break the limits returns to Python for the LP of ``plant.torque.allocate``
+and the kernel resumes from it. The per-step and per-frame logs are arrays; the events are
+codes with their numbers, written out as the event loop's texts at the end.
 
 Where it differs from the event loop: the controller's compute time is not timed per call
 (``frames.controller_compute_s`` is NaN; the controller latency is a model in every run it
-covers), and the arithmetic of a few small products is ordered differently (rounding, 1e-16).
+covers), and the arithmetic of a few small products is ordered differently (rounding, 1e-16);
+the MPC's solver is the event loop's SQP written out as C (the same iterates to rounding), and
+its solver statistics (``MPCController.unconverged`` and the like) are not kept.
+
+``coverage`` says which path the batched engine takes for a run and, for the lockstep rounds,
+why (the first of the run's parts or settings that the compiled loop lacks).
 """
 
 from __future__ import annotations
 
 import functools
 import heapq
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import pandas as pd
 from numba import njit
 from numpy.typing import NDArray
 
+from controller.mpc import MPCController
+from controller.mpc_machine import MachineMPC, call_casadi, machine_mpc, weight_values
 from controller.pid import PIDController
 from latency.frontends import (
     LOST_BLUR,
@@ -141,9 +153,10 @@ _P_KF_ON, _P_KF_Q, _P_KF_R, _P_KF_V0 = 45, 46, 62, 66  # pixel Kalman: on, Q (4 
 # limit (px, NaN: none) and the camera's exposure (s)
 _P_ROI, _P_ROI_COLS, _P_ROI_ROWS, _P_ROI_FOLLOW, _P_SENSOR_W, _P_SENSOR_H = range(67, 73)
 _P_BLUR, _P_EXPOSURE = 73, 74
+_P_MPC = 75  # 1: the MPC computes the commands (``_mpc``), 0: the PID
 # the calibrated loss model (latency.loss_model): on, hazard (3), persistence (4)
-_P_CAL_ON, _P_CAL_HAZ, _P_CAL_PER = 75, 76, 79
-_N_PAR = 83
+_P_CAL_ON, _P_CAL_HAZ, _P_CAL_PER = 76, 77, 80
+_N_PAR = 84
 _AW_MODES = ("back_calculation", "conditional", "none")
 
 # --- the frame record (``fr``), by column -----------------------------------------------------
@@ -156,23 +169,65 @@ _F_TORQUE = 26  # the command computed on the release (3)
 _N_FR = 29
 
 
-def covers(loop: ClosedLoop) -> bool:
-    """Whether the compiled run loop computes ``loop`` (the module docstring's case), from the
-    types of its parts and its settings."""
-    c, fe = loop.config, loop.front_end
-    return (
-        isinstance(loop.controller, PIDController)
-        and isinstance(_solver_observer(loop), SolverObserver)
-        and isinstance(_solver_observer(loop).solver, CorSolver)
-        and isinstance(fe, MeasurementFrontEnd)
-        and fe.params == loop.params
-        and loop.params.camera.dist_coeffs[2:4] == (0.0, 0.0)
-        and c.controller_rate_hz is None
-        and c.controller_latency != "measured"
-        and c.observer_latency == "model"
-        and not any(c.disturbance_psd_Nm2s)
-        and c.mujoco_sensor_delay_s is None
+@dataclass(frozen=True)
+class Coverage:
+    """The batched engine's path for a run (``coverage``): ``"compiled"`` (the compiled run
+    loop) or ``"lockstep"`` (the lockstep rounds of ``latency.batched``), and for the latter
+    why the compiled loop does not compute it."""
+
+    path: Literal["compiled", "lockstep"]
+    reason: str = ""
+
+
+def coverage(loop: ClosedLoop) -> Coverage:
+    """Which path computes ``loop`` (the module docstring's case), from the types of its parts
+    and its settings, with the reason when it is not the compiled run loop. For an MPC this
+    builds (once per process and problem; compiled once, cached on disk) its solver's machine
+    code."""
+    c, fe, p = loop.config, loop.front_end, loop.params
+    inner = _solver_observer(loop)
+    checks = (
+        (isinstance(inner, SolverObserver),
+         f"observer {type(loop.observer).__name__}: the compiled loop has the per-frame "
+         "least-squares observer, alone or behind the pixel Kalman filters"),
+        (inner is not None and isinstance(inner.solver, CorSolver),
+         "the per-frame observer's solver is not the CoR solver (CorSolver)"),
+        (isinstance(fe, MeasurementFrontEnd),
+         f"front end {type(fe).__name__}: the compiled loop has the measurement model"),
+        (isinstance(fe, MeasurementFrontEnd) and fe.params == p,
+         "the front end's plant parameters differ from the loop's"),
+        (p.camera.dist_coeffs[2:4] == (0.0, 0.0), "a lens with tangential distortion"),
+        (c.controller_rate_hz is None, "a controller clock (controller_rate_hz)"),
+        (c.controller_latency != "measured", "a measured controller latency"),
+        (c.observer_latency == "model", "a measured observer latency"),
+        (not any(c.disturbance_psd_Nm2s), "a disturbance torque (disturbance_psd_Nm2s)"),
+        (c.mujoco_sensor_delay_s is None, "MuJoCo's sensor delay (mujoco_sensor_delay_s)"),
     )
+    for ok, reason in checks:
+        if not ok:
+            return Coverage("lockstep", reason)
+    ctrl = loop.controller
+    if isinstance(ctrl, PIDController):
+        return Coverage("compiled")
+    if not isinstance(ctrl, MPCController):
+        return Coverage("lockstep", f"controller {type(ctrl).__name__}: the compiled loop has "
+                        "the PID and the MPC")
+    cfg = ctrl.config
+    if cfg.solver != "sqp_hpipm" or cfg.hessian != "gauss_newton":
+        return Coverage("lockstep", f"MPC solver {cfg.solver!r} with the {cfg.hessian!r} "
+                        "Hessian: the compiled loop has SQP + HPIPM with the Gauss-Newton one")
+    if cfg.compute_latency_s is None:
+        return Coverage("lockstep", "the MPC's delay compensation assumes its measured compute "
+                        "times (compute_latency_s: None)")
+    if machine_mpc(ctrl.problem) is None:
+        return Coverage("lockstep", "the MPC's solver could not be compiled to machine code "
+                        "(no C compiler, or compiling failed)")
+    return Coverage("compiled")
+
+
+def covers(loop: ClosedLoop) -> bool:
+    """Whether the compiled run loop computes ``loop`` (``coverage``)."""
+    return coverage(loop).path == "compiled"
 
 
 def _solver_observer(loop: ClosedLoop) -> SolverObserver | None:
@@ -271,8 +326,6 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     inner = _solver_observer(loop)
     assert inner is not None and isinstance(inner.solver, CorSolver)
     solver = inner.solver
-    pid: PIDController = loop.controller  # type: ignore[assignment]
-    pc = pid.config
     par = np.zeros(_N_PAR)
     par[_P_DURATION], par[_P_H] = c.duration_s, p.physics_dt_s
     par[_P_TAU_L], par[_P_N_STEPS] = p.motor.coil_time_constant_s, loop.n_steps
@@ -305,13 +358,18 @@ def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
         par[_P_KF_ON], par[_P_KF_V0] = 1.0, kf.velocity_var0
         par[_P_KF_Q : _P_KF_Q + 16] = np.ravel(kf.Q)
         par[_P_KF_R : _P_KF_R + 4] = np.ravel(kf.R)
+    par[_P_I_MAX], par[_P_TRUTH] = p.motor.i_max_A, c.allocate_with == "truth"
+    par[_P_KT_COS] = np.cos(np.deg2rad(p.motor.cutoff_deg))
+    if isinstance(loop.controller, MPCController):
+        par[_P_MPC] = 1.0  # its settings: ``_mpc_arrays``
+        return par
+    pid: PIDController = loop.controller  # type: ignore[assignment]
+    pc = pid.config
     par[_P_TAU_F], par[_P_LIMIT] = pid.tau_f, pid.torque_limit
     par[_P_FRIC] = pc.friction_compensation_Nm
     par[_P_FRIC_W] = np.radians(pc.friction_compensation_width_deg)
     par[_P_FF], par[_P_AW] = pc.feedforward, _AW_MODES.index(pc.anti_windup)
     par[_P_HOLD] = pc.invalid_command == "hold"
-    par[_P_I_MAX], par[_P_TRUTH] = p.motor.i_max_A, c.allocate_with == "truth"
-    par[_P_KT_COS] = np.cos(np.deg2rad(p.motor.cutoff_deg))
     for at, v in ((_P_KP, pid.Kp), (_P_KI, pid.Ki), (_P_KD, pid.Kd), (_P_TT, pid.T_t),
                   (_P_J, pid.J)):
         par[at : at + 3] = v
@@ -563,6 +621,21 @@ def _pixel_kalman(st, par, z, lost):
 
 
 @njit(cache=True)
+def _attitude_rate(st, q, t_state):
+    """``controller.pid.RateFromAttitude.update`` with the unit attitude q (4-tuple) described
+    at ``t_state`` (s): the rate estimate (rad/s) in ``st[_RATE_W : _RATE_W + 3]``."""
+    has_prev = not np.isnan(st[_RATE_Q])
+    if has_prev and t_state > st[_RATE_T]:
+        rv = _rotvec(_conj_mul(st[_RATE_Q : _RATE_Q + 4], q))
+        for i in range(3):
+            st[_RATE_W + i] = rv[i] / (t_state - st[_RATE_T])
+    if not has_prev or t_state > st[_RATE_T]:
+        for i in range(4):
+            st[_RATE_Q + i] = q[i]
+        st[_RATE_T] = t_state
+
+
+@njit(cache=True)
 def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
     """``PIDController.command`` on an estimate (valid, attitude, the time it describes) with
     the reference sampled at the call: the stator-frame torque (3,), N·m."""
@@ -580,16 +653,7 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
     R_e = _matrix(q_e)
     w_r = _mv(R_e, ref_w)
     a_r = _mv(R_e, ref_a)
-    # the rate from successive attitudes (``controller.pid.RateFromAttitude``)
-    has_prev = not np.isnan(st[_RATE_Q])
-    if has_prev and t_state > st[_RATE_T]:
-        rv = _rotvec(_conj_mul(st[_RATE_Q : _RATE_Q + 4], q))
-        for i in range(3):
-            st[_RATE_W + i] = rv[i] / (t_state - st[_RATE_T])
-    if not has_prev or t_state > st[_RATE_T]:
-        for i in range(4):
-            st[_RATE_Q + i] = q[i]
-        st[_RATE_T] = t_state
+    _attitude_rate(st, q, t_state)
     if np.isfinite(st[_RATE_W]) and np.isfinite(st[_RATE_W + 1]) and np.isfinite(st[_RATE_W + 2]):
         blend = 1.0 - np.exp(-dt / par[_P_TAU_F])
         for i in range(3):
@@ -627,6 +691,163 @@ def _pid(st, par, valid, q_est, t_state, ref_q, ref_w, ref_a):
         st[_PEND + i] = rate
         st[_LAST_TAU + i] = T[i]
     return np.array(T)
+
+
+# --- the MPC (``MPCController._command``) ---------------------------------------------------
+# Its settings (``mpar``), by index: horizon N, step h (s), decision variables, constraints,
+# parameters, torque limit (N·m), the lead of each command (compute latency plus actuation
+# delay, s), delay-aware, hold on invalid estimates, the history's span (s), the prediction's
+# step (s), the RK4 chunk's length
+(_MP_N, _MP_H, _MP_NW, _MP_NG, _MP_NP, _MP_LIMIT, _MP_LEAD, _MP_AWARE, _MP_HOLD, _MP_KEEP,
+ _MP_DSTEP, _MP_CHUNK) = range(12)
+#: Its state (``mst``): the last torque (3), a warm start (0/1), its t0 (s), the history's
+#: first and end rows; then the warm start's w (nw), lam_x (nw) and lam_g (ng).
+_M_TORQUE, _M_WARM, _M_WARM_T0, _M_HIST_FIRST, _M_HIST_END, _M_W = 0, 3, 4, 5, 6, 7
+
+
+@njit(cache=True)
+def _mpc_record(mst, mhist, t_apply, torque, keep):
+    """``MPCController.record_command``: the stator torque (N·m) acts from ``t_apply`` (s);
+    the rows (time, torque) older than ``keep`` s before it are forgotten (all but one)."""
+    n = int(mst[_M_HIST_END])
+    mhist[n, 0] = t_apply
+    mhist[n, 1:4] = torque
+    mst[_M_HIST_END] = n + 1
+    while (mst[_M_HIST_END] - mst[_M_HIST_FIRST] > 1
+           and mhist[int(mst[_M_HIST_FIRST]) + 1, 0] < t_apply - keep):
+        mst[_M_HIST_FIRST] += 1
+
+
+@njit(cache=True)
+def _mpc_predict(x, t_from, t_to, mpar, mst, mhist, rk4, r_in, r_out):
+    """``MPCController.predict``: the twin's state x (7,) carried from ``t_from`` to ``t_to``
+    (s) under the history's torques (zero before the first), in steps of at most the
+    prediction step, a chunk of RK4 steps per call of the generated ``rk4_chunk`` (padded with
+    zero steps, as ``predict`` pads)."""
+    if t_to <= t_from:
+        return x
+    first, end = int(mst[_M_HIST_FIRST]), int(mst[_M_HIST_END])
+    chunk, dmax = int(mpar[_MP_CHUNK]), mpar[_MP_DSTEP]
+    # the segments' ends: t_from, the commands' start times inside (t_from, t_to), t_to
+    edges = [t_from]
+    for r in range(first, end):
+        if t_from < mhist[r, 0] < t_to:
+            edges.append(mhist[r, 0])
+    edges.append(t_to)
+    filled = 0
+    x_at, T_at, h_at = 0, 7, 7 + 3 * chunk  # the chunk's inputs x (7), T (3 x chunk), h (chunk)
+    r_in[x_at : x_at + 7] = x
+    for s in range(len(edges) - 1):
+        a, b = edges[s], edges[s + 1]
+        k = first - 1  # the last command started at or before a (searchsorted, side right)
+        for r in range(first, end):
+            if mhist[r, 0] <= a:
+                k = r
+        n = max(int(np.ceil((b - a) / dmax - 1e-9)), 1)
+        for _ in range(n):
+            for c in range(3):
+                r_in[T_at + 3 * filled + c] = mhist[k, 1 + c] if k >= first else 0.0
+            r_in[h_at + filled] = (b - a) / n
+            filled += 1
+            if filled == chunk:
+                call_casadi(rk4[0], rk4[1], rk4[2], rk4[3], rk4[4])
+                r_in[x_at : x_at + 7] = r_out[7 * (chunk - 1) : 7 * chunk]
+                filled = 0
+    if filled > 0:
+        r_in[T_at + 3 * filled : h_at] = 0.0
+        r_in[h_at + filled : h_at + chunk] = 0.0
+        call_casadi(rk4[0], rk4[1], rk4[2], rk4[3], rk4[4])
+        r_in[x_at : x_at + 7] = r_out[7 * (chunk - 1) : 7 * chunk]
+    return r_in[x_at : x_at + 7].copy()
+
+
+@njit(cache=True)
+def _mpc(st, valid, q_est, t_state, t, frame, mpc):
+    """``MPCController.command`` on an estimate (valid, attitude, the time it describes) at
+    the release time ``t`` (s) of frame ``frame``: the stator-frame torque (3,), N·m. The
+    NLP's parameters of each release are sampled beforehand (``_mpc_arrays``; the reference's
+    signs are aligned here, as ``_parameters`` aligns them on the initial attitude); the solve
+    is the generated SQP solver (``controller.mpc_machine``)."""
+    (mpar, mref, mbounds, mix, miu, mis, mst, mhist, calls, s_in, s_out, r_in, r_out) = mpc
+    N, h = int(mpar[_MP_N]), mpar[_MP_H]
+    nw, ng, n_p = int(mpar[_MP_NW]), int(mpar[_MP_NG]), int(mpar[_MP_NP])
+    torque = mst[_M_TORQUE : _M_TORQUE + 3]
+    if not valid:  # ``_safe``: the invalid-estimate policy
+        if mpar[_MP_HOLD] == 0:
+            torque[:] = 0.0
+        _mpc_record(mst, mhist, t + mpar[_MP_LEAD], torque, mpar[_MP_KEEP])
+        return torque.copy()
+    # ``_initial_state``: the attitude, the rate from successive attitudes, the prediction
+    q = _unit(q_est)
+    _attitude_rate(st, q, t_state)
+    x = np.empty(7)
+    for i in range(4):
+        x[i] = q[i]
+    for i in range(3):
+        w = st[_RATE_W + i]
+        x[4 + i] = w if np.isfinite(w) else 0.0
+    t0 = t
+    if mpar[_MP_AWARE] > 0:
+        t0 = t + mpar[_MP_LEAD]
+        x = _mpc_predict(x, t_state, t0, mpar, mst, mhist, calls[1], r_in, r_out)
+    # ``_parameters``: each reference attitude on the side of the one before (and of x0)
+    at_p, at_lbx, at_ubx, at_lbg = nw, nw + n_p, 2 * nw + n_p, 3 * nw + n_p
+    at_lam_x, at_lam_g = 3 * nw + n_p + 2 * ng, 4 * nw + n_p + 2 * ng
+    s_in[at_p : at_p + n_p] = mref[frame]
+    prev = x[:4].copy()
+    for k in range(N + 1):
+        qk = s_in[at_p + 4 * k : at_p + 4 * k + 4]
+        if qk[0] * prev[0] + qk[1] * prev[1] + qk[2] * prev[2] + qk[3] * prev[3] < 0:
+            qk *= -1.0
+        prev = qk.copy()
+    # ``_initial_guess``: the previous solution shifted by the elapsed steps, or x0 held
+    guess = s_in[:nw]
+    lam = s_in[at_lam_x : at_lam_g + ng]
+    lam[:] = 0.0
+    if mst[_M_WARM] == 0:
+        for k in range(N + 1):
+            guess[mix[k]] = x
+        for k in range(N):
+            guess[miu[k]] = 0.0
+        guess[mis] = 0.0
+    else:
+        w_prev = mst[_M_W : _M_W + nw]
+        m = int(np.rint((t0 - mst[_M_WARM_T0]) / h))
+        m = min(max(m, 0), N)
+        for k in range(N + 1):
+            guess[mix[k]] = w_prev[mix[min(k + m, N)]]
+        for k in range(N):
+            guess[miu[k]] = w_prev[miu[min(k + m, N - 1)]]
+            guess[mis[k]] = w_prev[mis[min(k + m, N - 1)]]
+        guess[mix[0]] = x
+        guess[mis[0]] = 0.0
+        for k in range(N + 1):
+            qk = guess[mix[k][:4]]
+            if qk[0] * x[0] + qk[1] * x[1] + qk[2] * x[2] + qk[3] * x[3] < 0:
+                guess[mix[k][:4]] = -qk
+        if m == 0:
+            lam[:] = mst[_M_W + nw : _M_W + 2 * nw + ng]
+    # ``_Problem.bounds``: the first state fixed to x0
+    s_in[at_lbx : at_lbg + 2 * ng] = mbounds
+    s_in[at_lbx : at_lbx + 7] = x
+    s_in[at_ubx : at_ubx + 7] = x
+    solve = calls[0]
+    status = call_casadi(solve[0], solve[1], solve[2], solve[3], solve[4])
+    w = s_out[:nw]
+    if status != 0 or not np.all(np.isfinite(w)):  # a failed solve: hold the torque
+        mst[_M_WARM] = 0.0
+    else:
+        at_lx = nw + 1 + ng  # the outputs x, f, g, lam_x, lam_g, lam_p
+        mst[_M_W : _M_W + nw] = w
+        mst[_M_W + nw : _M_W + 2 * nw + ng] = s_out[at_lx : at_lx + nw + ng]
+        mst[_M_WARM], mst[_M_WARM_T0] = 1.0, t0
+        T = w[miu[0]]
+        n = np.sqrt(T[0] * T[0] + T[1] * T[1] + T[2] * T[2])
+        if n > mpar[_MP_LIMIT]:  # solver tolerance: never ask beyond the limit
+            T *= mpar[_MP_LIMIT] / n
+        torque[:] = T
+    _mpc_record(mst, mhist, t0, torque, mpar[_MP_KEEP])
+    return torque.copy()
 
 
 @njit(cache=True, fastmath=FASTMATH)
@@ -763,12 +984,13 @@ def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, mag
 @njit(cache=True)
 def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, ref_w, ref_a,
                 par, J, J_inv, com, m_g, coils, magnets, gain, scal, true_model, obs_model,
-                tm_gain, rng, st, log, fr, evs):
+                tm_gain, rng, st, log, fr, evs, mpc):
     """Run the events from index e on (the module docstring). Returns the index of a command
     whose currents need ``plant.torque.allocate`` (its torque and attitude in ``st``; call
     again with ``alloc_ready`` and the allocation in ``st``), or the number of events when the
     run is complete. ``true_model`` and ``obs_model`` are (markers (2, 3), m; CoR in the camera
-    frame (3,), m; intrinsics (7,)) of the camera's truth and of the observer's model."""
+    frame (3,), m; intrinsics (7,)) of the camera's truth and of the observer's model. ``mpc``:
+    the MPC's arrays (``_mpc_arrays``; placeholders for a PID run)."""
     duration = par[_P_DURATION]
     if st[_K] < 0:
         st[_K] = 0.0
@@ -840,8 +1062,11 @@ def _run_events(e, alloc_ready, ev_t, ev_kind, ev_idx, frames, ref_grid, ref_q, 
             f[_F_LATENCY] = t - t_exp
             if not valid:
                 _event(st, evs, t, _EV_INVALID_EST, i, 0.0, 0.0, 0.0)
-            torque = _pid(st, par, valid, st[_EST : _EST + 4], st[_OBS_T], ref_q[e], ref_w[e],
-                          ref_a[e])
+            if par[_P_MPC] > 0:
+                torque = _mpc(st, valid, st[_EST : _EST + 4], st[_OBS_T], t, i, mpc)
+            else:
+                torque = _pid(st, par, valid, st[_EST : _EST + 4], st[_OBS_T], ref_q[e],
+                              ref_w[e], ref_a[e])
             if not np.all(np.isfinite(torque)):
                 _event(st, evs, t, _EV_INVALID_CMD, torque[0], torque[1], torque[2], 0.0)
                 torque[:] = 0.0
@@ -886,8 +1111,9 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     without rows that all such results share; do not modify them): the summary is computed
     from the kernel's arrays, without building the tables or the events' texts (for sweeps
     that keep the summaries only)."""
-    if not covers(loop):
-        raise ValueError("the compiled run loop does not cover this run; use the event loop")
+    if (cov := coverage(loop)).path != "compiled":
+        raise ValueError(f"the compiled run loop does not cover this run ({cov.reason}); use "
+                         "the event loop")
     c, p = loop.config, loop.params
     ev_t, ev_kind, ev_idx, frames = _schedule(loop)
     n_steps = loop.n_steps
@@ -911,10 +1137,11 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     rows = log.a if log is not None else _summary_rows(n_steps + 1)
     fr = np.full((len(frames), _N_FR), np.nan)
     evs = np.zeros((4 * len(frames) + n_steps + 8, 6))
+    mpc = _mpc_arrays(loop, ev_t, ev_kind, ev_idx, len(frames))
     args = (ev_t, ev_kind, ev_idx, frames, ref_grid, np.ascontiguousarray(ref.q),
             np.ascontiguousarray(ref.omega), np.ascontiguousarray(ref.alpha), par, *body_consts,
             camera_truth, _model_arrays(solver.model), tm_gain, loop.front_end.rng, st, rows,
-            fr, evs)
+            fr, evs, mpc)
     e, ready = 0, False
     while (e := _run_events(e, ready, *args)) < len(ev_t):
         # least-norm currents beyond the limits: the LP and bounded solve of ``allocate``
@@ -942,6 +1169,66 @@ def run(loop: ClosedLoop, tables: bool = True) -> LoopResult:
     summary = summarize(steps, frames_cols, events, c.duration_s, stopped, c.step_metrics)
     return LoopResult(pd.DataFrame(steps), pd.DataFrame(frames_cols), events, summary,
                       c.model_dump(mode="json"))
+
+
+def _mpc_arrays(loop: ClosedLoop, ev_t: NDArray, ev_kind: NDArray, ev_idx: NDArray,
+                n_frames: int) -> tuple:
+    """The ``mpc`` argument of ``_run_events``: the MPC's settings (``_MP_*``), the NLP's
+    parameters of each frame's release (as ``MPCController._parameters`` makes them before
+    it aligns the signs, then the cost's weights, ``weight_values``; row = frame), the bounds
+    (lbx, ubx, lbg, ubg), the decision vector's layout (X, U, S positions), the MPC's state
+    and command history, the generated functions' call arguments (solver, RK4 chunk) and
+    their input and output arrays. A PID run gets placeholders of the same types."""
+    ctrl = loop.controller
+    if not isinstance(ctrl, MPCController):
+        f1, f2 = np.zeros(1), np.zeros((1, 1))
+        i1, i2 = np.zeros(1, np.int64), np.zeros((1, 1), np.int64)
+        return (f1, f2, f1, i2, i2, i1, f1, np.zeros((1, 4)), np.zeros((2, 5), np.int64), f1,
+                f1, f1, f1)
+    cfg, pr = ctrl.config, ctrl.problem
+    machine: MachineMPC | None = machine_mpc(pr)
+    assert machine is not None and cfg.compute_latency_s is not None  # ``coverage``
+    N, h, nw, ng = pr.N, pr.h, pr.nw, pr.ng
+    lead = cfg.compute_latency_s + cfg.actuation_delay_s
+    released = ev_kind == _RELEASE
+    t_rel, rows = ev_t[released], ev_idx[released]
+    n_rel = len(t_rel)
+    if cfg.reference_preview:
+        t0 = t_rel + lead if cfg.delay_aware else t_rel
+        ref = loop.reference.sample_many((t0[:, None] + h * np.arange(N + 1)).ravel())
+        qr = attitude.normalize(np.asarray(ref.q, float).reshape(n_rel, N + 1, 4), "reference.q")
+        wr = np.asarray(ref.omega, float).reshape(n_rel, N + 1, 3)
+        ar = np.asarray(ref.alpha, float).reshape(n_rel, N + 1, 3)[:, :N]
+    else:  # the reference at the call, held, without rate
+        held = attitude.normalize(np.asarray(loop.reference.sample_many(t_rel).q, float),
+                                  "reference.q")
+        qr = np.repeat(held[:, None], N + 1, axis=1)
+        wr, ar = np.zeros((n_rel, N + 1, 3)), np.zeros((n_rel, N, 3))
+    J = pr.J
+    tau = J * ar + np.cross(wr[:, :N], J * wr[:, :N])  # body frame of the reference
+    tff = np.einsum("rkij,rkj->rki", attitude.to_matrix(qr[:, :N]), tau)  # R(q) = R(-q)
+    weights = weight_values(pr)  # the machine code's extra parameters, the same at each release
+    n_p = 7 * (N + 1) + 3 * N + len(weights)
+    mref = np.zeros((n_frames, n_p))
+    mref[rows] = np.concatenate([qr.reshape(n_rel, -1), wr.reshape(n_rel, -1),
+                                 tff.reshape(n_rel, -1), np.tile(weights, (n_rel, 1))], axis=1)
+    mpar = np.zeros(12)
+    mpar[_MP_N], mpar[_MP_H], mpar[_MP_NW], mpar[_MP_NG], mpar[_MP_NP] = N, h, nw, ng, n_p
+    mpar[_MP_LIMIT], mpar[_MP_LEAD] = ctrl.torque_limit, lead
+    mpar[_MP_AWARE], mpar[_MP_HOLD] = cfg.delay_aware, cfg.invalid_command == "hold"
+    mpar[_MP_KEEP], mpar[_MP_DSTEP] = N * h + 1.0, cfg.prediction_step_s
+    mpar[_MP_CHUNK] = pr.chunk
+    solve, rk4 = machine.solver, machine.rk4_chunk
+    # the inputs' and outputs' layout that ``_mpc`` and ``_mpc_predict`` assume
+    assert list(np.diff(solve.offsets_in)) == [nw, n_p, nw, nw, ng, ng, nw, ng]
+    assert list(np.diff(solve.offsets_out)[:5]) == [nw, 1, ng, nw, ng]
+    assert list(np.diff(rk4.offsets_in)) == [7, 3 * pr.chunk, pr.chunk]
+    bounds = np.concatenate([pr.lbw, pr.ubw, pr.lbg, pr.ubg])
+    calls = np.array([solve.call_args(), rk4.call_args()], dtype=np.int64)
+    return (mpar, mref, bounds, np.ascontiguousarray(pr.ix), np.ascontiguousarray(pr.iu),
+            np.ascontiguousarray(pr.i_s), np.zeros(_M_W + 2 * nw + ng),
+            np.zeros((n_frames + 1, 4)), calls, solve.inputs, solve.outputs, rk4.inputs,
+            rk4.outputs)
 
 
 @functools.lru_cache(maxsize=16)

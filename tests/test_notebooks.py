@@ -28,6 +28,7 @@ SMALL = {
         "WORKERS": 1,
     },
     "closed_loop_16_vs_31ms.ipynb": {"DURATION_S": 0.4, "N_FRAMES_STRIP": 2},
+    "lti_margins.ipynb": {"N_DELAYS": 4},
     "codesign.ipynb": {"N_TRIALS": 3, "BATCH_SIZE": 3, "SEEDS": (0,), "DURATION_S": 0.4,
                        "IMAGE_CHECK": True, "IMAGE_SEEDS": (0,)},
 }

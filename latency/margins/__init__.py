@@ -52,7 +52,8 @@ K. J. Åström and B. Wittenmark, *Computer-Controlled Systems*, 3rd ed., Prenti
 
 Modules: :mod:`~latency.margins.model` (the loop), :mod:`~latency.margins.nyquist` (frequency grid
 and encirclement count), :mod:`~latency.margins.result` (the :class:`Margins` record and the
-crossover search), :mod:`~latency.margins.hybrid` (hybrid margins and the jitter margin),
+crossover search), :mod:`~latency.margins.hybrid` (hybrid margins, the jitter margin and
+:func:`lti_margins` for any python-control plant and controller),
 :mod:`~latency.margins.sampled`, :mod:`~latency.margins.pade`, :mod:`~latency.margins.plots`
 (Figures, no backend set) and :mod:`~latency.margins.attitude` (the per-axis attitude loop).
 """
@@ -64,7 +65,7 @@ from latency.margins.attitude import (
     attitude_plant,
     first_unstable_delay,
 )
-from latency.margins.hybrid import jitter_margin, loop_margins
+from latency.margins.hybrid import jitter_margin, loop_margins, lti_margins
 from latency.margins.model import LoopModel, loop_frd, loop_model
 from latency.margins.nyquist import nyquist_count
 from latency.margins.pade import loop_pade, pade_margins
@@ -92,6 +93,7 @@ __all__ = [
     "loop_margins",
     "loop_model",
     "loop_pade",
+    "lti_margins",
     "nyquist_count",
     "nyquist_data",
     "pade_margins",

@@ -1,16 +1,19 @@
 """Margins of the hybrid exact-delay loop, confirmed by the Nyquist count, and the jitter margin
-(Kao & Lincoln, Automatica 40(8), 2004)."""
+(Kao & Lincoln, Automatica 40(8), 2004); ``lti_margins`` for any python-control plant and
+controller."""
 
 from __future__ import annotations
 
 import math
+from numbers import Real
 
+import control as ct
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 from numpy.typing import ArrayLike
 
-from latency.margins.model import LoopModel
+from latency.margins.model import LoopModel, loop_model
 from latency.margins.nyquist import _grid, nyquist_count
 from latency.margins.result import Margins, _crossings, _scalar, margins_from_crossings
 
@@ -102,3 +105,59 @@ def loop_margins(model: LoopModel, omega: ArrayLike | None = None) -> Margins:
         confirmation=conf, jitter=jitter_margin(model, w) if stable else (math.nan, math.nan),
         notes=tuple(notes),
     )
+
+
+def lti_margins(
+    plant: ct.LTI,
+    controller: ct.LTI | float,
+    *,
+    delay_s: float = 0.0,
+    sample_period_s: float | None = None,
+) -> Margins:
+    """Gain, phase and delay margins of any python-control loop with an exact delay.
+
+    The loop is ``L(s) = C(s) H_T(s) P(s) e^{-s tau}`` in the negative-feedback convention
+    ``u = -C y`` (:func:`loop_model`): ``P`` any continuous SISO python-control LTI system,
+    ``C`` one too (continuous, or discrete, then evaluated at ``z = e^{sT}``) or a float (a
+    gain), ``tau`` the exact delay (never a Padé approximation; ``control.margin`` has no
+    delay), and ``H_T`` the zero-order hold at ``sample_period_s`` (default: a discrete
+    controller's sample time; None with a continuous one: no hold). The margins come from
+    :func:`loop_margins`: every gain and phase crossover, the critical phase margin, the gain
+    margin, the delay margin (the extra constant delay the loop tolerates, so ``delay_s``
+    lowers it one for one) and the jitter margin, with the Nyquist count on the exact-delay
+    response as the stability verdict.
+
+    Parameters
+    ----------
+    plant : LTI
+        Continuous-time SISO plant (transfer function, state space, ...).
+    controller : LTI or float
+        SISO controller, or a gain.
+    delay_s : float
+        Constant loop delay (s), >= 0.
+    sample_period_s : float, optional
+        Period of the sample-and-hold (s), > 0.
+
+    Returns
+    -------
+    Margins
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: a plant or controller that is not a python-control LTI system (or,
+        for the controller, a finite number), MIMO, a discrete plant, a negative delay, a
+        period <= 0 or one that differs from the controller's sample time, poles on the
+        imaginary axis away from the origin, or a loop that is not strictly proper.
+    """
+    if not isinstance(plant, ct.LTI):
+        raise ValueError(f"plant must be a python-control LTI system, got {type(plant).__name__}")
+    if isinstance(controller, Real) and not isinstance(controller, bool):
+        if not math.isfinite(controller):
+            raise ValueError(f"controller gain must be finite, got {controller}")
+        controller = float(controller)
+    elif not isinstance(controller, ct.LTI):
+        raise ValueError("controller must be a python-control LTI system or a gain (float), "
+                         f"got {type(controller).__name__}")
+    return loop_margins(loop_model(plant, controller, delay_s=delay_s,
+                                   sample_period_s=sample_period_s))
