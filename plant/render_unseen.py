@@ -38,8 +38,11 @@ projection of the 3-D discs, full-sensor px; without a rolling shutter, the mid-
 of the other renderers.
 
 OpenGL backend: as ``plant.render_mujoco`` (``MUJOCO_GL=egl`` unless set before import).
-Frames cost one MuJoCo render per sub-exposure (``BLUR_STEP_PX``, at most ``MAX_SUB_FRAMES``)
-and rolling-shutter band (``ROLLING_BANDS``).
+**Exposure and readout**: a frame is rendered at K moments spread evenly over the time in
+which any row is exposed (the readout plus the exposure; K from the markers' travel in that
+time, one render per ``BLUR_STEP_PX``, at most ``MAX_RENDERS``); each row averages, in linear
+light, the renders that fall inside its own exposure window (``_row_weights``), so motion blur
+and the rolling shutter come from the same renders.
 """
 
 from __future__ import annotations
@@ -61,7 +64,13 @@ from plant.mjcf import RED_RGB, YELLOW_RGB, build_mjcf  # noqa: E402
 from plant.params import PlantParams  # noqa: E402
 from plant.render_analytic import jpeg_roundtrip  # noqa: E402
 from plant.render_mujoco import MujocoRenderer  # noqa: E402
-from plant.scene import Frame, check_exposure, ground_truth  # noqa: E402
+from plant.scene import (  # noqa: E402
+    Frame,
+    check_exposure,
+    choose_n_sub,
+    ground_truth,
+    vfc_pixel_travel,
+)
 
 #: OpenCV Bayer-to-RGB codes per layout (the layout names the 2 x 2 cell's top-left pair) and
 #: demosaicing algorithm.
@@ -71,12 +80,10 @@ _DEMOSAIC = {
     "vng": {b: getattr(cv2, f"COLOR_Bayer{b}2BGR_VNG") for b in _BAYER},
     "edge_aware": {b: getattr(cv2, f"COLOR_Bayer{b}2BGR_EA") for b in _BAYER},
 }
-#: Row bands of a rolling-shutter frame rendered at their own moment (our choice: the markers
-#: move at most a few sensor px during a 25 ms readout, so four bands step them by under 1 px).
-ROLLING_BANDS = 4
-#: Largest image-px step between sub-exposure renders of a blurred frame, and the cap on them.
+#: Largest image-px step of the markers between the renders of one frame (exposure and
+#: readout together), and the cap on those renders (our choices: each costs a MuJoCo render).
 BLUR_STEP_PX = 1.5
-MAX_SUB_FRAMES = 6
+MAX_RENDERS = 8
 
 
 class SensorLook(BaseModel):
@@ -280,8 +287,7 @@ class UnseenRenderer:
         self.params = params or PlantParams()
         self.look = look or UnseenLook()
         self.rng = np.random.default_rng(seed)
-        self._mujoco = MujocoRenderer(self.params, binning, blur_step_px=BLUR_STEP_PX,
-                                      max_sub_frames=MAX_SUB_FRAMES,
+        self._mujoco = MujocoRenderer(self.params, binning,
                                       model=_spec(self.params, self.look).compile())
         self.binning = self._mujoco.binning
         self.width, self.height = self._mujoco.width, self._mujoco.height
@@ -322,38 +328,55 @@ class UnseenRenderer:
         """Time offset (s) from mid-frame of the readout of image row ``row_img``."""
         return (row_img / max(self.height - 1, 1) - 0.5) * self.look.sensor.readout_s
 
+    def _row_weights(self, exposure_s: float, n: int) -> tuple[NDArray[np.float64],
+                                                               NDArray[np.float32]]:
+        """The ``n`` render moments (s from mid-frame) and the (H, n) weights of each row: the
+        overlap of the row's exposure window with each moment's slice of the whole span,
+        over the exposure (rows sum to 1; all on the middle render when nothing moves)."""
+        span = self.look.sensor.readout_s + exposure_s
+        if n == 1 or span == 0.0:
+            return np.zeros(1), np.ones((self.height, 1), np.float32)
+        edges = np.linspace(-span / 2, span / 2, n + 1)
+        t_row = self._row_time(np.arange(self.height, dtype=float))[:, None]
+        lo = np.maximum(edges[None, :-1], t_row - exposure_s / 2)
+        hi = np.minimum(edges[None, 1:], t_row + exposure_s / 2)
+        overlap = np.clip(hi - lo, 0.0, None)
+        if exposure_s == 0.0:  # a sharp row: the slice that holds its moment
+            overlap = ((edges[None, :-1] <= t_row) & (t_row < edges[None, 1:])).astype(float)
+            overlap[:, -1] += (t_row[:, 0] >= edges[-1])
+        w = overlap / overlap.sum(axis=1, keepdims=True)
+        return 0.5 * (edges[:-1] + edges[1:]), w.astype(np.float32)
+
     def render(self, q: ArrayLike, t_exposure: float = 0.0, exposure_s: float | None = None,
                omega: ArrayLike | None = None) -> Frame:
         """Render one frame (arguments as ``plant.render_mujoco.MujocoRenderer.render``: the
-        attitude at mid-frame; the body rate held over the readout and the exposure)."""
+        attitude at mid-frame; the body rate held over the readout and the exposure).
+        ``Frame.n_sub`` is the number of renders."""
         q = attitude.normalize(q)
         t, e, w = check_exposure(self.params, t_exposure, exposure_s, omega)
 
         def at(dt: float) -> NDArray[np.float64]:
             return attitude.multiply(q, attitude.from_rotvec(w * dt))
 
-        def light(qb: NDArray[np.float64]) -> tuple[NDArray[np.float32], int]:
-            f = self._mujoco.render(qb, t, e, w)
-            return (f.image.astype(np.float32) / 255.0) ** 2.2, f.n_sub
-
-        bands = ROLLING_BANDS if self.look.sensor.readout_s > 0 and np.any(w) else 1
-        if bands == 1:
-            lin, n_sub = light(q)
-        else:
-            edges = np.linspace(0, self.height, bands + 1).astype(int)
-            lin = np.empty((self.height, self.width, 3), np.float32)
-            for r0, r1 in zip(edges[:-1], edges[1:], strict=True):
-                part, n_sub = light(at(self._row_time(0.5 * (r0 + r1 - 1))))
-                lin[r0:r1] = part[r0:r1]
+        span = self.look.sensor.readout_s + e
+        n = 1
+        if span > 0 and np.any(w):
+            travel = vfc_pixel_travel(self.params, q, w, span, self.binning)
+            n = choose_n_sub(travel, BLUR_STEP_PX, MAX_RENDERS)
+        moments, weights = self._row_weights(e, n)
+        lin = np.zeros((self.height, self.width, 3), np.float32)
+        for k, dt in enumerate(moments):
+            img = self._mujoco.render(at(float(dt)), t, e, w, n_sub=1).image
+            lin += weights[:, k, None, None] * (img.astype(np.float32) / 255.0) ** 2.2
         image = self._sensor(lin)
         marker, boxes = ground_truth(self.params, q)
-        if bands > 1:  # each marker at the moment its row was read
+        if self.look.sensor.readout_s > 0 and np.any(w):  # each marker when its row was read
             for m in range(2):
                 for _ in range(2):
                     row = sensor_to_image(marker[m], self.binning)[1]
                     mk, bx = ground_truth(self.params, at(self._row_time(row)))
                     marker[m], boxes[m] = mk[m], bx[m]
-        return Frame(np.ascontiguousarray(image), marker, boxes, q, t, e, self.binning, n_sub)
+        return Frame(np.ascontiguousarray(image), marker, boxes, q, t, e, self.binning, n)
 
     def close(self) -> None:
         """Free the OpenGL context (idempotent)."""

@@ -111,9 +111,10 @@ def test_benchmark_has_network_alone_rows_on_the_unseen_source(tmp_path):
 
 
 def test_appearance_jitter_keeps_the_target_where_it_is():
-    """A grey crop pair with a red disc at the labelled box: after 30 new looks the disc is
-    still red and its centroid within 1 px of where it was (the jitter changes the look, not
-    the geometry), and the crops did change."""
+    """A grey crop pair with a red disc at the labelled box: after 30 new looks the disc
+    (the red within 1.5 radii of it; distractors may be drawn further out) is still centred
+    within 1 px of where it was in most looks (the jitter changes the look, not the geometry),
+    and the crops did change."""
     side_t, side_s = 64, 128
     yy, xx = np.mgrid[0:side_s, 0:side_s]
     centre = np.array([70.3, 52.6])
@@ -132,9 +133,12 @@ def test_appearance_jitter_keeps_the_target_where_it_is():
         assert t2.shape == template.shape and s2.shape == search.shape and s2.dtype == np.uint8
         f = s2.astype(float)
         redness = np.clip(f[..., 0] - 0.5 * (f[..., 1] + f[..., 2]), 0, None)
+        redness[np.hypot(xx + 0.5 - centre[0], yy + 0.5 - centre[1]) > 18.0] = 0.0  # the disc
         redness[redness < 0.5 * redness.max()] = 0.0
         c = np.array([(redness * (xx + 0.5)).sum(), (redness * (yy + 0.5)).sum()]) / redness.sum()
         errors.append(float(np.hypot(*(c - centre))))
         changed += int(np.abs(f - search).mean() > 2.0)
-    assert len(errors) == n and max(errors) < 1.0, errors
+    # a glossy highlight on the disc (15 % of looks) moves its red centroid, not the disc
+    assert len(errors) == n and np.median(errors) < 0.5, errors
+    assert np.mean(np.asarray(errors) < 1.0) >= 0.8, errors
     assert changed > n // 2
