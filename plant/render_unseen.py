@@ -16,21 +16,22 @@ Drawn per look (all ranges our choice, wide on purpose):
 
 * rotor shell: a MuJoCo builtin texture (flat, checker or gradient, with random, edge or cross
   marks) of two random colours (value 0.15-0.9), specular 0-0.8, shininess 0-1, reflectance
-  0-0.3; VFC plate: dark (value 0.02-0.25), specular 0-0.6;
-* markers: the project's red and yellow with hue ±6°, saturation ±15 %, value -25 %/+5 %,
-  specular 0-0.7 (glossy stickers catch highlights);
+  0-0.3; VFC plate: dark to mid grey (value 0.02-0.45), specular 0-1;
+* markers: the project's red and yellow with hue ±6°, saturation ±15 %, value -35 %/+5 %,
+  specular 0-1 (glossy stickers catch highlights);
 * lights: headlight ambient 0.1-0.5 and diffuse 0.1-0.5, the ring of ``plant.mjcf`` scaled by
   0-2.5 with a colour temperature tint, one to three extra lights (directional or spot, from a
-  random direction below the rotor, tinted, diffuse 0.1-0.6, specular 0-0.6, shadows on or
+  random direction below the rotor, tinted, diffuse 0.1-0.9, specular 0-1, shadows on or
   off); the skybox a random gradient.
 
-Sensor (``SensorLook``, drawn per look; noise per frame): exposure gain 0.6-1.4; vignetting
+Sensor (``SensorLook``, drawn per look; noise per frame): exposure gain 0.4-1.6; a lens
+defocus (Gaussian, sigma 0-1.2 image px); vignetting
 losing 0-50 % at the frame corner about a centre off by up to 10 % of the frame; the image
 taken as linear light (render value ^ 2.2), mosaicked in one of the four Bayer layouts, shot
-noise (full well 200-2000 electrons per DN-equivalent unit) and read noise 0.5-4 DN at 8 bits,
+noise (full well 200-2000 electrons per DN-equivalent unit) and read noise 0.5-6 DN at 8 bits,
 demosaiced by OpenCV (bilinear, VNG or edge-aware), a colour matrix with crosstalk ±10 %,
 white balance ±15 %, an output gamma 1.6-2.8; a rolling shutter reading the frame out top to
-bottom in 0-25 ms; JPEG at quality 35-95 (80 % of looks) or none.
+bottom in 0-25 ms; JPEG at quality 25-95 (80 % of looks) or none.
 
 **Ground truth** (``Frame.marker_px``, ``boxes_px``) follows the rolling shutter: each marker
 at the attitude of the moment its row was read (the row of its centre), by ``plant.scene``'s
@@ -92,6 +93,7 @@ class SensorLook(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     gain: float = Field(1.0, gt=0.0, description="Exposure gain on linear light.")
+    defocus_px: float = Field(0.0, ge=0.0, description="Lens defocus: Gaussian sigma, image px.")
     vignetting: float = Field(0.0, ge=0.0, lt=1.0,
                               description="Fraction of light lost at the frame corner.")
     vignetting_centre: tuple[float, float] = Field(
@@ -160,7 +162,7 @@ def _marker_shade(rgb: tuple[float, float, float], rng: np.random.Generator
     h, s, v = colorsys.rgb_to_hsv(*rgb)
     h = (h + rng.uniform(-6.0, 6.0) / 360.0) % 1.0
     s = float(np.clip(s * rng.uniform(0.85, 1.15), 0.0, 1.0))
-    v = float(np.clip(v * rng.uniform(0.75, 1.05), 0.0, 1.0))
+    v = float(np.clip(v * rng.uniform(0.65, 1.05), 0.0, 1.0))
     r, g, b = colorsys.hsv_to_rgb(h, s, v)
     return float(r), float(g), float(b)
 
@@ -173,24 +175,25 @@ def draw_look(rng: np.random.Generator) -> UnseenLook:
         d = rng.normal(size=3)
         d[2] = abs(d[2]) + 0.5  # shining up at the rotor from below (the camera's side)
         d /= np.linalg.norm(d)
-        lights.append((float(u() < 0.5), *d.tolist(), *(u(0.1, 0.6) * _tint(rng)).tolist(),
-                       u(0.0, 0.6), float(u() < 0.5), u(20.0, 60.0)))
+        lights.append((float(u() < 0.5), *d.tolist(), *(u(0.1, 0.9) * _tint(rng)).tolist(),
+                       u(0.0, 1.0), float(u() < 0.5), u(20.0, 60.0)))
     cross = rng.normal(0.0, 0.05, size=(3, 3))
     np.fill_diagonal(cross, 0.0)
     cm = np.eye(3) + cross - np.diag(cross.sum(axis=1))
     sensor = SensorLook(
-        gain=u(0.6, 1.4),
+        gain=u(0.4, 1.6),
+        defocus_px=u(0.0, 1.2),
         vignetting=u(0.0, 0.5),
         vignetting_centre=(u(0.4, 0.6), u(0.4, 0.6)),
         bayer=_BAYER[int(rng.integers(4))],
         demosaic=tuple(_DEMOSAIC)[int(rng.integers(3))],
         full_well=float(np.exp(u(np.log(200.0), np.log(2000.0)))),
-        read_noise_dn=u(0.5, 4.0),
+        read_noise_dn=u(0.5, 6.0),
         colour_matrix=tuple(tuple(float(x) for x in row) for row in np.clip(cm, -0.2, 1.2)),
         white_balance=tuple(float(x) for x in u(0.85, 1.15, 3)),
         gamma=u(1.6, 2.8),
         readout_s=u(0.0, 0.025),
-        jpeg_quality=int(rng.integers(35, 96)) if u() < 0.8 else None,
+        jpeg_quality=int(rng.integers(25, 96)) if u() < 0.8 else None,
     )
     return UnseenLook(
         shell_texture=("flat", "checker", "gradient")[int(rng.integers(3))],
@@ -202,11 +205,11 @@ def draw_look(rng: np.random.Generator) -> UnseenLook:
         shell_specular=u(0.0, 0.8),
         shell_shininess=u(0.0, 1.0),
         shell_reflectance=u(0.0, 0.3),
-        plate_rgb=_rand_rgb(rng, (0.02, 0.25), (0.0, 0.4)),
-        plate_specular=u(0.0, 0.6),
+        plate_rgb=_rand_rgb(rng, (0.02, 0.45), (0.0, 0.4)),
+        plate_specular=u(0.0, 1.0),
         red_rgb=_marker_shade(RED_RGB, rng),
         yellow_rgb=_marker_shade(YELLOW_RGB, rng),
-        marker_specular=u(0.0, 0.7),
+        marker_specular=u(0.0, 1.0),
         marker_shininess=u(0.1, 1.0),
         head_ambient=u(0.1, 0.5),
         head_diffuse=u(0.1, 0.5),
@@ -308,8 +311,11 @@ class UnseenRenderer:
         return m
 
     def _sensor(self, light: NDArray[np.float32]) -> NDArray[np.uint8]:
-        """Vignetting, mosaic with noise, demosaicing, colour, gamma and JPEG on linear light."""
+        """Defocus, vignetting, mosaic with noise, demosaicing, colour, gamma and JPEG on
+        linear light."""
         s = self.look.sensor
+        if s.defocus_px > 0:
+            light = cv2.GaussianBlur(light, (0, 0), s.defocus_px)
         lin = np.clip(light * self._vignette * s.gain, 0.0, None)
         raw = lin[self._mosaic].reshape(self.height, self.width)
         raw = raw + self.rng.normal(size=raw.shape).astype(np.float32) * np.sqrt(
