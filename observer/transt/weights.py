@@ -42,9 +42,10 @@ _CARD_CONFIG = re.compile(r"configuration `([\w.-]+)`")
 _CARD_PARAMETERS = re.compile(r"^- Parameters: ([\d,]+)", re.MULTILINE)
 
 #: The commands that regenerate the training data, train (stage 1: red targets; stage 2:
-#: continued with half the scenes on the yellow marker; stages 3 and 4: domain-randomised
-#: scenes, then target-absent searches too) and export ``transt_small.pt`` with its
-#: ``.sha256``; see ``weights/MODEL_CARD.md`` for what they produced here.
+#: continued with half the scenes on the yellow marker; stages 3 to 5: domain-randomised
+#: scenes, then target-absent searches too, then searches in the regime of tracking) and
+#: export ``transt_small.pt`` with its ``.sha256`` and model card; see
+#: ``weights/MODEL_CARD.md`` for what they produced here.
 REBUILD_COMMAND = (
     "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.train --steps 1000 "
     "--export runs/transt_train/transt_small_red.pt && "
@@ -53,7 +54,8 @@ REBUILD_COMMAND = (
     "--train-pairs 6000 --steps 300 --lr 2e-4 --warmup 20 --out runs/transt_train_mixed "
     "--export observer/transt/weights/transt_small.pt && "
     "sh benchmarks/transt_dr.sh train dr && sh benchmarks/transt_dr.sh export dr && "
-    "sh benchmarks/transt_dr.sh train absent && sh benchmarks/transt_dr.sh export absent"
+    "sh benchmarks/transt_dr.sh train absent && sh benchmarks/transt_dr.sh export absent && "
+    "sh benchmarks/transt_dr.sh train track && sh benchmarks/transt_dr.sh export track"
 )
 
 
