@@ -28,7 +28,11 @@ markers, a red or a yellow disc beside the pair, a motion burst at 3x speed and 
 drop to 30 %; ``--cases heldout``: the appearance families the network never saw in training
 (a checker rotor pattern, an off-axis light spot, purple occluders). Rows ``dual_transt`` are
 the network alone (box centres, no GK); the notes put them beside GK-TransT per case, with the
-fraction of frames reported as measured but wrong.
+fraction of frames reported as measured but wrong. Rows ``dual_transt_unseen`` are the network
+alone on the same motion and case rendered by a second, independent image source
+(``plant.render_unseen``: MuJoCo with drawn materials, lights and backgrounds through a sensor
+model with Bayer demosaicing, rolling shutter, gamma, vignetting and JPEG; never used for
+training); ``--no-unseen`` leaves them out.
 
 Run: python benchmarks/bench_tracking.py            (about 5-10 min on two shared cores)
      python benchmarks/bench_tracking.py --seeds 1 --cases clean     (quick look)
@@ -75,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
                     "dual_transt_refine (dual TransT with it)")
     ap.add_argument("--stand-in", action="store_true",
                     help="numpy KCF in place of the TransT network (plumbing check)")
+    ap.add_argument("--no-unseen", action="store_true",
+                    help="skip the network-alone rows on the unseen image source "
+                    "(plant.render_unseen, MuJoCo; needs OpenGL, MUJOCO_GL=egl)")
     ap.add_argument("--no-record", action="store_true",
                     help="do not record the figures (results/*.json, RESULTS.md)")
     ap.add_argument("--torch-threads", type=int, default=1,
@@ -93,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     # The one code path, shared with `pmspm bench-trackers` (experiments/tracking_bench.py).
     report = tb.run_tracking_benchmark(
         HERE / "results", seeds=a.seeds, frames=a.frames, cases=cases, trackers=a.trackers,
-        stand_in=a.stand_in, link_prefix="results/",
+        stand_in=a.stand_in, link_prefix="results/", unseen=not a.no_unseen,
         progress=lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", flush=True))
     if a.no_record:
         print(report.notes)

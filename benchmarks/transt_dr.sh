@@ -12,8 +12,12 @@
 #   sh benchmarks/transt_dr.sh export absent  # last checkpoint -> runs/transt_train_absent/transt_small_absent.pt
 #   sh benchmarks/transt_dr.sh start track    # needs the ABSENT export
 #   sh benchmarks/transt_dr.sh export track   # last checkpoint -> shipped weights, SHA-256, card
-#   sh benchmarks/transt_dr.sh progress dr|absent|track
-#   sh benchmarks/transt_dr.sh stop dr|absent|track
+#   sh benchmarks/transt_dr.sh start look     # from the shipped weights, with new looks at load
+#                                             # time (data.appearance_jitter); not shipped
+#   sh benchmarks/transt_dr.sh export look    # last checkpoint -> runs/transt_train_look/transt_small_look.pt
+#                                             # compare: python benchmarks/bench_transt_unseen.py --weights FILE
+#   sh benchmarks/transt_dr.sh progress dr|absent|track|look
+#   sh benchmarks/transt_dr.sh stop dr|absent|track|look
 #   sh benchmarks/transt_dr.sh evaluate       # tests of the network and trust rule, benchmark
 #
 # PYTHON defaults to the project's virtual environment; CKPT (export) to the DR stage's best.pt
@@ -50,6 +54,15 @@ track)
  --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
  --cache runs/transt_cache --tracking-fraction 0.5 --init-from $ABSENT_WEIGHTS --absent-prob 0.2 \
  --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;
+look)
+    OUT=runs/transt_train_look
+    EXPORT=$OUT/transt_small_look.pt
+    BEST=last.pt
+    TRAIN="-m observer.transt.train --randomise --yellow-fraction 0.5 --train-seed 21 \
+ --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
+ --cache runs/transt_cache --tracking-fraction 0.5 --appearance-prob 0.7 \
+ --init-from observer/transt/weights/transt_small.pt --absent-prob 0.2 \
+ --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;
 *)
     OUT="" ;;
 esac
@@ -81,5 +94,5 @@ evaluate)
     "$PYTHON" -m pytest tests/test_transt.py tests/test_gk_trust.py tests/test_trackers.py -q
     "$PYTHON" benchmarks/bench_tracking.py --cases all ;;
 *)
-    sed -n 2,15p "$0"; exit 2 ;;
+    sed -n 2,21p "$0"; exit 2 ;;
 esac

@@ -103,10 +103,55 @@ def _ends(df: pd.DataFrame, col: str, scale: float = 1.0) -> pd.Series:
     return df.apply(one, axis=1)
 
 
+def network_alone_unseen_lines(
+    accuracy_file: Path | None = None, weights: Path | None = None
+) -> list[str]:
+    """What the committed results file ``accuracy_file`` (default
+    ``observer.transt.weights.UNSEEN_ACCURACY``) says of the network alone on the unseen image
+    source, for the weights ``weights`` (default the shipped ones): the figures if the file was
+    measured on weights with the same SHA-256, else why there are none. Read, never
+    recomputed."""
+    import json
+
+    from observer.transt.weights import SMALL_WEIGHTS, UNSEEN_ACCURACY, WeightsError, verify
+
+    acc_path = Path(accuracy_file or UNSEEN_ACCURACY)
+    w = Path(weights or SMALL_WEIGHTS)
+    rerun = "`python benchmarks/bench_transt_unseen.py`"
+    head = "**The network alone on frames from elsewhere** (the dual TransT's side): "
+    try:
+        digest = verify(w)
+    except WeightsError as exc:
+        return [head + f"not known: the weights do not load ({str(exc).splitlines()[0]}).", ""]
+    if not acc_path.is_file():
+        return [head + f"not measured for these weights (no `{acc_path.name}`); run {rerun}.", ""]
+    acc = json.loads(acc_path.read_text())
+    if acc.get("weights_sha256") != digest:
+        return [head + f"`{acc_path.name}` was measured on other weights (SHA-256 "
+                f"{str(acc.get('weights_sha256'))[:12]}…, these are {digest[:12]}…); rerun "
+                f"{rerun}.", ""]
+    fig = acc["figures"]
+    cases = "; ".join(
+        f"{case}: precision@20px {fig[f'{case}_main_precision_20px']:.3f} / "
+        f"{fig[f'{case}_aux_precision_20px']:.3f}, median error "
+        f"{fig[f'{case}_main_err_median_px']:.1f} / {fig[f'{case}_aux_err_median_px']:.1f} "
+        "sensor px" for case in acc["cases"])
+    return [head + "the weights used here (SHA-256 " + digest[:12] + "…), tracking without GK "
+            "(box centres) the validation sequences rendered by an image source never used for "
+            "training (`plant.render_unseen`: MuJoCo in drawn looks through a sensor model), "
+            f"{acc['seeds']} seed(s) of {acc['frames']} frames, main / auxiliary marker — "
+            f"{cases} (from `{acc_path.name}`, {acc.get('date', 'undated')}). The dual TransT's "
+            "tracking loss below is that of this network; where it is far from its accuracy on "
+            "the project's own renders, the comparison measures the training set as well as "
+            "the delay.", ""]
+
+
 def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
     """Tracking loss from the trackers themselves (the image engine) beside the calibrated
-    models on the same references."""
-    head = ["### Tracking loss from the trackers themselves (image engine)", ""]
+    models on the same references, with the network's accuracy on the unseen image source
+    (``network_alone_unseen_lines``)."""
+    head = ["### Tracking loss from the trackers themselves (image engine)", "",
+            *network_alone_unseen_lines()]
     if image_loop is None:
         return head + ["Not run in this study (`StudyConfig.image_loop` is off).", ""]
     if not len(image_loop):

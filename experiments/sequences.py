@@ -70,6 +70,7 @@ Case = Literal[
     "highlight", "distractor_red", "distractor_yellow", "fast", "dark",
     "heldout_pattern", "heldout_lighting",
 ]
+Source = Literal["analytic", "unseen"]
 #: The seed's cases (000 §4.3).
 CASES: tuple[Case, ...] = ("clean", "occlusion", "blur")
 #: Hard cases (our choice, see the module docstring): disturbances during ``HARD_FRAMES``.
@@ -137,10 +138,14 @@ class SequenceSpec(BaseModel):
     fps: float = Field(36.0, gt=0.0, description="Seed 000 §5: 36 frames/s.")
     motion: ManualMotionConfig = ManualMotionConfig()
     binning: int | None = Field(None, description="Renderer binning (default: the camera's).")
+    source: Source = Field(
+        "analytic", description="Image source: ``analytic`` (``plant.render_analytic``, the "
+        "renderer the TransT network was trained on) or ``unseen`` (``plant.render_unseen``: "
+        "MuJoCo in a look and through a sensor drawn from the seed, never used for training).")
 
     @property
     def name(self) -> str:
-        return f"s{self.seed}_{self.case}"
+        return f"s{self.seed}_{self.case}" + ("_unseen" if self.source == "unseen" else "")
 
 
 @dataclass
@@ -392,8 +397,14 @@ def render_sequence(spec: SequenceSpec, params: PlantParams | None = None) -> Tr
     if spec.case in ("heldout_pattern", "heldout_lighting"):
         p, options = heldout_options(spec.seed, spec.case.removeprefix("heldout_"))
     dist = _draw_disturbance(spec.case, np.random.default_rng([spec.seed, 0xD15]))
-    renderer = AnalyticRenderer(p, binning=spec.binning, options=options,
-                                seed=np.random.default_rng([spec.seed, 0x51D]))
+    noise_rng = np.random.default_rng([spec.seed, 0x51D])
+    if spec.source == "unseen":
+        from plant.render_unseen import UnseenRenderer, draw_look
+
+        look = draw_look(np.random.default_rng([spec.seed, 0x5EE]))
+        renderer = UnseenRenderer(p, look, noise_rng, spec.binning)
+    else:
+        renderer = AnalyticRenderer(p, binning=spec.binning, options=options, seed=noise_rng)
     b = renderer.binning
     images = np.empty((n, renderer.height, renderer.width, 3), np.uint8)
     marker = np.empty((n, 2, 2))

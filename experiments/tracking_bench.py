@@ -635,8 +635,19 @@ class BenchmarkReport:
     wall_s: float
 
 
+def tag_of(stand_in: bool) -> str:
+    """What replaces ``_transt`` in the TransT rows' names: ``_standin`` or itself."""
+    return "_standin" if stand_in else "_transt"
+
+
+def unseen_row(network: str) -> str:
+    """Name of the rows of ``network`` on the unseen image source (``plant.render_unseen``)."""
+    return f"{network}_unseen"
+
+
 def network_checks(summary: pd.DataFrame, network: str, cases: Sequence[str]) -> list[str]:
-    """The network-alone targets on the clean held-out families, one line each."""
+    """The network-alone targets on the clean held-out families (or, for the rows of the
+    unseen image source, the clean case), one line each."""
     st = summary.set_index(["tracker", "case"])
     out = []
     for case in cases:
@@ -646,7 +657,9 @@ def network_checks(summary: pd.DataFrame, network: str, cases: Sequence[str]) ->
         for m in ("main", "aux"):
             med, prec = float(row[f"{m}_err_median_px"]), float(row[f"{m}_precision_20px"])
             ok = med <= TARGET_NETWORK_MEDIAN_PX and prec >= TARGET_NETWORK_PRECISION
-            out.append(f"{network} (network alone) {case} {m} median error {med:.1f} px "
+            what = ("network alone, unseen renderer" if network.endswith("_unseen")
+                    else "network alone")
+            out.append(f"{network} ({what}) {case} {m} median error {med:.1f} px "
                        f"(target <= {TARGET_NETWORK_MEDIAN_PX:g}), precision@20px {prec:.3f} "
                        f"(target >= {TARGET_NETWORK_PRECISION}): {'met' if ok else 'NOT met'}")
     return out
@@ -656,16 +669,21 @@ def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
     """Markdown table of the network alone beside GK-TransT per case (empty if either is
     missing): precision at 20 px, median error and the fraction of frames reported as measured
     but wrong, per marker."""
-    rows = summary[summary.tracker.isin([gk, network])]
+    unseen = unseen_row(network)
+    rows = summary[summary.tracker.isin([gk, network, unseen])]
     if not {gk, network} <= set(rows.tracker):
         return ""
     cols = ["case", "tracker", "main_precision_20px", "aux_precision_20px",
             "main_err_median_px", "aux_err_median_px", "main_wrong_measured_fraction",
             "aux_wrong_measured_fraction"]
     t = rows[cols].sort_values(["case", "tracker"], kind="stable")
-    t = t.assign(tracker=[f"{n} (network alone)" if n == network else n for n in t.tracker])
+    labels = {network: f"{network} (network alone)",
+              unseen: f"{network} (network alone, unseen renderer)"}
+    t = t.assign(tracker=[labels.get(n, n) for n in t.tracker])
     return ("Network alone (dual TransT: box centres, no GK) beside GK-TransT (median errors in "
-            "sensor px; wrong_measured = reported as measured but more than 20 px off):\n\n"
+            "sensor px; wrong_measured = reported as measured but more than 20 px off; "
+            "unseen renderer = the same motion and case rendered by `plant.render_unseen`, "
+            "MuJoCo in a drawn look through a sensor model, never used for training):\n\n"
             + markdown_table(t))
 
 
@@ -746,6 +764,9 @@ def _figures(summary: pd.DataFrame, t1: pd.DataFrame, ratios: _LatencyRatios) ->
         figures[f"{key}_aux_precision_20px"] = float(r.aux_precision_20px)
         figures[f"{key}_main_success_auc"] = float(r.main_success_auc)
         figures[f"{key}_aux_success_auc"] = float(r.aux_success_auc)
+        if r.tracker.endswith("_unseen"):
+            figures[f"{key}_main_err_median_px"] = float(r.main_err_median_px)
+            figures[f"{key}_aux_err_median_px"] = float(r.aux_err_median_px)
         if "main_reacquire_frames" in summary.columns and r.case == "occlusion":
             figures[f"{key}_main_reacquire_frames"] = float(r.main_reacquire_frames)
             figures[f"{key}_aux_reacquire_frames"] = float(r.aux_reacquire_frames)
@@ -774,8 +795,9 @@ def _checks(summary: pd.DataFrame, t1: pd.DataFrame, cases: Sequence[str], gk: s
             v = float(st.loc[(gk, case), f"{m}_precision_20px"])
             checks.append(f"{gk} {case} {m} precision@20px {v:.3f} (target >= {target}): "
                           f"{'met' if v >= target else 'NOT met'}")
-    checks += network_checks(summary, NETWORK_ALONE.replace("_transt", tag),
-                             [c for c in cases if c.startswith("heldout_")])
+    network = NETWORK_ALONE.replace("_transt", tag)
+    checks += network_checks(summary, network, [c for c in cases if c.startswith("heldout_")])
+    checks += network_checks(summary, unseen_row(network), ["clean"])
     med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
     checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}): "
                   f"{'met' if med <= TARGET_MEDIAN_MS else 'NOT met'}")
@@ -845,6 +867,7 @@ def run_tracking_benchmark(
     on_step: Callable[[], None] | None = None,
     link_prefix: str = "",
     require_transt: bool = False,
+    unseen: bool = True,
 ) -> BenchmarkReport:
     """The tracking benchmark of seed 000 §4, composed: the named trackers on ``seeds``
     validation sequences per case (``experiments.sequences.validation_suite``, rendered one at
@@ -858,6 +881,13 @@ def run_tracking_benchmark(
     unknown case or tracker, fewer than one seed or frames than a case needs (``min_frames``),
     and, with ``require_transt``, TransT trackers without the shipped network (else their
     rows are left out and ``progress`` and the notes say so).
+
+    With ``unseen`` (default) and the network-alone tracker (``NETWORK_ALONE``) among
+    ``trackers``, every sequence is rendered a second time from the unseen image source
+    (``SequenceSpec.source = "unseen"``: the same motion and case, MuJoCo in a drawn look
+    through a sensor model, never used for training) and tracked by the network alone: rows
+    ``unseen_row(NETWORK_ALONE)``, checked against the network-alone targets on the clean
+    case.
     """
     from experiments.sequences import render_sequence, validation_suite
 
@@ -878,6 +908,14 @@ def run_tracking_benchmark(
     metrics, runs, seqs = run_benchmark(
         factories, [lambda s=s: render(s) for s in specs], progress=say, keep_images=False,
         on_step=on_step)
+    network = NETWORK_ALONE.replace("_transt", tag_of(stand_in))
+    if unseen and network in factories:
+        unseen_specs = [s.model_copy(update={"source": "unseen"}) for s in specs]
+        m2, r2, s2 = run_benchmark(
+            {unseen_row(network): factories[network]},
+            [lambda s=s: render(s) for s in unseen_specs], progress=say, keep_images=False,
+            on_step=on_step)
+        metrics, runs, seqs = pd.concat([metrics, m2], ignore_index=True), runs + r2, seqs + s2
     wall = time.perf_counter() - t0
 
     out = Path(out_dir)
@@ -889,10 +927,11 @@ def run_tracking_benchmark(
     plots = _write_plots(out, runs, seqs, cases)
 
     summary = summary_table(metrics)
-    t1 = table1(runs, ["clean"] if "clean" in cases else None)
+    t1 = table1([r for r in runs if not r.tracker.endswith("_unseen")],
+                ["clean"] if "clean" in cases else None)
     gk = "gk_standin" if stand_in else "gk_transt"
     dual = "dual_standin" if stand_in else "dual_transt"
-    tag = "_standin" if stand_in else "_transt"
+    tag = tag_of(stand_in)
     ratios = _LatencyRatios.of(t1, gk, dual, tag)
     checks = _checks(summary, t1, cases, gk, tag, ratios)
     notes = "\n\n".join(x for x in [
@@ -904,6 +943,52 @@ def run_tracking_benchmark(
                            checks, _figures(summary, t1, ratios), notes,
                            [out / "tracking_metrics.csv", out / "tracking_frames.parquet",
                             *plots], wall)
+
+
+def run_unseen_accuracy(
+    seeds: int = 1,
+    frames: int = 300,
+    cases: Sequence[str] = ("clean", "occlusion"),
+    weights: Path | str | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[pd.DataFrame, dict[str, float]]:
+    """Accuracy of the network alone (``NETWORK_ALONE``: two networks, box centres, no GK) on
+    the unseen image source: the validation sequences of ``cases`` rendered by
+    ``plant.render_unseen`` (``SequenceSpec.source = "unseen"``) and tracked with the
+    ``weights`` (default the shipped ones). No timing is reported.
+
+    Returns the summary table (``summary_table``) and flat figures
+    ``<case>_<main|aux>_precision_20px`` and ``<case>_<main|aux>_err_median_px`` (sensor px).
+    Raises ``ValueError`` for bad cases, seeds or frames, and ``WeightsError`` when the
+    weights cannot be loaded.
+    """
+    from experiments.sequences import render_sequence, validation_suite
+    from observer.trackers import make_pair_tracker
+    from observer.transt.tracker import TransTTracker
+    from observer.transt.weights import SMALL_WEIGHTS
+
+    cases = _check_arguments(cases, seeds, frames)
+    path = Path(weights) if weights is not None else SMALL_WEIGHTS
+    TransTTracker.small(path)  # refuse bad weights before rendering anything
+
+    def factory() -> PairTracker:
+        return make_pair_tracker(NETWORK_ALONE, transt_factory=lambda: TransTTracker.small(path))
+
+    specs = [s.model_copy(update={"source": "unseen"})
+             for s in validation_suite(seeds, tuple(cases), frames)]
+    say = progress or (lambda msg: None)
+
+    def render(spec):
+        say(f"rendering {spec.name}")
+        return render_sequence(spec)
+
+    metrics, _, _ = run_benchmark({unseen_row(NETWORK_ALONE): factory},
+                                  [lambda s=s: render(s) for s in specs], progress=say,
+                                  keep_images=False)
+    summary = summary_table(metrics)
+    figures = {f"{r.case}_{m}_{k}": float(r[f"{m}_{k}"]) for _, r in summary.iterrows()
+               for m in MARKER_NAMES for k in ("precision_20px", "err_median_px")}
+    return summary, figures
 
 
 __all__ = [
@@ -937,10 +1022,13 @@ __all__ = [
     "run_tracker",
     "run_tracking_benchmark",
     "run_trackers",
+    "run_unseen_accuracy",
     "success_auc",
     "success_curve",
     "summary_table",
     "table1",
+    "tag_of",
     "tracker_factories",
     "transt_network",
+    "unseen_row",
 ]

@@ -70,6 +70,10 @@ class MujocoRenderer:
     texture : TextureParams, optional
         Draw the printed texture of ``plant.texture`` on the bottom plate instead of
         the two markers (default None: the markers).
+    model : mujoco.MjModel, optional
+        A compiled model to render instead of ``build_mjcf(params)``'s: the same scene with
+        other materials or lights (``plant.render_unseen``); it must keep the camera
+        ``CAMERA_NAME`` and the ball joint. Not together with ``texture``.
 
     The renderer holds an OpenGL context: call ``close()`` or use it as a context manager.
     """
@@ -82,6 +86,7 @@ class MujocoRenderer:
         blur_step_px: float = 1.0,
         max_sub_frames: int = 16,
         texture: TextureParams | None = None,
+        model: mujoco.MjModel | None = None,
     ) -> None:
         self.params = params or PlantParams()
         self.binning = check_binning(self.params, binning)
@@ -96,8 +101,12 @@ class MujocoRenderer:
             raise ValueError("camera.mount_roll_deg must be 0 for the MuJoCo renderer (its "
                              "camera has no roll); use the analytic renderer")
         self.width, self.height = self.camera.size(self.binning)
+        if model is not None and texture is not None:
+            raise ValueError("model: give a compiled model or a texture, not both")
         self.texture = None if texture is None else generate_texture(self.params, texture)
-        if self.texture is None:
+        if model is not None:
+            self.model = model
+        elif self.texture is None:
             self.model = mujoco.MjModel.from_xml_string(build_mjcf(self.params))
         else:
             self.model = mujoco.MjModel.from_xml_string(

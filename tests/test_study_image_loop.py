@@ -138,3 +138,33 @@ def test_scenario_names_for_the_study_trackers():
     for tracker in ("gk_transt", "dual_transt"):
         assert tracker in PAIR_TRACKER_OF.values()
     Scenario.model_validate({"mode": "image", "tracker": "transt"})
+
+
+def test_report_quotes_the_network_alone_on_the_unseen_source_for_these_weights(tmp_path):
+    """The report quotes the committed accuracy file's figures only when it was measured on
+    weights with the SHA-256 of the weights in use; otherwise it says so and how to rerun."""
+    import json
+    import shutil
+
+    from experiments.report import network_alone_unseen_lines
+    from observer.transt.weights import SMALL_WEIGHTS, verify
+
+    w = tmp_path / "w.pt"
+    shutil.copy(SMALL_WEIGHTS, w)
+    shutil.copy(SMALL_WEIGHTS.with_name(SMALL_WEIGHTS.name + ".sha256"), tmp_path / "w.pt.sha256")
+    acc = tmp_path / "unseen_accuracy.json"
+    figures = {"clean_main_precision_20px": 0.612, "clean_aux_precision_20px": 0.7,
+               "clean_main_err_median_px": 18.1, "clean_aux_err_median_px": 9.25}
+    record = {"weights_sha256": verify(w), "figures": figures, "cases": ["clean"], "seeds": 1,
+              "frames": 300, "date": "2026-12-06T04:00:00"}
+    acc.write_text(json.dumps(record))
+    text = " ".join(network_alone_unseen_lines(acc, w))
+    for words in ("precision@20px 0.612 / 0.700", "median error 18.1 / 9.2 sensor px",
+                  "plant.render_unseen", verify(w)[:12]):
+        assert words in text, text
+    acc.write_text(json.dumps(record | {"weights_sha256": "f" * 64}))
+    text = " ".join(network_alone_unseen_lines(acc, w))
+    assert "measured on other weights" in text and "0.612" not in text
+    assert "bench_transt_unseen.py" in text
+    acc.unlink()
+    assert "not measured for these weights" in " ".join(network_alone_unseen_lines(acc, w))

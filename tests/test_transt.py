@@ -265,6 +265,60 @@ def test_corrupt_or_missing_weights_are_refused(tmp_path) -> None:
         load_weights(copy)
 
 
+def _card_copy(tmp_path, digest: str, config: str = "small", parameters: int | None = None,
+               name: str = "transt_small.pt") -> None:
+    """A model card in ``tmp_path`` that names ``name`` with ``digest``, ``config`` and
+    ``parameters`` (default the shipped card's count)."""
+    from observer.transt.weights import card_facts
+
+    facts = card_facts(SMALL_WEIGHTS.parent / "MODEL_CARD.md")
+    n = facts.parameters if parameters is None else parameters
+    (tmp_path / "MODEL_CARD.md").write_text(
+        f"# card\n\n- Architecture: configuration `{config}`: ...\n- Parameters: {n:,}.\n"
+        f"- File: `{name}`, SHA-256 `{digest}` (checked at every load).\n")
+
+
+def test_shipped_model_card_names_the_shipped_file_and_its_digest() -> None:
+    from observer.transt.weights import card_facts
+
+    facts = card_facts(SMALL_WEIGHTS.parent / "MODEL_CARD.md")
+    net, _ = load_weights()
+    assert facts.file == SMALL_WEIGHTS.name and facts.config == "small"
+    assert facts.sha256 == verify(SMALL_WEIGHTS)
+    assert facts.parameters == count_parameters(net)
+
+
+def test_weights_that_do_not_match_their_model_card_are_refused(tmp_path) -> None:
+    """A card beside the weights that names them: another SHA-256, another configuration,
+    an architecture other than the code's, or another parameter count is refused naming the
+    rebuild command; a card naming another file is not about these weights."""
+    copy = tmp_path / "transt_small.pt"
+    shutil.copy(SMALL_WEIGHTS, copy)
+    shutil.copy(SMALL_WEIGHTS.with_name(SMALL_WEIGHTS.name + ".sha256"),
+                tmp_path / "transt_small.pt.sha256")
+    digest = verify(copy)
+    _card_copy(tmp_path, digest)
+    load_weights(copy)  # card and file agree
+    cases = [(dict(digest="0" * 64), "does not match its model card"),
+             (dict(digest=digest, config="transt50"), "holds a `small` network"),
+             (dict(digest=digest, parameters=123), "has 1,")]
+    for kwargs, words in cases:
+        _card_copy(tmp_path, **kwargs)
+        with pytest.raises(WeightsError, match=words) as err:
+            load_weights(copy)
+        assert REBUILD_COMMAND in str(err.value)
+    _card_copy(tmp_path, "0" * 64, name="other.pt")
+    load_weights(copy)
+    # a `small` network whose architecture is not the code's `small`
+    torch.manual_seed(0)
+    odd = build_transt(SMALL.model_copy(update={"dim_feedforward": 256}))
+    d = save_weights(odd, tmp_path / "transt_small.pt")
+    _card_copy(tmp_path, d)
+    with pytest.raises(WeightsError, match="architecture other than the code's") as err:
+        load_weights(tmp_path / "transt_small.pt")
+    assert "dim_feedforward: 256 vs 512" in str(err.value) and REBUILD_COMMAND in str(err.value)
+
+
 def test_save_and_load_roundtrip(tmp_path) -> None:
     torch.manual_seed(3)
     net = build_transt("small")

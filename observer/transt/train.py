@@ -63,7 +63,7 @@ from observer.transt.network import (
     count_parameters,
 )
 from observer.transt.tracker import TransTTracker, hanning_window
-from observer.transt.weights import load_weights, save_weights
+from observer.transt.weights import CARD_NAME, card_file_line, load_weights, save_weights
 
 #: Seeds of the validation tracking sequences (never used for training data).
 VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
@@ -248,9 +248,10 @@ def _stage_lines(meta: dict, reused_caches: bool = False) -> list[str]:
     ]
 
 
-def write_model_card(path: Path, meta: dict) -> None:
+def write_model_card(path: Path, meta: dict, weights: Path, digest: str) -> None:
     """MODEL_CARD.md beside the exported weights, from the run's metadata (and, for a run
-    started with ``--init-from``, the metadata of the run it continued)."""
+    started with ``--init-from``, the metadata of the run it continued); it records the
+    weights file ``weights`` and its SHA-256 ``digest`` (``weights.card_file_line``)."""
     m = meta["metrics"]
     cfg = meta["config"]
     stages = [meta]
@@ -276,7 +277,7 @@ def write_model_card(path: Path, meta: dict) -> None:
         "- Input: RGB uint8 frames (ImageNet-normalised crops inside the tracker). Target: the "
         "marker in the template box, trained on the red main marker (seed 000 §3.2)"
         + (" and the yellow auxiliary marker." if init or meta.get("yellow_fraction") else "."),
-        "- File SHA-256: see `transt_small.pt.sha256` (checked at every load).",
+        card_file_line(weights, digest),
         "",
         "## Training data",
         "",
@@ -387,6 +388,12 @@ def _parser() -> argparse.ArgumentParser:
         "labelled all background",
     )
     ap.add_argument(
+        "--appearance-prob", type=float, default=0.0,
+        help="fraction of training pairs given a new look at load time "
+        "(data.appearance_jitter: textures, lighting, colour, a Bayer sensor, gamma, "
+        "distractors, blur and JPEG)",
+    )
+    ap.add_argument(
         "--tracking-fraction", type=float, default=0.0,
         help="fraction of the training searches centred near the target (search-centre jitter "
         "factor 1 instead of TransT's 3), the regime of tracking; validation keeps 3",
@@ -488,7 +495,8 @@ def _train_step(
     net.train()
     for g in opt.param_groups:
         g["lr"] = a.lr * lr_factor(step, a.steps, a.warmup)
-    b = train.batch(rng.choice(len(train), a.batch, replace=False), rng, a.absent_prob)
+    b = train.batch(rng.choice(len(train), a.batch, replace=False), rng, a.absent_prob,
+                    a.appearance_prob)
     logits, boxes = net(torch.from_numpy(b["template"]), torch.from_numpy(b["search"]))
     loss, parts = loss_fn(logits, boxes, torch.from_numpy(b["box"]),
                           torch.from_numpy(b["present"]))
@@ -601,12 +609,13 @@ def main(argv: list[str] | None = None) -> None:
             "metrics": metrics,
             "randomise": a.randomise,
             "absent_prob": a.absent_prob,
+            "appearance_prob": a.appearance_prob,
             "tracking_fraction": a.tracking_fraction,
             "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
         }
         export = Path(a.export)
         digest = save_weights(net, export, meta)
-        write_model_card(export.parent / "MODEL_CARD.md", meta)
+        write_model_card(export.parent / CARD_NAME, meta, export, digest)
         print(f"exported {export} (SHA-256 {digest})")
 
 
