@@ -9,9 +9,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 import scipy.optimize
 
+from experiments import study
 from experiments.study import DUAL_MS, GK_MS, pid_axis_margins, pid_headroom_s
 from plant.params import PlantParams
 from tests import independent_margins as im
@@ -83,3 +85,33 @@ def test_the_studys_margin_functions_match_the_derivation(derived, mode, d_ms):
     assert m.phase_margin_deg == pytest.approx(want.phase_margin_deg, rel=1e-3)
     assert m.crossover_rad_s == pytest.approx(want.crossover_rad_s, rel=1e-3)
     assert pid_headroom_s(P, WC, d_ms / 1e3, mode) == pytest.approx(want.headroom_s, rel=1e-3)
+
+
+def test_the_studys_table_and_summary_match_the_derivation(derived, monkeypatch):
+    """``margins_table`` (what the study writes to margins.parquet) at the seed's two latencies
+    and 0 ms, and the summary's first finding written from it, against the derivation: the
+    table to 1e-3, the summary's printed figures equal to the derived ones at the printed
+    precision. The table is restricted to those rows (the study's 0-60 ms grid only adds rows)."""
+    monkeypatch.setattr(study, "_vision_delays_ms", lambda: [0.0, GK_MS, DUAL_MS])
+    table = study.margins_table(P, study.StudyConfig())
+    n = 0
+    for (mode, d_ms), want in derived.items():
+        (row,) = (r for _, r in table.iterrows()
+                  if r.observer == mode and np.isclose(r.vision_delay_ms, d_ms))
+        assert row.phase_margin_deg == pytest.approx(want.phase_margin_deg, rel=1e-3)
+        assert row.crossover_rad_s == pytest.approx(want.crossover_rad_s, rel=1e-3)
+        assert row.headroom_s == pytest.approx(want.headroom_s, rel=1e-3)
+        n += 1
+    assert n == len(CASES)
+    empty = pd.DataFrame(columns=["controller", "reference", "vision_delay_ms"])
+    facts = {"frame_rate_hz": P.camera.frame_rate_hz, "coulomb_Nm": P.rotor.coulomb_Nm,
+             "frame_period_ms": 1e3 / P.camera.frame_rate_hz, "processor": "x", "cpus": 2.0}
+    (first, *_) = study.summary_text(table, empty, empty, {}, {}, facts, study.StudyConfig())
+    gk, dual = derived[("sequential", GK_MS)], derived[("sequential", DUAL_MS)]
+    boundary = im.derive(P, WC, 0.0, "sequential").headroom_s
+    for text in (f"16.33 ms leaves {gk.phase_margin_deg:.1f}°",
+                 f"tolerates {1e3 * gk.headroom_s:.1f} ms more",
+                 f"31.23 ms leaves {dual.phase_margin_deg:.1f}°",
+                 f"would keep {derived[('pipelined', DUAL_MS)].phase_margin_deg:.1f}°",
+                 f"unstable from {1e3 * boundary:.1f} ms of vision delay"):
+        assert text in first, (text, first)
