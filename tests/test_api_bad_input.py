@@ -58,6 +58,13 @@ def test_pixel_kalman_refuses_a_measurement_noise_without_meaning(scale):
         PixelKalmanConfig(R=np.diag([scale, scale]).tolist())
 
 
+def test_a_scenario_refuses_a_pixel_noise_without_meaning():
+    from experiments.scenario import Scenario
+
+    with pytest.raises(ValueError, match="pixel_r_scale"):
+        Scenario.model_validate({"observer": {"kind": "pixel_kalman", "pixel_r_scale": 1e-300}})
+
+
 def test_pixel_kalman_accepts_the_seeds_and_a_tiny_but_meaningful_noise():
     assert PixelKalmanConfig(R=(0.1 * np.eye(2)).tolist()).R[0][0] == 0.1  # seed 000 §3.2.1
     assert PixelKalmanConfig(R=(1e-10 * np.eye(2)).tolist()).R[0][0] == 1e-10
