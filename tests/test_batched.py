@@ -97,7 +97,9 @@ def both_engines():
 
 
 #: Summary keys that count flags, rows or events, or read only the reference, the configuration
-#: or the frames' timings: equal when the flags and timings are (checked beside them).
+#: or the frames' timings: equal when the flags and timings are (checked beside them). The
+#: loss-of-control flags are thresholds on such counts and on the RMS errors of the run's
+#: quarters: equal unless one of those lies within its tolerance of a threshold.
 EXACT = {"duration_s", "simulated_s", "diverged", "lost_frame_fraction",
          "dropped_frame_fraction", "longest_marker_loss_s", "longest_tilt_stop_s",
          "step_size_deg", "n_events", "loc_tilt_stop", "loc_marker_loss",
@@ -113,8 +115,8 @@ LIPSCHITZ = {"rms_error_deg", "max_error_deg", "rms_tilt_error_deg", "max_tilt_e
 #: both tilts exceed 1°, and a rotation by d moves either by at most 2 d / sin(tilt)
 #: (the inverse of the Z-Y-Z Jacobian, which is singular at zero tilt).
 ZYZ_GAIN = 2.0 / np.sin(np.radians(1.0))
-#: Round-off: the engines sum the same terms in the same order, but the compiled loop keeps
-#: its arrays in a different precision path; far below every bound below.
+#: Round-off allowance: both engines summarise with the same functions (``latency.metrics``);
+#: 1e-12 covers the last bits of float64 sums of this size (far below every bound above).
 ROUNDING = 1e-12
 
 
