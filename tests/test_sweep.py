@@ -59,7 +59,9 @@ def test_local_and_dask_give_identical_tables(tmp_path):
 def gated_run_summary(config: dict) -> dict:
     """``TARGET``'s run, except in a process started with ``SWEEP_TEST_GATE`` (a folder): there
     each run first claims a numbered file ``started-<n>`` (first come, first numbered), and
-    every run after the first blocks until the process is killed. So the sweep has finished
+    every run after the first waits for the file ``interrupted`` (``GATE_SITECUSTOMIZE``
+    writes it when the sweep's process takes a Ctrl-C) and then ends its process without a
+    result (as a killed worker would), or waits until it is killed. So the sweep has finished
     exactly one run when ``started-1`` appears (with one worker, runs follow one another, and
     a run's row is written before the worker takes the next)."""
     gate = os.environ.get("SWEEP_TEST_GATE")
@@ -72,7 +74,9 @@ def gated_run_summary(config: dict) -> dict:
             except FileExistsError:
                 n += 1
         if n >= 1:
-            signal.pause()  # until the test kills the process group
+            while not (Path(gate) / "interrupted").exists():  # the sweep's Ctrl-C, or a kill
+                time.sleep(0.05)
+            os._exit(0)
     return run_summary(config)
 
 
@@ -198,13 +202,26 @@ def test_sigkill_of_the_sweep_process_leaves_no_workers(tmp_path, scheduler):
 
 #: Installed in every Python process of a test's sweep (Dask's workers are spawned, not
 #: forked, so a patch in the parent would not reach them): with ``SWEEP_TEST_GATE`` set, the
-#: command line's run function is ``gated_run_summary``.
+#: command line's run function is ``gated_run_summary``. In the sweep's own process (the one
+#: started with ``SWEEP_TEST_MAIN``, which it then removes so that its workers do not see it),
+#: a Ctrl-C first writes ``interrupted`` into the gate folder, then interrupts as Python does.
 GATE_SITECUSTOMIZE = """
 import os
+import signal
+from pathlib import Path
+
 if os.environ.get("SWEEP_TEST_GATE"):
     import experiments.scenario
     import tests.test_sweep
     experiments.scenario.run_summary = tests.test_sweep.gated_run_summary
+    if os.environ.pop("SWEEP_TEST_MAIN", None):
+        gate = Path(os.environ["SWEEP_TEST_GATE"])
+
+        def _interrupt(signum, frame):
+            (gate / "interrupted").touch()
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, _interrupt)
 """
 
 
@@ -222,7 +239,8 @@ def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
         [sys.executable, "-m", "experiments.cli", "sweep", str(spec), "--out", str(out),
          "--workers", "2", "--engine", "event", *backend],  # one run per job
         cwd=os.getcwd(), start_new_session=True, stderr=subprocess.PIPE, text=True,
-        env=os.environ | {"SWEEP_TEST_GATE": str(gate), "PYTHONPATH": path},
+        env=os.environ | {"SWEEP_TEST_GATE": str(gate), "SWEEP_TEST_MAIN": "1",
+                          "PYTHONPATH": path},
     )
     try:
         # the event: both workers have taken a run after the first (and block), so the first
