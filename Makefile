@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: study test bench clean
+.PHONY: study test test-slow bench clean
 
 # torch first: torch==2.13.0 is the CPU wheel on disk here; an unpinned torch pulls a CUDA build.
 $(STAMP): pyproject.toml
@@ -21,6 +21,11 @@ study: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
+
+# Every test marked slow (pyproject deselects them from `make test`): the claims that take
+# minutes (pruning safety, the search against the seed's design, the image-mode runs).
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m slow
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done

@@ -56,6 +56,13 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 #: Our choice: the largest frame count accepted from a file that declares none (no ``size`` or
 #: ``stop_frame``): 10⁶ frames (7.7 h at 36 fps) of two labels are 64 MB of boxes.
 MAX_UNDECLARED_FRAMES = 1_000_000
+#: Our choice: the largest frame count a file may declare (``size``, ``stop_frame``): 10⁷
+#: frames (77 h at 36 fps); the boxes of two labels are then 640 MB, and an absurd count (10¹²)
+#: is refused instead of allocated.
+MAX_DECLARED_FRAMES = 10_000_000
+#: Our choice: the largest image side accepted in ``original_size``, px (sensors stop near
+#: 20,000 px a side).
+MAX_IMAGE_SIDE_PX = 100_000
 
 
 class CvatError(ValueError):
@@ -166,13 +173,6 @@ def export_sequence(seq: TrackingSequence, path: Path | str) -> Path:
 
 
 # --- import -------------------------------------------------------------------------------------
-def _int(el: ET.Element | None, default: int = 0) -> int:
-    try:
-        return int(el.text) if el is not None and el.text else default
-    except ValueError:
-        return default
-
-
 def _element_lines(data: bytes) -> list[int]:
     """Line of each element's start tag, in document order (ElementTree keeps no lines)."""
     lines: list[int] = []
@@ -239,11 +239,29 @@ def read_cvat_xml(path: Path | str, labels: Sequence[str] = LABELS,
     task = root.find("meta/task")
     if task is None:
         task = root.find("meta/job")
-    start = _int(task.find("start_frame")) if task is not None else 0
-    size = _int(task.find("size")) if task is not None else 0
-    stop = _int(task.find("stop_frame"), -1) if task is not None else -1
-    width = _int(task.find("original_size/width")) if task is not None else 0
-    height = _int(task.find("original_size/height")) if task is not None else 0
+    def meta(tag: str, default: int, low: int, high: int) -> int:
+        """The integer of ``task``'s element ``tag`` in [low, high], or ``default`` when the
+        file has none; ``CvatError`` naming the element and its line otherwise."""
+        el = task.find(tag) if task is not None else None
+        if el is None or not (el.text or "").strip():
+            return default
+        where = f"{path}, line {line_of[id(el)]}: <{tag}>"
+        try:
+            v = int(el.text.strip())
+        except ValueError:
+            raise CvatError(f"{where} is {el.text.strip()!r}, not an integer") from None
+        if not low <= v <= high:
+            raise CvatError(f"{where} is {v}, outside [{low}, {high}]")
+        return v
+
+    start = meta("start_frame", 0, 0, MAX_DECLARED_FRAMES)
+    size = meta("size", 0, 0, MAX_DECLARED_FRAMES)
+    stop = meta("stop_frame", -1, 0, 2 * MAX_DECLARED_FRAMES)
+    if stop - start + 1 > MAX_DECLARED_FRAMES:
+        raise CvatError(f"{path}: stop_frame {stop} declares {stop - start + 1} frames, more "
+                        f"than {MAX_DECLARED_FRAMES}")
+    width = meta("original_size/width", 0, 1, MAX_IMAGE_SIDE_PX)
+    height = meta("original_size/height", 0, 1, MAX_IMAGE_SIDE_PX)
     name = (task.findtext("name") or "") if task is not None else ""
     if n_frames is not None:
         limit = (n_frames, f"{n_frames} frames given")

@@ -58,7 +58,7 @@ from latency.pipeline import PipelineConfig
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
-from observer.gk.pixel_kalman import PixelKalmanConfig
+from observer.gk.pixel_kalman import R_MIN_PX2, PixelKalmanConfig
 from observer.orb import OrbConfig
 from observer.orb_observer import OrbObserver, orb_filter_config
 from observer.pixel_observer import FilterObserver, PixelKalmanObserver, SolverObserver
@@ -123,7 +123,8 @@ class ObserverSpec(_Model):
         0.01, gt=0.0, description="pixel_kalman: Q = q·I4; seed 000 §3.2.1: 0.01."
     )
     pixel_r_scale: float = Field(
-        0.1, gt=0.0, description="pixel_kalman: R = r·I2; seed 000 §3.2.1: 0.1."
+        0.1, ge=R_MIN_PX2, description="pixel_kalman: R = r·I2, at least "
+        "``observer.gk.pixel_kalman.R_MIN_PX2``; seed 000 §3.2.1: 0.1."
     )
     orb: OrbConfig = Field(
         default_factory=OrbConfig, description="ORB kinds: keypoints, matching, RANSAC."

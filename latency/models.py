@@ -58,7 +58,10 @@ class LatencyDistribution(Protocol):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """A latency model's settings: unknown fields and numbers that are not finite raise
+    ``ValueError`` naming the field."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Constant(_Model):

@@ -71,9 +71,10 @@ def _check_time(name: str, t: object) -> float:
 
 
 class AEKFConfig(BaseModel):
-    """Noise and adaptation settings. Intensities are per second of predicted time."""
+    """Noise and adaptation settings. Intensities are per second of predicted time. A number
+    that is not finite raises ``ValueError`` naming the field."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     q_quat_per_s: float = Field(
         1e-7, ge=0.0, description="Our choice: small, since the rate is in the state (seed 001, "

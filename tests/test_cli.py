@@ -94,6 +94,32 @@ def test_jitter_margin_never_exceeds_the_delay_margin_on_the_study_grid(quick_st
     assert (stable.jitter_margin_s <= stable.delay_margin_s).all()
 
 
+def test_study_table_and_summary_match_an_independent_derivation(quick_study):
+    """margins.parquet's phase margin, critical crossover and headroom at 16.33 and 31.23 ms,
+    sequential and pipelined, to 1e-3 of tests/independent_margins.py (which does not call the
+    project's margin code), and the report's summary prints the derived figures."""
+    from plant.params import PlantParams
+    from tests.independent_margins import derive
+
+    margins = pd.read_parquet(quick_study / "margins.parquet")
+    derived = {}
+    for mode in ("sequential", "pipelined"):
+        for d_ms in (16.33, 31.23):
+            want = derived[(mode, d_ms)] = derive(PlantParams(), 10.0, d_ms / 1e3, mode)
+            at = (margins.observer == mode) & np.isclose(margins.vision_delay_ms, d_ms)
+            (row,) = (r for _, r in margins[at].iterrows())
+            assert row.phase_margin_deg == pytest.approx(want.phase_margin_deg, rel=1e-3)
+            assert row.crossover_rad_s == pytest.approx(want.crossover_rad_s, rel=1e-3)
+            assert row.headroom_s == pytest.approx(want.headroom_s, rel=1e-3)
+    assert len(derived) == 4
+    summary = (quick_study / "report.md").read_text().split("## 1.")[0]
+    gk, dual = derived[("sequential", 16.33)], derived[("sequential", 31.23)]
+    assert f"16.33 ms leaves {gk.phase_margin_deg:.1f}°" in summary
+    assert f"tolerates {1e3 * gk.headroom_s:.1f} ms more" in summary
+    assert f"31.23 ms leaves {dual.phase_margin_deg:.1f}°" in summary
+    assert f"would keep {derived[('pipelined', 31.23)].phase_margin_deg:.1f}°" in summary
+
+
 def test_cli_study_and_notebook_give_the_same_margins(quick_study, tmp_path):
     """The same scenario (PID, 10 rad/s crossover, 31.23 ms, sequential observer) in the CLI's
     output, the study's table and the call the notebook makes; the command writes its plots."""

@@ -115,7 +115,7 @@ CASES = [
     scenario("controller-rate-inf-as-text", "controller_rate_hz: 'inf'\n",
              "controller_rate_hz must be a finite number"),
     scenario("filter-noise-inf-as-text", "observer: {aekf: {q_quat_per_s: '+Infinity'}}\n",
-             "observer.aekf.q_quat_per_s must be a finite number"),
+             "observer.aekf.q_quat_per_s: Input should be a finite number"),
     scenario("controller-rate-zero", "controller_rate_hz: 0\n", "controller_rate_hz"),
     scenario("controller-rate-negative", "controller_rate_hz: -5\n", "controller_rate_hz"),
     scenario("controller-rate-above-physics", "controller_rate_hz: 5000\n",

@@ -129,15 +129,17 @@ def test_colour_blobs_find_marker_sized_blobs_only():
 # --- GK-TransT with the shipped network on rendered hard cases ----------------------------------
 @pytest.fixture(scope="module")
 def network():
-    tt = pytest.importorskip("observer.transt.tracker")
-    torch = pytest.importorskip("torch")
-    try:
-        tt.TransTTracker.small()
-    except Exception as exc:  # noqa: BLE001 - missing weights: nothing to test here
-        pytest.skip(f"shipped TransT weights unavailable: {exc}")
+    """The shipped network's factory. The weights must load: a missing or corrupt file fails
+    every test that uses it (the refusal itself is
+    tests/test_transt.py::test_corrupt_or_missing_weights_are_refused)."""
+    import torch
+
+    from observer.transt.tracker import TransTTracker
+
+    TransTTracker.small()  # raises WeightsError naming the file when it does not load
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the 2 cores are shared (docs/transt.md)
-    yield tt.TransTTracker.small
+    yield TransTTracker.small
     torch.set_num_threads(threads)
 
 

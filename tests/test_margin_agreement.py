@@ -18,8 +18,8 @@ from controller.reference import Steps, pure_tilt
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
 from latency.loop import ClosedLoop, LoopConfig
 from latency.margins import attitude_plant, sampled_margins
-from latency.models import Constant
-from latency.pipeline import PipelineConfig
+from latency.models import Constant, LatencyModel
+from latency.pipeline import PipelineConfig, PipelineMode
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver
 from observer.pixel_observer import SolverObserver
@@ -39,24 +39,33 @@ def predicted_delay_margin(wc: float) -> float:
     return m.delay_margin_s  # extra delay on top of the half exposure
 
 
-def rate_amplitudes(wc: float, extra_delay_s: float) -> tuple[float, float]:
+def simulated_rate_amplitudes(
+    wc: float, observer: LatencyModel, mode: PipelineMode
+) -> tuple[float, float, dict]:
     """Peak |omega_y| (rad/s) in the middle and the last third of a 4 s run after a 0.5° tilt
-    step about Y."""
+    step about Y, the observer's latency drawn from ``observer`` (s) in pipeline ``mode``, and
+    the run's summary."""
     ref = Steps(
         times_s=(0.0, 0.1),
         attitudes=((1.0, 0.0, 0.0, 0.0), tuple(pure_tilt(np.deg2rad(0.5), 0.0))),
     )
     front = MeasurementFrontEnd(P, MeasurementConfig(sigma_px=0.0), np.random.default_rng(0))
-    cfg = LoopConfig(
-        duration_s=4.0,
-        pipeline=PipelineConfig(mode="pipelined", observer=Constant(value_s=extra_delay_s)),
-    )
+    cfg = LoopConfig(duration_s=4.0, pipeline=PipelineConfig(mode=mode, observer=observer))
     obs = SolverObserver(CorSolver(CorModel.nominal(P)))
     r = ClosedLoop(P, PIDController(PIDConfig(crossover_rad_s=wc), P), ref, front, obs, cfg).run()
-    assert r.summary["mean_latency_s"] == pytest.approx(0.5 * P.camera.exposure_s + extra_delay_s)
     w = np.abs(r.steps.omega_y_rad_s.to_numpy())
     n = len(w)
-    return w[n // 3 : 2 * n // 3].max(), w[2 * n // 3 :].max()
+    return w[n // 3 : 2 * n // 3].max(), w[2 * n // 3 :].max(), r.summary
+
+
+def rate_amplitudes(wc: float, extra_delay_s: float) -> tuple[float, float]:
+    """:func:`simulated_rate_amplitudes` with a pipelined observer of constant latency
+    ``extra_delay_s`` (s), checking the loop's mean latency."""
+    mid, late, summary = simulated_rate_amplitudes(
+        wc, Constant(value_s=extra_delay_s), "pipelined"
+    )
+    assert summary["mean_latency_s"] == pytest.approx(0.5 * P.camera.exposure_s + extra_delay_s)
+    return mid, late
 
 
 @pytest.mark.parametrize("wc", [10.0, 15.0])

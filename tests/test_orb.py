@@ -535,10 +535,13 @@ def test_filter_predicts_through_bad_frames(sequence, sequence_measurements, ref
         # The model and the recorded torque carry the attitude through the gap.
         assert A.geodesic_angle(e.q, qs[round(e.state_time / H)]) < np.deg2rad(0.5)
     coasting = [e.t_available - est[11].t_exposure for e in est[12:]]
+    coasted_out = 0
     for e, c in zip(est[12:], coasting, strict=True):
         assert e.valid == (c <= 0.25)
         if not e.valid:
             assert "coasting" in e.reason
+            coasted_out += 1
+    assert coasted_out == sum(c > 0.25 for c in coasting) > 0
     # Good frames again: the filter takes them (no restart needed after a short gap).
     more = run_observer(obs, sequence, frames=frames[24:])
     assert all(e.valid and not e.lost for e in more) and obs.restarts == 0

@@ -196,10 +196,12 @@ def test_image_spin_is_the_total_turn_about_z() -> None:
     assert attitude.geodesic_angle(as_written.solve(uv).q, q) > 0.8 * gamma
 
 
-def test_closed_form_error_over_the_workspace() -> None:
+def test_closed_form_error_over_the_workspace_does_not_regress() -> None:
     """Noise-free pixels over tilt 1-15°, all spins and yaws: how far the seed's small-tilt model
-    is from the truth. The spin error has an analytic floor, the foreshortening of the tilted
-    red-yellow vector, atan(1/cos β) - 45° = 0.996° at β = 15°."""
+    is from the truth. The upper bands are the figures measured here and quoted in
+    docs/solvers.md (a regression guard, not an independent bound); the derived bound beside
+    them is the spin error's analytic floor, the foreshortening of the tilted red-yellow
+    vector, atan(1/cos β) - 45° = 0.996° at β = 15°, which the worst spin error must reach."""
     cf = SeedClosedForm(P0)
     rows = []
     for beta in np.deg2rad(np.arange(1.0, 15.01, 1.0)):
@@ -220,38 +222,57 @@ def test_closed_form_error_over_the_workspace() -> None:
     assert small[:, 1].max() < 0.35 and small[:, 4].max() < 0.05  # errors grow with tilt
 
 
-def test_literal_closed_form_error_over_the_workspace() -> None:
-    """The seed's steps *as printed* (``spin_mode="as_written"``, ``literal_yaw_mirror=True``)
-    on noise-free pixels, tilt 5°, 10°, 15°, spin and yaw every 15°: the figures quoted in
-    docs/solvers.md. Independent prediction: the mirror turns the yaw γ into −γ and the
-    as-written spin keeps the image spin α + γ, so the estimate is close to
-    ``from_zyz(α + γ, β, −γ)``. Only the small-tilt model errors separate the two: per angle
-    (``test_closed_form_error_over_the_workspace``) yaw < 0.30°, tilt < 0.16° and image spin
-    α_seed − (α + γ) < 1.8° + 0.30°, so by the triangle inequality less than 2.56°."""
+def _literal_errors(beta_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodesic errors (deg) at tilt ``beta_deg`` over spin and yaw every 15° of the seed's
+    steps as printed, of the yaw mirror alone, and of the prediction
+    ``from_zyz(α + γ, β, −γ)`` of the first (see
+    ``test_literal_closed_form_error_over_the_workspace``)."""
     literal = SeedClosedForm(P0, spin_mode="as_written", literal_yaw_mirror=True)
     mirror_only = SeedClosedForm(P0, literal_yaw_mirror=True)
     grid = np.deg2rad(np.arange(0.0, 360.0, 15.0))
-    for beta_deg, median_lo, median_hi in ((5.0, 89.0, 92.0), (10.0, 90.0, 93.0),
-                                           (15.0, 92.0, 96.0)):
-        beta = np.deg2rad(beta_deg)
-        geo, geo_mirror = [], []
-        for alpha in grid:
-            for gamma in grid:
-                q = attitude.from_zyz(alpha, beta, gamma)
-                uv = marker_pixels(P0, q)
-                r, rm = literal.solve(uv), mirror_only.solve(uv)
-                assert r.valid and rm.valid
-                geo.append(attitude.geodesic_angle(r.q, q))
-                geo_mirror.append(attitude.geodesic_angle(rm.q, q))
-                predicted = attitude.geodesic_angle(
-                    attitude.from_zyz(alpha + gamma, beta, -gamma), q)
-                assert abs(geo[-1] - predicted) < 2.56 * DEG
-        geo, geo_mirror = np.rad2deg(geo), np.rad2deg(geo_mirror)
-        # Literal: a convention error, not a small-tilt one: up to 180°, typically ~90°.
-        assert geo.max() > 179.0
-        assert median_lo < np.median(geo) < median_hi
-        # The mirror alone points the shaft toward -γ instead of γ: up to 2β at γ = 90°.
-        assert abs(geo_mirror.max() - 2 * beta_deg) < 1.5
+    beta = np.deg2rad(beta_deg)
+    geo, geo_mirror, predicted = [], [], []
+    for alpha in grid:
+        for gamma in grid:
+            q = attitude.from_zyz(alpha, beta, gamma)
+            uv = marker_pixels(P0, q)
+            r, rm = literal.solve(uv), mirror_only.solve(uv)
+            assert r.valid and rm.valid
+            geo.append(attitude.geodesic_angle(r.q, q))
+            geo_mirror.append(attitude.geodesic_angle(rm.q, q))
+            predicted.append(attitude.geodesic_angle(
+                attitude.from_zyz(alpha + gamma, beta, -gamma), q))
+    return np.rad2deg(geo), np.rad2deg(geo_mirror), np.rad2deg(predicted)
+
+
+@pytest.mark.parametrize("beta_deg", [5.0, 10.0, 15.0])
+def test_literal_closed_form_error_over_the_workspace(beta_deg) -> None:
+    """The seed's steps *as printed* (``spin_mode="as_written"``, ``literal_yaw_mirror=True``)
+    on noise-free pixels, spin and yaw every 15°. Independent prediction: the mirror turns the
+    yaw γ into −γ and the as-written spin keeps the image spin α + γ, so the estimate is close
+    to ``from_zyz(α + γ, β, −γ)``. Only the small-tilt model errors separate the two: per
+    angle (``test_closed_form_error_over_the_workspace_does_not_regress``) yaw < 0.30°, tilt
+    < 0.16° and image spin α_seed − (α + γ) < 1.8° + 0.30°, so by the triangle inequality
+    less than 2.56°."""
+    geo, geo_mirror, predicted = _literal_errors(beta_deg)
+    assert geo.shape == (24 * 24,)
+    assert np.max(np.abs(geo - predicted)) < 2.56
+    # Literal: a convention error, not a small-tilt one: up to 180°.
+    assert geo.max() > 179.0
+    # The mirror alone points the shaft toward -γ instead of γ: 2β at γ = 90°.
+    assert abs(geo_mirror.max() - 2 * beta_deg) < 1.5
+
+
+@pytest.mark.parametrize(("beta_deg", "median_lo", "median_hi"),
+                         [(5.0, 89.0, 92.0), (10.0, 90.0, 93.0), (15.0, 92.0, 96.0)])
+def test_literal_closed_form_median_error_does_not_regress(beta_deg, median_lo, median_hi):
+    """A regression guard: the median errors quoted in docs/solvers.md (90.4°, 91.7°, 93.8°)
+    are this code's own output, kept within the band measured. Beside it the derived bound:
+    the median lies within 2.56° of the median of the prediction
+    (``test_literal_closed_form_error_over_the_workspace``)."""
+    geo, _, predicted = _literal_errors(beta_deg)
+    assert abs(np.median(geo) - np.median(predicted)) < 2.56
+    assert median_lo < np.median(geo) < median_hi
 
 
 def test_closed_form_flags_bad_input() -> None:

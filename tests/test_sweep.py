@@ -14,6 +14,7 @@ import pandas as pd
 import psutil
 import pytest
 
+from experiments.scenario import run_summary
 from experiments.sweep import run_id, run_sweep, sweep_id, table
 
 TARGET = "experiments.scenario:run_summary"
@@ -55,25 +56,54 @@ def test_local_and_dask_give_identical_tables(tmp_path):
     pd.testing.assert_frame_equal(results(local), results(dask))
 
 
+def gated_run_summary(config: dict) -> dict:
+    """``TARGET``'s run, except in a process started with ``SWEEP_TEST_GATE`` (a folder): there
+    each run first claims a numbered file ``started-<n>`` (first come, first numbered), and
+    every run after the first waits for the file ``interrupted`` (``GATE_SITECUSTOMIZE``
+    writes it when the sweep's process takes a Ctrl-C) and then ends its process without a
+    result (as a killed worker would), or waits until it is killed. So the sweep has finished
+    exactly one run when ``started-1`` appears (with one worker, runs follow one another, and
+    a run's row is written before the worker takes the next)."""
+    gate = os.environ.get("SWEEP_TEST_GATE")
+    if gate:
+        n = 0
+        while True:
+            try:
+                os.close(os.open(Path(gate) / f"started-{n}", os.O_CREAT | os.O_EXCL))
+                break
+            except FileExistsError:
+                n += 1
+        if n >= 1:
+            while not (Path(gate) / "interrupted").exists():  # the sweep's Ctrl-C, or a kill
+                time.sleep(0.05)
+            os._exit(0)
+    return run_summary(config)
+
+
 def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
-    full = run_sweep(TARGET, configs(), tmp_path / "full", workers=1, progress=False)
-    out = tmp_path / "killed"
+    target = "tests.test_sweep:gated_run_summary"
+    full = run_sweep(target, configs(), tmp_path / "full", workers=1, progress=False)
+    out, gate = tmp_path / "killed", tmp_path / "gate"
+    gate.mkdir()
     code = (
         "from experiments.sweep import run_sweep; import tests.test_sweep as t; "
-        f"run_sweep(t.TARGET, t.configs(), {str(out)!r}, workers=1, progress=False)"
+        f"run_sweep({target!r}, t.configs(), {str(out)!r}, workers=1, progress=False)"
     )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", code], cwd=os.getcwd(), start_new_session=True
-    )
-    deadline = time.time() + 120
-    while time.time() < deadline and len(list((out / "runs").glob("*.parquet"))) < 1:
-        time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGKILL)  # the whole process group, workers included
-    proc.wait()
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=os.getcwd(), start_new_session=True,
+                            env=os.environ | {"SWEEP_TEST_GATE": str(gate)})
+    try:
+        # the event: the second run has started (and blocks), so the first has been written
+        deadline = time.monotonic() + 300  # a guard against a hang, not a synchronisation
+        while not (gate / "started-1").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "the sweep did not start"
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the whole process group, workers included
+        proc.wait()
     done_before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.parquet")}
-    assert 1 <= len(done_before) < 4
-    resumed = run_sweep(TARGET, configs(), out, workers=1, progress=False)
-    for name, mtime in done_before.items():  # finished runs were not recomputed
+    assert len(done_before) == 1
+    resumed = run_sweep(target, configs(), out, workers=1, progress=False)
+    for name, mtime in done_before.items():  # the finished run was not recomputed
         assert (out / "runs" / name).stat().st_mtime_ns == mtime
     pd.testing.assert_frame_equal(results(resumed), results(full))
 
@@ -170,22 +200,55 @@ def test_sigkill_of_the_sweep_process_leaves_no_workers(tmp_path, scheduler):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+#: Installed in every Python process of a test's sweep (Dask's workers are spawned, not
+#: forked, so a patch in the parent would not reach them): with ``SWEEP_TEST_GATE`` set, the
+#: command line's run function is ``gated_run_summary``. In the sweep's own process (the one
+#: started with ``SWEEP_TEST_MAIN``, which it then removes so that its workers do not see it),
+#: a Ctrl-C first writes ``interrupted`` into the gate folder, then interrupts as Python does.
+GATE_SITECUSTOMIZE = """
+import os
+import signal
+from pathlib import Path
+
+if os.environ.get("SWEEP_TEST_GATE"):
+    import experiments.scenario
+    import tests.test_sweep
+    experiments.scenario.run_summary = tests.test_sweep.gated_run_summary
+    if os.environ.pop("SWEEP_TEST_MAIN", None):
+        gate = Path(os.environ["SWEEP_TEST_GATE"])
+
+        def _interrupt(signum, frame):
+            (gate / "interrupted").touch()
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, _interrupt)
+"""
+
+
 @pytest.mark.parametrize("backend", [["--scheduler", "local"], []], ids=["dask", "pool"])
 def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     spec = tmp_path / "spec.yaml"
     spec.write_text("base: {duration_s: 1.0, observer: {kind: solver}}\n"
                     "grid: {seed: [0, 1, 2, 3, 4, 5, 6, 7]}\n")
-    out = tmp_path / "out"
+    out, gate, site = tmp_path / "out", tmp_path / "gate", tmp_path / "site"
+    gate.mkdir()
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(GATE_SITECUSTOMIZE)
+    path = os.pathsep.join([str(site), os.getcwd(), os.environ.get("PYTHONPATH", "")])
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.cli", "sweep", str(spec), "--out", str(out),
-         "--workers", "2", "--engine", "event", *backend],  # one run per job: stops mid-way
+         "--workers", "2", "--engine", "event", *backend],  # one run per job
         cwd=os.getcwd(), start_new_session=True, stderr=subprocess.PIPE, text=True,
+        env=os.environ | {"SWEEP_TEST_GATE": str(gate), "SWEEP_TEST_MAIN": "1",
+                          "PYTHONPATH": path},
     )
     try:
-        deadline = time.monotonic() + 180
-        while time.monotonic() < deadline and not list((out / "runs").glob("*.parquet")):
+        # the event: both workers have taken a run after the first (and block), so the first
+        # run has finished and been written, and no other run can finish
+        deadline = time.monotonic() + 300  # a guard against a hang, not a synchronisation
+        while not (gate / "started-2").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "the sweep did not start"
             time.sleep(0.05)
-        assert list((out / "runs").glob("*.parquet")), "no run finished"
         os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
         _, stderr = proc.communicate(timeout=120)
     finally:
@@ -194,5 +257,4 @@ def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     assert "Traceback" not in stderr, stderr
     assert proc.returncode == 130, stderr
     assert "interrupted: the runs that finished are kept" in stderr
-    finished = list((out / "runs").glob("*.parquet"))
-    assert 1 <= len(finished) < 8  # stopped early, and what finished is kept
+    assert len(list((out / "runs").glob("*.parquet"))) == 1  # the one that finished is kept

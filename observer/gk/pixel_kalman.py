@@ -77,12 +77,20 @@ def _check_covariance(name: str, value: list[list[float]], n: int, definite: boo
         )
 
 
+#: Our choice: the smallest measurement variance, sensor px² (sigma = 1e-6 px, a millionth of a
+#: pixel; the seed's R is 0.1 px²). A centre is never known better, and below it the filter's
+#: gain rounds to 1 at sensor coordinates of thousands of pixels (float64 keeps about 1e-12 px
+#: of them): a variance such as 1e-300 passes "positive definite" but means nothing.
+R_MIN_PX2 = 1e-12
+
+
 class PixelKalmanConfig(BaseModel):
     """Noise covariances of the pixel Kalman filter, in full-sensor pixels (Δt = 1 frame).
 
     ``Q`` must be symmetric positive semi-definite. ``R`` must be symmetric positive *definite*:
     a pixel measurement with zero variance in some direction makes no physical sense and would
-    make the innovation covariance H P Hᵀ + R singular once P has converged.
+    make the innovation covariance H P Hᵀ + R singular once P has converged; every variance of
+    ``R`` must be at least ``R_MIN_PX2``.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -115,6 +123,10 @@ class PixelKalmanConfig(BaseModel):
     @classmethod
     def _r_pd(cls, v: list[list[float]]) -> list[list[float]]:
         _check_covariance("R", v, 2, definite=True)
+        lam_min = float(np.linalg.eigvalsh(np.asarray(v, dtype=float)).min())
+        if lam_min < R_MIN_PX2:
+            raise ValueError(f"R must have every variance >= {R_MIN_PX2:g} sensor px² "
+                             f"(smallest eigenvalue {lam_min:.3g})")
         return v
 
 

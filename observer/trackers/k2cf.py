@@ -144,9 +144,15 @@ class K2CF:
         """Box (x, y, w, h), image px, and score (the KCF peak) in the next frame.
 
         The window is placed at the Kalman prediction (or at ``search_centre_image_px`` if
-        given). An unusable frame coasts (prediction, ``measured`` False) and returns score 0.
+        given). A frame that is not an RGB uint8 image at all (``check_rgb_image``: None, a
+        list, floats, an empty array) gives a failed result with the reason and leaves the
+        track as it was; a KCF peak below ``min_peak`` coasts (prediction, ``measured``
+        False) with score 0.
         """
         t0 = time.perf_counter()
+        bad = check_rgb_image(frame)
+        if bad:
+            return TrackResult.failed(bad, time.perf_counter() - t0)
         box, score = self._track(frame, search_centre_image_px)
         self.compute_time_s = time.perf_counter() - t0
         return TrackResult(box, score, not self.lost, self.reason, self.compute_time_s,
@@ -164,9 +170,8 @@ class K2CF:
         self.P = _A @ self.P @ _A.T + self.q_scale * np.eye(4)
         prior = _H @ self.x
         centre = prior if search_centre is None else np.asarray(search_centre, float).reshape(2)
-        bad = check_rgb_image(frame)
         score = 0.0
-        if not bad and np.all(np.isfinite(centre)):
+        if np.all(np.isfinite(centre)):
             # 2. detect at the prediction (eqs. 13-16)
             det = self.kcf.track(frame, centre)
             box, score = det.box_image_px, det.score if math.isfinite(det.score) else 0.0
@@ -188,12 +193,12 @@ class K2CF:
             self.lost, self.measured, self.reason = False, True, ""
             pos = Y
         else:
-            # occlusion or no usable frame: the prediction stands in; the KCF keeps its model
+            # occlusion: the prediction stands in; the KCF keeps its model
             self.kcf.centre_image_px = prior.copy()
             self._detections.clear()
             self._coast += 1
             self.measured = False
-            why = bad or f"KCF peak {score:.3g} < {cfg.min_peak}"
+            why = f"KCF peak {score:.3g} < {cfg.min_peak}"
             if self._coast > cfg.max_coast_frames:
                 self.lost = True
                 self.reason = f"{why}; no detection for {self._coast} frames"
