@@ -48,7 +48,8 @@ from experiments.study import (
     pid_headroom_s,
     study_plant,
 )
-from experiments.sweep import run_sweep
+from experiments.sweep import run_id, run_sweep
+from experiments.sweep import table as sweep_table
 from latency.loop import LoopResult
 from latency.metrics import summarize
 
@@ -85,13 +86,14 @@ def delays_ms(cfg: StudyConfig) -> dict[str, dict[str, float]]:
 
 def configs(cfg: StudyConfig, delays: dict, n_runs: int, rate_rad_s: float,
             duration_s: float, lengths_s: tuple[float, ...]) -> list[dict]:
-    """The runs (scenario dicts with a ``verdict`` block of bookkeeping)."""
+    """The runs (scenario dicts with a ``verdict`` block of bookkeeping), seed by seed (each
+    seed's four cases together, so that an interrupted benchmark has them all)."""
     params = study_plant(cfg)
     out = []
-    for ctrl in CONTROLLERS:
-        for kind in ("stable", "unstable"):
-            d = delays[ctrl][kind]
-            for seed in range(n_runs):
+    for seed in range(n_runs):
+        for ctrl in CONTROLLERS:
+            for kind in ("stable", "unstable"):
+                d = delays[ctrl][kind]
                 s = Scenario(
                     name=f"verdict-{ctrl}-{kind}-{rate_rad_s:g}-s{seed}", duration_s=duration_s,
                     seed=seed, plant=params, observer={"kind": "solver"},
@@ -176,6 +178,9 @@ def main() -> None:
                     help="Lengths judged, s (each at most --duration).")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--quick", action="store_true", help="3 runs per condition, 4 s.")
+    ap.add_argument("--no-run", action="store_true",
+                    help="Record the figures of the runs finished so far (the _runs keys say "
+                    "how many per case); run nothing.")
     a = ap.parse_args()
     if a.quick:
         a.runs, a.rates_runs, a.duration, a.lengths = 3, 0, 4.0, [3.0, 4.0]
@@ -189,7 +194,11 @@ def main() -> None:
         for rate in a.rates:
             runs += configs(cfg, delays, a.rates_runs, rate, a.duration, lengths)
     out = HERE / "results" / ("verdict_quick_sweep" if a.quick else "verdict_sweep")
-    table = run_sweep("bench_verdict:verdict_runs", runs, out, workers=a.workers, batch_size=25)
+    if a.no_run:
+        table = sweep_table(out, [run_id(c) for c in runs])
+    else:
+        table = run_sweep("bench_verdict:verdict_runs", runs, out, workers=a.workers,
+                          batch_size=25)
     fig = figures_of(table, delays, lengths)
     fig["run_length_s"] = a.duration
     if a.quick:

@@ -205,6 +205,10 @@ def study(
         bool, typer.Option(help="Also close the loop in image mode with GK-TransT and the dual "
                            "TransT at their latencies measured here (slow: minutes per run).")
     ] = False,
+    fixed_reference: Annotated[
+        bool, typer.Option(help="Fixed-reference mode: every run on the same random reference "
+                           "(noise-only spread); default: each run's drawn from its seed.")
+    ] = False,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC.
 
@@ -221,6 +225,8 @@ def study(
         extra = {} if n_seeds is None else {"n_seeds": n_seeds}
         if engine is not None:
             extra["engine"] = engine.value
+        if fixed_reference:
+            extra["reference_mode"] = "fixed"
         cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
                           camera_file=camera_file, image_loop=full, **extra)
         study_plant(cfg)

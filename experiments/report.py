@@ -134,8 +134,14 @@ def _image_loop_section(image_loop: pd.DataFrame | None, n_seeds: int) -> list[s
 VERDICT_VALIDATION: dict = {
     "runs": 200,
     "rate_rad_s": 1.0,
-    "false_alarm": {},
-    "detection": {},
+    "false_alarm": {("pid", 3.0): 0.0, ("pid", 4.0): 0.0, ("pid", 6.0): 0.0,
+                    ("pid", 8.0): 0.0, ("pid", 10.0): 0.0, ("pid", 12.0): 0.0,
+                    ("mpc", 3.0): 0.0, ("mpc", 4.0): 0.0, ("mpc", 6.0): 0.0,
+                    ("mpc", 8.0): 0.0, ("mpc", 10.0): 0.0, ("mpc", 12.0): 0.0},
+    "detection": {("pid", 3.0): 0.54, ("pid", 4.0): 0.685, ("pid", 6.0): 0.86,
+                  ("pid", 8.0): 0.945, ("pid", 10.0): 0.985, ("pid", 12.0): 1.0,
+                  ("mpc", 3.0): 0.96, ("mpc", 4.0): 0.98, ("mpc", 6.0): 1.0,
+                  ("mpc", 8.0): 1.0, ("mpc", 10.0): 1.0, ("mpc", 12.0): 1.0},
 }
 
 

@@ -77,3 +77,19 @@ def test_the_sweep_plot_marks_each_controllers_onset_beside_its_loss_curves(tmp_
         assert (onsets[ctrl], onsets[ctrl]) in vertical
         other = onsets["mpc" if ctrl == "pid" else "pid"]
         assert (other, other) not in vertical  # each curve beside its own controller's onset
+
+
+def test_the_report_states_the_validation_at_the_studys_run_length(monkeypatch):
+    from experiments import report
+
+    table = {"runs": 200, "rate_rad_s": 1.0,
+             "false_alarm": {(c, L): 0.0 for c in ("pid", "mpc") for L in (4.0, 12.0)},
+             "detection": {("pid", 4.0): 0.685, ("mpc", 4.0): 0.995,
+                           ("pid", 12.0): 1.0, ("mpc", 12.0): 1.0}}
+    monkeypatch.setattr(report, "VERDICT_VALIDATION", table)
+    short = report.verdict_sentence(6.0)  # judged at the longest validated length below 6 s
+    assert "judged on 4 s runs" in short and "68.5 %" in short and "99.5 %" in short
+    assert "too short" in short and "12 s runs reach 99 % detection" in short
+    long = report.verdict_sentence(12.0)
+    assert "judged on 12 s runs" in long and "too short" not in long
+    assert "not known" in report.verdict_sentence(2.0)
