@@ -192,7 +192,7 @@ def study(
     ] = None,
     n_seeds: Annotated[
         int | None,
-        typer.Option(help="Seeds per closed-loop point (default 32; --quick: 2)."),
+        typer.Option(help="Seeds per closed-loop point (default 10; --quick: 2)."),
     ] = None,
     engine: EngineOption = None,
     motor_file: Annotated[

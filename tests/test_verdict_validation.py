@@ -1,5 +1,5 @@
 """The loss-of-control verdict against the exact margins, on a smaller set than
-``benchmarks/bench_verdict.py`` (200 runs per condition there): runs of 8 s on random
+``benchmarks/bench_verdict.py`` (200 runs per condition there): runs of 12 s on random
 references of peak rate 1 rad/s at 20 ms inside the analysis' boundary (no run may be flagged)
 and 20 ms beyond it (every run must be), for the PID and the MPC; and the onset the study's
 plots mark beside the loss-of-control curves."""
@@ -24,7 +24,7 @@ from experiments.study_plots import plot_sweep
 
 #: Runs per controller and side of the boundary, and their length (s): the length the
 #: benchmark found needed (docs/closed_loop.md).
-N_RUNS, LENGTH_S = 6, 8.0
+N_RUNS, LENGTH_S = 6, 12.0
 
 
 def _runs(ctrl: str, delay_ms: float, cfg: StudyConfig) -> list[dict]:
