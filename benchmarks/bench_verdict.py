@@ -14,8 +14,9 @@ controller:
 Each run follows its own smooth random reference (``RandomSmooth``, reference seed = run seed)
 with a peak rate of 1 rad/s, the slowest of the study's, which a loop with 20 ms of headroom
 follows with errors of a degree or two; faster references are run on smaller sets for
-information (``--rates``): there a stable PID may leave its linear range and lose control
-physically (tilt stop, markers), which the linear analysis cannot see. Every run lasts
+information (``--rates``, ``--rates-runs``): there a stable PID may leave its linear range
+and lose control physically (tilt stop, markers), which the linear analysis cannot see.
+Every run lasts
 ``--duration`` s and is judged on its first L seconds for each length L of ``--lengths`` (the
 verdict of the first L s of a run is that of a run of L s: the loop is causal and every draw
 comes in time order; the verdict's window is the last half of the L s). Figures: the flagged
@@ -25,7 +26,7 @@ criteria that fired.
 The runs go through ``experiments.sweep.run_sweep`` (one file per run under
 ``results/verdict_sweep/``): an interrupted benchmark resumes where it stopped.
 
-Run: python benchmarks/bench_verdict.py            (200 runs per condition at 1 rad/s)
+Run: python benchmarks/bench_verdict.py            (200 runs per case at 1 rad/s, 50 at 3 and 6)
      python benchmarks/bench_verdict.py --quick    (a few runs: checks that it works)
 """
 
@@ -169,7 +170,7 @@ def figures_of(table: pd.DataFrame, delays: dict, lengths_s: tuple[float, ...]) 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200, help="Runs per condition at 1 rad/s.")
-    ap.add_argument("--rates-runs", type=int, default=0,
+    ap.add_argument("--rates-runs", type=int, default=50,
                     help="Runs per condition at each faster rate of --rates (0: none).")
     ap.add_argument("--rates", type=float, nargs="*", default=[3.0, 6.0],
                     help="Faster peak rates, rad/s, run on --rates-runs runs each.")
