@@ -14,8 +14,9 @@ controller:
 Each run follows its own smooth random reference (``RandomSmooth``, reference seed = run seed)
 with a peak rate of 1 rad/s, the slowest of the study's, which a loop with 20 ms of headroom
 follows with errors of a degree or two; faster references are run on smaller sets for
-information (``--rates``): there a stable PID may leave its linear range and lose control
-physically (tilt stop, markers), which the linear analysis cannot see. Every run lasts
+information (``--rates``, ``--rates-runs``): there a stable PID may leave its linear range
+and lose control physically (tilt stop, markers), which the linear analysis cannot see.
+Every run lasts
 ``--duration`` s and is judged on its first L seconds for each length L of ``--lengths`` (the
 verdict of the first L s of a run is that of a run of L s: the loop is causal and every draw
 comes in time order; the verdict's window is the last half of the L s). Figures: the flagged
@@ -25,7 +26,7 @@ criteria that fired.
 The runs go through ``experiments.sweep.run_sweep`` (one file per run under
 ``results/verdict_sweep/``): an interrupted benchmark resumes where it stopped.
 
-Run: python benchmarks/bench_verdict.py            (200 runs per condition at 1 rad/s)
+Run: python benchmarks/bench_verdict.py            (200 runs per case at 1 rad/s, 50 at 3 and 6)
      python benchmarks/bench_verdict.py --quick    (a few runs: checks that it works)
 """
 
@@ -48,7 +49,8 @@ from experiments.study import (
     pid_headroom_s,
     study_plant,
 )
-from experiments.sweep import run_sweep
+from experiments.sweep import run_id, run_sweep
+from experiments.sweep import table as sweep_table
 from latency.loop import LoopResult
 from latency.metrics import summarize
 
@@ -85,13 +87,14 @@ def delays_ms(cfg: StudyConfig) -> dict[str, dict[str, float]]:
 
 def configs(cfg: StudyConfig, delays: dict, n_runs: int, rate_rad_s: float,
             duration_s: float, lengths_s: tuple[float, ...]) -> list[dict]:
-    """The runs (scenario dicts with a ``verdict`` block of bookkeeping)."""
+    """The runs (scenario dicts with a ``verdict`` block of bookkeeping), seed by seed (each
+    seed's four cases together, so that an interrupted benchmark has them all)."""
     params = study_plant(cfg)
     out = []
-    for ctrl in CONTROLLERS:
-        for kind in ("stable", "unstable"):
-            d = delays[ctrl][kind]
-            for seed in range(n_runs):
+    for seed in range(n_runs):
+        for ctrl in CONTROLLERS:
+            for kind in ("stable", "unstable"):
+                d = delays[ctrl][kind]
                 s = Scenario(
                     name=f"verdict-{ctrl}-{kind}-{rate_rad_s:g}-s{seed}", duration_s=duration_s,
                     seed=seed, plant=params, observer={"kind": "solver"},
@@ -167,7 +170,7 @@ def figures_of(table: pd.DataFrame, delays: dict, lengths_s: tuple[float, ...]) 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200, help="Runs per condition at 1 rad/s.")
-    ap.add_argument("--rates-runs", type=int, default=0,
+    ap.add_argument("--rates-runs", type=int, default=50,
                     help="Runs per condition at each faster rate of --rates (0: none).")
     ap.add_argument("--rates", type=float, nargs="*", default=[3.0, 6.0],
                     help="Faster peak rates, rad/s, run on --rates-runs runs each.")
@@ -176,6 +179,9 @@ def main() -> None:
                     help="Lengths judged, s (each at most --duration).")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--quick", action="store_true", help="3 runs per condition, 4 s.")
+    ap.add_argument("--no-run", action="store_true",
+                    help="Record the figures of the runs finished so far (the _runs keys say "
+                    "how many per case); run nothing.")
     a = ap.parse_args()
     if a.quick:
         a.runs, a.rates_runs, a.duration, a.lengths = 3, 0, 4.0, [3.0, 4.0]
@@ -189,7 +195,11 @@ def main() -> None:
         for rate in a.rates:
             runs += configs(cfg, delays, a.rates_runs, rate, a.duration, lengths)
     out = HERE / "results" / ("verdict_quick_sweep" if a.quick else "verdict_sweep")
-    table = run_sweep("bench_verdict:verdict_runs", runs, out, workers=a.workers, batch_size=25)
+    if a.no_run:
+        table = sweep_table(out, [run_id(c) for c in runs])
+    else:
+        table = run_sweep("bench_verdict:verdict_runs", runs, out, workers=a.workers,
+                          batch_size=25)
     fig = figures_of(table, delays, lengths)
     fig["run_length_s"] = a.duration
     if a.quick:

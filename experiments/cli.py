@@ -194,7 +194,7 @@ def study(
     ] = None,
     n_seeds: Annotated[
         int | None,
-        typer.Option(help="Seeds per closed-loop point (default 32; --quick: 2)."),
+        typer.Option(help="Seeds per closed-loop point (default 10; --quick: 2)."),
     ] = None,
     engine: EngineOption = None,
     motor_file: Annotated[
@@ -207,6 +207,10 @@ def study(
         bool, typer.Option(help="The image-engine section at 32 reference seeds per point "
                            "instead of 8, GK-TransT and the dual TransT each at both of the "
                            "seed's latencies (the default: each at its own).")
+    ] = False,
+    fixed_reference: Annotated[
+        bool, typer.Option(help="Fixed-reference mode: every run on the same random reference "
+                           "(noise-only spread); default: each run's drawn from its seed.")
     ] = False,
 ) -> None:
     """The headline study: margins, tracking loss and error against vision delay, PID vs MPC,
@@ -227,6 +231,8 @@ def study(
             extra["engine"] = engine.value
         if full:
             extra |= {"image_loop_n_seeds": 32, "image_loop_delays": "both"}
+        if fixed_reference:
+            extra["reference_mode"] = "fixed"
         cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
                           camera_file=camera_file, **extra)
         study_plant(cfg)

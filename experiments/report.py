@@ -218,8 +218,14 @@ def _calibration_section(calibration: pd.DataFrame | None) -> list[str]:
 VERDICT_VALIDATION: dict = {
     "runs": 200,
     "rate_rad_s": 1.0,
-    "false_alarm": {},
-    "detection": {},
+    "false_alarm": {("pid", 3.0): 0.0, ("pid", 4.0): 0.0, ("pid", 6.0): 0.0,
+                    ("pid", 8.0): 0.0, ("pid", 10.0): 0.0, ("pid", 12.0): 0.0,
+                    ("mpc", 3.0): 0.0, ("mpc", 4.0): 0.0, ("mpc", 6.0): 0.0,
+                    ("mpc", 8.0): 0.0, ("mpc", 10.0): 0.0, ("mpc", 12.0): 0.0},
+    "detection": {("pid", 3.0): 0.54, ("pid", 4.0): 0.685, ("pid", 6.0): 0.86,
+                  ("pid", 8.0): 0.945, ("pid", 10.0): 0.985, ("pid", 12.0): 1.0,
+                  ("mpc", 3.0): 0.95, ("mpc", 4.0): 0.99, ("mpc", 6.0): 1.0,
+                  ("mpc", 8.0): 1.0, ("mpc", 10.0): 1.0, ("mpc", 12.0): 1.0},
 }
 
 

@@ -4,7 +4,8 @@ Both engines summarise a run here: the event loop (``latency.loop``) from its ta
 compiled run loop (``latency.compiled``) straight from its arrays. The per-step metrics come
 from one compiled pass over the steps (``_step_pass``): the geodesic error, the Z-Y-Z angle
 errors, the torque, the step response after the reference's last change, the steady state,
-the longest tilt-stop contact and the quarters' RMS errors, with the formulas of
+the longest tilt-stop contact and the error and reference speed over the run's last half
+(the loss-of-control verdict's window), with the formulas of
 ``plant.attitude``. The per-frame ones read the frames table's few columns with numpy.
 """
 

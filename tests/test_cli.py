@@ -51,6 +51,12 @@ def test_report_numbers_match_the_parquet_tables(quick_study):
     assert cells and float(cells[0]) == pytest.approx(pm, abs=1e-3)
     sweep = pd.read_parquet(quick_study / "sweep.parquet")
     assert (sweep.error == "").all()
+    # each seed of a random-reference point follows its own reference; no step metrics there
+    rnd = sweep[sweep.reference.str.startswith("random")]
+    per_point = rnd.groupby(["controller", "reference", "vision_delay_ms"])
+    assert (per_point.reference_seed.nunique() == per_point.seed.nunique()).all()
+    assert rnd.overshoot_pct.isna().all() and rnd.settling_time_s.isna().all()
+    assert sweep[sweep.reference == "tilt_step_5deg"].step_size_deg.notna().all()
     mpc = sweep[(sweep.controller == "mpc") & (sweep.reference == "tilt_step_5deg")
                 & np.isclose(sweep.vision_delay_ms, 16.33)]
     assert f"{float(mpc.rms_error_deg.mean()):.3f}" in html

@@ -1,5 +1,5 @@
 """The loss-of-control verdict against the exact margins, on a smaller set than
-``benchmarks/bench_verdict.py`` (200 runs per condition there): runs of 8 s on random
+``benchmarks/bench_verdict.py`` (200 runs per condition there): runs of 12 s on random
 references of peak rate 1 rad/s at 20 ms inside the analysis' boundary (no run may be flagged)
 and 20 ms beyond it (every run must be), for the PID and the MPC; and the onset the study's
 plots mark beside the loss-of-control curves."""
@@ -24,7 +24,7 @@ from experiments.study_plots import plot_sweep
 
 #: Runs per controller and side of the boundary, and their length (s): the length the
 #: benchmark found needed (docs/closed_loop.md).
-N_RUNS, LENGTH_S = 6, 8.0
+N_RUNS, LENGTH_S = 6, 12.0
 
 
 def _runs(ctrl: str, delay_ms: float, cfg: StudyConfig) -> list[dict]:
@@ -77,3 +77,19 @@ def test_the_sweep_plot_marks_each_controllers_onset_beside_its_loss_curves(tmp_
         assert (onsets[ctrl], onsets[ctrl]) in vertical
         other = onsets["mpc" if ctrl == "pid" else "pid"]
         assert (other, other) not in vertical  # each curve beside its own controller's onset
+
+
+def test_the_report_states_the_validation_at_the_studys_run_length(monkeypatch):
+    from experiments import report
+
+    table = {"runs": 200, "rate_rad_s": 1.0,
+             "false_alarm": {(c, L): 0.0 for c in ("pid", "mpc") for L in (4.0, 12.0)},
+             "detection": {("pid", 4.0): 0.685, ("mpc", 4.0): 0.995,
+                           ("pid", 12.0): 1.0, ("mpc", 12.0): 1.0}}
+    monkeypatch.setattr(report, "VERDICT_VALIDATION", table)
+    short = report.verdict_sentence(6.0)  # judged at the longest validated length below 6 s
+    assert "judged on 4 s runs" in short and "68.5 %" in short and "99.5 %" in short
+    assert "too short" in short and "12 s runs reach 99 % detection" in short
+    long = report.verdict_sentence(12.0)
+    assert "judged on 12 s runs" in long and "too short" not in long
+    assert "not known" in report.verdict_sentence(2.0)
