@@ -176,7 +176,8 @@ def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
         "delays, seeds and durations. 95 % intervals over the runs (bootstrap for lost frames, "
         f"Wilson for loss of control; with {n} runs a Wilson interval is up to "
         f"{widest_wilson_width(n):.2f} wide). `agree`: both intervals overlap for the "
-        "lost-frame fraction and for loss of control.",
+        "lost-frame fraction and for loss of control. "
+        + verdict_sentence(cfg.image_loop_duration_s),
         "",
         md_table(t),
         "",
