@@ -12,8 +12,8 @@ seed's latency of the tracker, analytic renderer):
 * the *network limit*: frames per second of the tracker's networks alone on search crops, at
   the best of 1 or 2 ONNX Runtime threads and batch sizes 1-64 (one network call per frame for
   GK-TransT, two for the dual TransT; 1-thread figures scaled by the two cores, an upper bound);
-* where an engine run's time goes: a profile of one batch of 8 runs in this process, by part
-  (render, network, GK and trackers, physics, control, the rest).
+* where a run's time goes: a profile of one event-loop run (the code an engine run executes),
+  by part (render, network, GK and trackers, physics, control, the rest).
 
 Keys: ``<tracker>_B<B>_realtime_factor``, ``<tracker>_B<B>_frames_per_s``,
 ``<tracker>_B64_fraction_of_network_limit``, ``<tracker>_B64_ratio_to_event_loop``,
@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from experiments.scenario import Scenario, build_loop
-from latency.image_engine import run_batch, run_images
+from latency.image_engine import run_images
 from latency.models import SEED_LATENCY_S
 
 TRACKERS = {"gk_transt": ("transt", 1), "dual_transt": ("dual_transt", 2)}
@@ -103,11 +103,14 @@ def network_costs(batches: tuple[int, ...], repeats: int) -> dict[tuple[int, int
 
 
 def time_split(tracker: str, duration_s: float) -> dict[str, float]:
-    """Fractions of one in-process batch of 8 runs' time by part (see ``PARTS``)."""
-    loops = [build_loop(s) for s in _scenarios(tracker, 8, duration_s, first_seed=200)]
+    """Fractions of one run's time by part (see ``PARTS``): the event loop's run, profiled in
+    this thread, network built beforehand (an engine run executes the same code; the engine's
+    threads are not seen by the profiler of this one)."""
+    build_loop(_scenarios(tracker, 1, 0.2)[0]).run()  # builds and exports the network
+    loop = build_loop(_scenarios(tracker, 1, duration_s, first_seed=200)[0])
     prof = cProfile.Profile()
     prof.enable()
-    run_batch(loops)
+    loop.run()
     prof.disable()
     stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
     parts = dict.fromkeys(PARTS, 0.0)
