@@ -802,9 +802,8 @@ def track(
 
     Example: pmspm track lab.mp4 --boxes "196,231,48,48;367,231,48,48" --tracker kcf_gk --out run
     """
-    from experiments.sources import UserInputError, open_source
+    from experiments.sources import UserInputError
     from experiments.track import TRACK_OBSERVERS, parse_boxes, run_track
-    from experiments.user_files import load_setup
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
     if tracker not in PAIR_TRACKERS:
@@ -812,12 +811,7 @@ def track(
     if observer not in TRACK_OBSERVERS:
         _config_error(ValueError(f"--observer must be one of {TRACK_OBSERVERS}"), "options")
     try:
-        setup = load_setup(motor, camera)
-        src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
-                          if camera is not None else None,
-                          camera_origin=f"frame_rate_hz of {camera}")
-        for warning in src.warnings:
-            typer.echo(f"warning: {warning}", err=True)
+        setup, src = _open_recording(source, fps, motor, camera)
         outcome = run_track(src, make_pair_tracker(tracker, setup.params), out,
                             boxes if boxes in (None, "auto") else parse_boxes(boxes), cvat, setup,
                             max_frames, observer=observer)
@@ -825,6 +819,22 @@ def track(
         _config_error(exc, "input" if isinstance(exc, UserInputError) else "configuration")
     typer.echo("\n".join(outcome.summary_lines()))
     typer.echo(f"results: {out}")
+
+
+def _open_recording(source: str, fps: float | None, motor: Path | None, camera: Path | None):
+    """The user's setup and the recording's frames, timed at ``--fps``, else the camera file's
+    frame rate (a folder) or the video's own (checked against the camera file's); warnings
+    printed. ``ValueError`` (``UserInputError`` for the recording) on bad input."""
+    from experiments.sources import open_source
+    from experiments.user_files import load_setup
+
+    setup = load_setup(motor, camera)
+    src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
+                      if camera is not None else None,
+                      camera_origin=f"frame_rate_hz of {camera}")
+    for warning in src.warnings:
+        typer.echo(f"warning: {warning}", err=True)
+    return setup, src
 
 
 @app.command("calibrate-mount")
@@ -851,18 +861,14 @@ def calibrate_mount(
     Example: pmspm calibrate-mount rest/ --known poses.csv --camera cam.yaml --out mount
     """
     from experiments.mount import run_calibrate_mount
-    from experiments.sources import UserInputError, open_source
+    from experiments.sources import UserInputError
     from experiments.track import parse_boxes
-    from experiments.user_files import load_setup
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
     if tracker not in PAIR_TRACKERS:
         _config_error(ValueError(f"--tracker must be one of {PAIR_TRACKERS}"), "options")
     try:
-        setup = load_setup(motor, camera)
-        src = open_source(source, fps, camera_rate_hz=setup.camera.camera.frame_rate_hz
-                          if camera is not None else None,
-                          camera_origin=f"frame_rate_hz of {camera}")
+        setup, src = _open_recording(source, fps, motor, camera)
         est = run_calibrate_mount(src, make_pair_tracker(tracker, setup.params), out,
                                   boxes if boxes in (None, "auto") else parse_boxes(boxes),
                                   setup, known, max_frames)
