@@ -154,3 +154,20 @@ def test_search_window_keys_at_the_top_level_still_work_with_a_warning() -> None
     assert any(issubclass(w.category, DeprecationWarning) for w in caught)
     with pytest.raises(ValueError, match="inside loss"):
         MeasurementConfig(search_radius_px=120.0, loss={"kind": "search_window"})
+
+
+@pytest.mark.slow
+def test_shipped_calibration_agrees_with_image_runs_it_was_not_fitted_on(tmp_path):
+    """The shipped GK-TransT model against GK-TransT itself in closed loop, on references the
+    fit did not use (reference seeds 2000-2003, 3.5 rad/s, 31.23 ms): lost-frame fraction and
+    loss of control within each other's 95 % intervals."""
+    from experiments.loss_calibration import CalibrationDesign, _run_records, _scenario, validate
+
+    design = CalibrationDesign(model_replicas=4, duration_s=3.0)
+    scenarios = [_scenario("gk_transt", 31.23, 3.5, seed, design, "image")
+                 for seed in range(2000, 2004)]
+    records = _run_records(scenarios, workers=1)
+    records["holdout"] = True
+    rows = validate("gk_transt", records, design)
+    assert len(rows) == 1 and rows[0]["image_runs"] == 4 and rows[0]["model_runs"] == 16
+    assert rows[0]["agree"], rows[0]
