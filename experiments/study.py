@@ -581,9 +581,12 @@ def sweep_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
 
 
 def loss_intervals(sweep: pd.DataFrame) -> pd.DataFrame:
-    """Probability of loss of control per controller and delay over every run (all references
-    and seeds pooled), with Wilson intervals."""
-    ok = sweep[(sweep.error == "") & sweep.controller.isin(RANDOM_CONTROLLERS)]
+    """Probability of loss of control per tracker, controller and delay over the random
+    references' runs (every peak rate and seed pooled; the step, run with the first tracker
+    only, is left out so that every tracker's figure pools the same references), with Wilson
+    intervals."""
+    ok = sweep[(sweep.error == "") & sweep.controller.isin(RANDOM_CONTROLLERS)
+               & sweep.reference.str.startswith("random")]
     return seed_intervals(ok, ["tracker", "controller", "vision_delay_ms"], (),
                           ("loss_of_control",))
 

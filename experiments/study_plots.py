@@ -228,7 +228,8 @@ def plot_boundary_overlay(
     path: Path,
 ) -> Figure:
     """The predicted stability boundary (analysis) over the simulated probability of loss of
-    control (sweep, all references pooled, 95 % Wilson intervals), PID and MPC."""
+    control (sweep, every random reference pooled, 95 % Wilson intervals), PID and MPC, one
+    marker per tracker."""
     fig = Figure(figsize=(11, 5), layout="constrained")
     ax = fig.subplots()
     finite = [b for b in boundaries_ms.values() if np.isfinite(b)]
