@@ -813,7 +813,9 @@ def _preview_lines(step: pd.DataFrame) -> list[str]:
 def _loss_lines(loss: pd.DataFrame, intervals: pd.DataFrame, cfg: StudyConfig) -> list[str]:
     """Per controller: each tracker at its own seed latency (its own loss model), lost frames
     on the random references and the probability of loss of control."""
-    lines = []
+    lines: list[str] = []
+    if loss.empty:
+        return lines
     model = ("its calibrated loss model" if cfg.loss_model == "calibrated"
              else f"the hand-set {cfg.search_radius_px:g} px search window")
     rnd = intervals[intervals.reference.str.startswith("random")]

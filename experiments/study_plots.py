@@ -162,6 +162,8 @@ def plot_sweep(
     marked by crosses; beside each controller's loss-of-control curves the delay from which the
     analysis says its loop is unstable (``onsets_ms``, per controller)."""
     rnd = intervals[intervals.reference.str.startswith("random")]
+    if "tracker" not in rnd:  # one loss model for every run
+        rnd = rnd.assign(tracker="")
     fig = Figure(figsize=(12, 10), layout="constrained")
     ax = fig.subplots(3, 2, sharex=True)
     refs = sorted(rnd.reference.unique())
@@ -169,8 +171,8 @@ def plot_sweep(
         for (tracker, ref), g in rnd[rnd.controller == ctrl].groupby(["tracker", "reference"]):
             colour = f"C{refs.index(ref)}"
             style, tname = TRACKER_STYLE.get(tracker, ("o-", tracker))
-            name = f"{tname}, peak rate " + ref.removeprefix("random_").replace("rad_s",
-                                                                                " rad/s")
+            name = (f"{tname}, " if tname else "") + "peak rate " + \
+                ref.removeprefix("random_").replace("rad_s", " rad/s")
             _band(ax[0, j], g, "rms_error_deg", colour, name, marker=style)
             _band(ax[1, j], g, "lost_frame_fraction", colour, name, 100.0, marker=style)
             _band(ax[2, j], g, "p_loss_of_control", colour, name, marker=style)

@@ -137,7 +137,12 @@ def summary_tolerances(ev, bt) -> dict[str, float]:
     * ``settling_time_s``: equal, unless a row's error to the target lies within
       ``degrees(d)`` of the settling band, where the two runs may settle a row apart: then
       the run's length;
-    * ``mean_latency_s``: the same latency draws averaged: round-off, relative.
+    * ``mean_latency_s``: the same latency draws averaged: round-off, relative;
+    * ``late_rms_error_deg`` (an RMS of errors each within ``degrees(d)``): ``degrees(d)``;
+      ``late_error_bound_deg`` (from the reference alone) and ``time_to_first_loss_s`` (a
+      frame's exposure time; the tables' frames are compared exactly elsewhere): round-off;
+    * ``loc_excess_error``, late RMS error above its bound: equal, unless the late RMS error
+      lies within ``degrees(d)`` of the bound, where the flag may differ (1).
     """
     d = float(np.max(A.geodesic_angle(ev.steps[QUAT].to_numpy(), bt.steps[QUAT].to_numpy())))
     cols = [f"torque_delivered_{c}_Nm" for c in "xyz"]
@@ -157,6 +162,10 @@ def summary_tolerances(ev, bt) -> dict[str, float]:
     near_band = np.abs(ev.steps.error_deg.to_numpy() - SETTLE_BAND_DEG) <= d_deg
     tol["settling_time_s"] = t_end if near_band.any() else ROUNDING
     tol["mean_latency_s"] = ROUNDING * max(abs(ev.summary.get("mean_latency_s", 0.0)), 1.0)
+    tol["late_rms_error_deg"] = d_deg
+    tol["late_error_bound_deg"] = tol["time_to_first_loss_s"] = ROUNDING
+    margin = abs(ev.summary["late_rms_error_deg"] - ev.summary["late_error_bound_deg"])
+    tol["loc_excess_error"] = 1.0 if margin <= d_deg else ROUNDING
     return tol
 
 

@@ -24,13 +24,16 @@ def _random_points(configs: list[dict]) -> dict[tuple, list[dict]]:
     for c in configs:
         st = c["study"]
         if st["reference"].startswith("random"):
-            points.setdefault((st["controller"], st["reference"], st["delay_ms"]), []).append(c)
+            key = (st["tracker"], st["controller"], st["reference"], st["delay_ms"])
+            points.setdefault(key, []).append(c)
     return points
 
 
 def test_each_run_of_a_point_follows_its_own_random_reference():
     points = _random_points(sweep_configs(StudyConfig(**CFG)))
-    assert len(points) == 5  # every variant on the fastest (here the only) random reference
+    # every variant on the fastest (here the only) random reference with the first tracker,
+    # the PID and the MPC with the second tracker too
+    assert len(points) == 7
     t = np.linspace(0.0, 1.0, 11)
     for runs in points.values():
         seeds = [c["study"]["reference_seed"] for c in runs]
