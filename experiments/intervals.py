@@ -63,6 +63,14 @@ def widest_wilson_width(n: int, confidence: float = CONFIDENCE) -> float:
     return 2.0 * z / (1.0 + z * z / n) * float(np.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n)))
 
 
+def intervals_overlap(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    """Two ``(value, low, high)`` intervals overlap; an interval without ends (NaN: every run
+    equal, or one run) stands for its value."""
+    lo_a, hi_a = (a[1], a[2]) if np.isfinite(a[1]) else (a[0], a[0])
+    lo_b, hi_b = (b[1], b[2]) if np.isfinite(b[1]) else (b[0], b[0])
+    return bool(lo_a <= hi_b + 1e-12 and lo_b <= hi_a + 1e-12)
+
+
 def seed_intervals(
     runs: pd.DataFrame,
     by: Sequence[str],

@@ -29,7 +29,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
-from experiments.intervals import bootstrap_mean_ci, wilson_ci
+from experiments.intervals import bootstrap_mean_ci, intervals_overlap, wilson_ci
 from experiments.scenario import PAIR_TRACKER_OF, Scenario, build_loop, run_many
 from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
@@ -243,17 +243,9 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
             "model_runs": len(m),
             "image_lost_frame_fraction": img_lost, "model_lost_frame_fraction": mod_lost,
             "image_loss_of_control": img_loc, "model_loss_of_control": mod_loc,
-            "agree": bool(_overlap(img_lost, mod_lost) and _overlap(img_loc, mod_loc)),
+            "agree": intervals_overlap(img_lost, mod_lost) and intervals_overlap(img_loc, mod_loc),
         })
     return out
-
-
-def _overlap(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
-    """Two (value, low, high) intervals overlap; a degenerate one (NaN ends: all values
-    equal or one run) is its value."""
-    lo_a, hi_a = (a[1], a[2]) if np.isfinite(a[1]) else (a[0], a[0])
-    lo_b, hi_b = (b[1], b[2]) if np.isfinite(b[1]) else (b[0], b[0])
-    return bool(lo_a <= hi_b + 1e-12 and lo_b <= hi_a + 1e-12)
 
 
 def calibrate(tracker: str, design: CalibrationDesign | None = None, work: Path | None = None,

@@ -53,7 +53,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
-from experiments.intervals import seed_intervals, widest_wilson_width
+from experiments.intervals import intervals_overlap, seed_intervals, widest_wilson_width
 from experiments.report import write_report
 from experiments.scenario import (
     MPC_CALL_MEDIAN_S,
@@ -675,15 +675,10 @@ def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame
 
 
 def _overlap(row: pd.Series, a: str, b: str) -> bool:
-    """The 95 % intervals of columns ``a`` and ``b`` overlap (an interval without ends, all
-    runs equal, is its value)."""
-    def ends(c: str) -> tuple[float, float]:
-        lo, hi = float(row[f"{c}_lo"]), float(row[f"{c}_hi"])
-        v = float(row[c])
-        return (lo, hi) if np.isfinite(lo) else (v, v)
-
-    (lo_a, hi_a), (lo_b, hi_b) = ends(a), ends(b)
-    return bool(lo_a <= hi_b + 1e-12 and lo_b <= hi_a + 1e-12)
+    """The 95 % intervals of columns ``a`` and ``b`` of ``row`` overlap
+    (``experiments.intervals.intervals_overlap``)."""
+    return intervals_overlap(*(tuple(float(row[f"{c}{e}"]) for e in ("", "_lo", "_hi"))
+                               for c in (a, b)))
 
 
 def calibration_table(trackers: tuple[str, ...]) -> pd.DataFrame:
