@@ -77,7 +77,7 @@ def main() -> None:
         figures,
         notes="Plots: benchmarks/results/pid_margins_vs_delay.png, pm_pid_vs_mpc.png, "
         "step_metrics_vs_delay.png. PID crossover 10 rad/s (PIDConfig default), MPC defaults "
-        "(its 4.00 ms measured compute time in the delay, experiments.scenario); NaN margins "
+        "(its 4.00 ms measured compute time in the delay, latency.scenario); NaN margins "
         "mean unstable; NaN settling means not settled (band ±0.1°) within the 3 s run. MPC "
         "margins are of its linearised law without Coulomb friction (docs/margins.md); "
         "mpc_unaware = the same law without the delay compensation.",

@@ -15,7 +15,7 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   every step or kept while they cover its turn:
   ``physics_step_{fresh,reused}_lists_B256_s_per_rotor``;
 * the same for the MPC (the scenario with ``controller: {kind: mpc}``, its default SQP + HPIPM
-  solver and the constant compute latency of ``experiments.scenario.MPC_CALL_MEDIAN_S``), whose
+  solver and the constant compute latency of ``latency.scenario.MPC_CALL_MEDIAN_S``), whose
   runs the compiled run loop computes with the solver as machine code
   (``controller.mpc_machine``): ``mpc_batched_B64_realtime_factor`` (with tables),
   ``mpc_batched_summaries_B64_realtime_factor``, ``mpc_event_loop_realtime_factor`` and their
@@ -46,8 +46,9 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from experiments import study, tuning  # noqa: E402
-from experiments.scenario import Scenario, build_loop, run_summaries, run_summary  # noqa: E402
+from latency import Scenario, build_loop  # noqa: E402
 from latency.batched import run_batched  # noqa: E402
+from latency.simulation import run_summaries, run_summary  # noqa: E402
 
 #: The benchmark's scenario: measurement model, PID, per-frame least squares, 5° tilt step.
 CASE = {"observer": {"kind": "solver"}}

@@ -33,11 +33,11 @@ import time
 
 import numpy as np
 
-from experiments.scenario import Scenario, build_loop
+from latency import Scenario, build_loop
 from latency.image_engine import run_images
 from latency.models import SEED_LATENCY_S
 
-TRACKERS = {"gk_transt": ("transt", 1), "dual_transt": ("dual_transt", 2)}
+TRACKERS = {"gk_transt": ("gk_transt", 1), "dual_transt": ("dual_transt", 2)}
 PARTS = {"render": ("plant/render", "plant/scene"), "network": ("onnxruntime",),
          "gk_and_trackers": ("observer/gk", "observer/trackers", "observer/transt",
                              "observer/tracking", "observer/opencv", "cv2"),

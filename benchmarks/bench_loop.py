@@ -19,7 +19,7 @@ import time
 import numpy as np
 from _report import record
 
-from experiments.scenario import Scenario, build_loop
+from latency import Scenario, build_loop
 
 CASES = {
     "measurement_pid_solver": {"observer": {"kind": "solver"}},
@@ -27,7 +27,7 @@ CASES = {
     "measurement_mpc_solver": {"observer": {"kind": "solver"}, "controller": {"kind": "mpc"}},
     "image_analytic_pid_aekf": {"mode": "image", "renderer": "analytic"},
     "image_analytic_pid_aekf_gk_transt": {"mode": "image", "renderer": "analytic",
-                                          "tracker": "transt"},
+                                          "tracker": "gk_transt"},
     "image_mujoco_pid_aekf": {"mode": "image", "renderer": "mujoco"},
 }
 

@@ -41,7 +41,6 @@ import pandas as pd
 from _report import record
 
 from experiments.intervals import wilson_ci
-from experiments.scenario import Scenario, run_many
 from experiments.study import (
     StudyConfig,
     _controller_spec,
@@ -51,6 +50,7 @@ from experiments.study import (
 )
 from experiments.sweep import run_id, run_sweep
 from experiments.sweep import table as sweep_table
+from latency import Scenario, simulate_many
 from latency.loop import LoopResult
 from latency.metrics import summarize
 
@@ -130,7 +130,7 @@ def verdict_runs(batch: list[dict]) -> list[dict | Exception]:
     scenarios = [Scenario.model_validate({k: v for k, v in c.items() if k != "verdict"})
                  for c in batch]
     out: list[dict | Exception] = []
-    for c, r in zip(batch, run_many(scenarios, engine="batched"), strict=True):
+    for c, r in zip(batch, simulate_many(scenarios, engine="batched"), strict=True):
         row = {}
         for length in c["verdict"]["lengths_s"]:
             row |= {f"{k}_{length:g}s": v for k, v in verdict_at(r, length).items()}

@@ -287,6 +287,7 @@ class SeedSteps(_Model):
     _steps: Steps = PrivateAttr()
 
     def model_post_init(self, __context: object) -> None:
+        """Build the step list once (the model is frozen)."""
         self._steps = self.steps()
 
     def sample(self, t: float) -> RefSample:
@@ -418,6 +419,8 @@ class RandomSmooth(_Model):
     _Omega: float = PrivateAttr()  # base frequency, rad/s
 
     def model_post_init(self, __context: object) -> None:
+        """Draw the harmonics' amplitudes and phases from ``seed`` and scale them to the peak
+        rate and tilt (once: the model is frozen)."""
         rng = np.random.default_rng(self.seed)
         k = np.arange(1, self.n_harmonics + 1)
         A = rng.normal(size=(3, self.n_harmonics)) / k

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from tqdm import tqdm
 
 from experiments.intervals import bootstrap_mean_ci, intervals_overlap, wilson_ci
-from experiments.scenario import PAIR_TRACKER_OF, Scenario, build_loop, run_many
+from latency import Scenario, build_loop, simulate_many
 from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
 from latency.loop import LoopResult
@@ -94,7 +94,7 @@ def _scenario(tracker: str, delay_ms: float, rate: float, seed: int, design: Cal
         "pipeline": {"observer": {"kind": "constant", "value_s": delay_ms / 1e3}},
     }
     if mode == "image":
-        body["tracker"] = {v: k for k, v in PAIR_TRACKER_OF.items()}[tracker]
+        body["tracker"] = tracker
     if loss is not None:
         body["measurement"] = {"loss": loss}
     return Scenario.model_validate(body)
@@ -229,7 +229,8 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
             keys.append((row["delay_ms"], row["rate_rad_s"]))
     model_runs = pd.DataFrame([(*k, r.summary["lost_frame_fraction"],
                                 r.summary["loss_of_control"])
-                               for k, r in zip(keys, run_many(twins, tables=False), strict=True)],
+                               for k, r in zip(keys, simulate_many(twins, tables=False),
+                                               strict=True)],
                               columns=["delay_ms", "rate_rad_s", "lost", "loc"])
     out = []
     for (d, rate), g in runs.groupby(["delay_ms", "rate_rad_s"]):

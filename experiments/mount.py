@@ -37,13 +37,13 @@ from scipy.optimize import least_squares
 
 from experiments.sources import Source, UserInputError
 from experiments.track import run_track
-from experiments.user_files import UserSetup
 from observer.cor_model import CorModel
 from observer.tracking import ATTITUDE_SOURCES, PairTracker
 from plant import attitude
 from plant.camera import Camera
 from plant.camera_file import CameraFile
 from plant.params import PlantParams
+from plant.user_files import UserSetup
 
 #: Known-attitude mode: distinct resting attitudes needed, and how far apart (geodesic, deg) two
 #: must be to count as distinct (our choice: two poses make the fit redundant beyond one

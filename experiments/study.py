@@ -53,20 +53,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.mpc import MPCConfig
 from controller.pid import PIDConfig, PIDController
+from controller.registry import MPCSpec, PIDSpec
 from experiments.intervals import intervals_overlap, seed_intervals, widest_wilson_width
 from experiments.report import write_report
-from experiments.scenario import (
-    MPC_CALL_MEDIAN_S,
-    PAIR_TRACKER_OF,
-    Engine,
-    MPCSpec,
-    PIDSpec,
-    Scenario,
-    build_loop,
-    run,
-    run_many,
-    run_summaries,
-)
 from experiments.study_plots import (
     CONTROLLER_STYLE,
     plot_boundary_overlay,
@@ -77,7 +66,7 @@ from experiments.study_plots import (
     plot_time_series,
 )
 from experiments.sweep import run_sweep
-from experiments.user_files import plant_from_files
+from latency import Engine, Scenario, build_loop, simulate, simulate_many
 from latency.image_engine import run_images
 from latency.loss_model import check_tracker, load_loss_model
 from latency.margins import (
@@ -93,7 +82,10 @@ from latency.models import SEED_LATENCY_S
 from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode
 from latency.profile import measure_pair_tracker_latency
+from latency.scenario import MPC_CALL_MEDIAN_S
+from latency.simulation import run_summaries
 from plant.params import PlantParams
+from plant.user_files import plant_from_files
 
 GK_MS = SEED_LATENCY_S["gk_transt"] * 1e3
 DUAL_MS = SEED_LATENCY_S["dual_transt"] * 1e3
@@ -209,7 +201,7 @@ class StudyConfig(BaseModel):
     scheduler: str | None = None
     engine: Engine = Field(
         "batched", description="Closed-loop engine of the sweep and the time series (both "
-        "measurement-model): batched, or the event loop."
+        "measurement-model): batched (auto means the same here), or the event loop."
     )
     motor_file: Path | None = Field(
         None, description="The user's motor YAML (plant.motor_file); None: the seed's motor."
@@ -251,7 +243,7 @@ class StudyConfig(BaseModel):
 
 def study_plant(cfg: StudyConfig) -> PlantParams:
     """The plant the study analyses and simulates: the motor and camera files of ``cfg``
-    (``experiments.user_files.plant_from_files``; ``ValueError`` naming the file and the
+    (``plant.user_files.plant_from_files``; ``ValueError`` naming the file and the
     field), else ``PlantParams()``."""
     files = {k: str(v) for k, v in (("motor_file", cfg.motor_file),
                                      ("camera_file", cfg.camera_file)) if v is not None}
@@ -371,7 +363,7 @@ def _margin_row(d_ms: float, timing: LoopTiming, m: Margins) -> dict:
 class _MPCLoop:
     """The axis-1 loop of the MPC's linearised law (``latency.mpc_law``) on ``params``: the
     plant ``1/(J s² + b s)``, the law at a loop timing, the MPC's compute time (s) that the
-    loop's delay adds (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here)."""
+    loop's delay adds (``latency.scenario.MPC_CALL_MEDIAN_S``, measured here)."""
 
     def __init__(self, params: PlantParams, mpc: MPCConfig) -> None:
         self.params = params
@@ -413,7 +405,7 @@ def mpc_margins_table(
     for comparison, without the delay compensation. Same columns as :func:`margins_table` plus
     ``delay_aware`` (no jitter margin: the law's state-space form is analysed sampled only).
     The loop's delay adds the MPC's own compute time, as the scenarios do
-    (``experiments.scenario.MPC_CALL_MEDIAN_S``, measured here), and the MPC predicts across it."""
+    (``latency.scenario.MPC_CALL_MEDIAN_S``, measured here), and the MPC predicts across it."""
     loop = _MPCLoop(params, mpc or MPCConfig())
     rows = []
     for mode in OBSERVER_MODES:
@@ -526,7 +518,7 @@ def sweep_configs(cfg: StudyConfig, params: PlantParams | None = None) -> list[d
 def study_run(config: dict) -> dict:
     """Sweep entry point, event loop: the scenario's summary (the ``study`` block is
     bookkeeping)."""
-    return run(Scenario.model_validate(_scenario_part(config)), engine="event").summary
+    return simulate(Scenario.model_validate(_scenario_part(config)), engine="event").summary
 
 
 def study_runs(configs: list[dict]) -> list[dict | Exception]:
@@ -609,7 +601,6 @@ def image_loop_scenarios(cfg: StudyConfig, params: PlantParams) -> list[tuple[di
     renderer): bookkeeping and scenario. A tracker without a seed latency of its own runs at
     both."""
     out = []
-    scenario_tracker = {v: k for k, v in PAIR_TRACKER_OF.items()}
     for tracker in cfg.trackers:
         own = OWN_DELAY_MS.get(tracker)
         delays = (own,) if cfg.image_loop_delays == "own" and own is not None \
@@ -622,7 +613,7 @@ def image_loop_scenarios(cfg: StudyConfig, params: PlantParams) -> list[tuple[di
                     s = Scenario(
                         name=f"image-{tracker}-{ref_name}-{d:.2f}ms-s{seed}",
                         duration_s=cfg.image_loop_duration_s, seed=seed, mode="image",
-                        tracker=scenario_tracker[tracker], plant=params,
+                        tracker=tracker, plant=params,
                         observer={"kind": "solver"}, controller=_controller_spec("pid", cfg),
                         reference=run_ref,
                         pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
@@ -656,7 +647,7 @@ def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame
     books = [b for b, _ in jobs]
     images = run_images(build_loop, [s for _, s in jobs], workers=cfg.workers or 2,
                         progress=True)
-    twins = run_many([_twin(s, b["tracker"]) for b, s in jobs], tables=False)
+    twins = simulate_many([_twin(s, b["tracker"]) for b, s in jobs], tables=False)
     runs = pd.DataFrame(
         [b | {"side": side} | r.summary for side, res in (("image", images), ("model", twins))
          for b, r in zip(books, res, strict=True)])
@@ -716,7 +707,7 @@ def time_series(
                 pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},
                 measurement={"sigma_px": cfg.sigma_px},
             )
-            r = run(s, engine=cfg.engine)
+            r = simulate(s, engine=cfg.engine)
             key = f"{ctrl}_{d:.2f}ms"
             series[key] = r.steps
             summaries[key] = r.summary
@@ -980,7 +971,7 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     mpc_margins.to_parquet(out / "mpc_margins.parquet")
     plot_pm_pid_vs_mpc(margins, mpc_margins, marks, out / "pm_pid_vs_mpc.png")
 
-    batched = cfg.engine == "batched"
+    batched = cfg.engine != "event"
     raw = run_sweep(
         f"experiments.study:{'study_runs' if batched else 'study_run'}",
         sweep_configs(cfg, params),

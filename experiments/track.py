@@ -55,7 +55,6 @@ from numpy.typing import ArrayLike, NDArray
 from experiments.cvat import read_cvat_xml
 from experiments.sources import Clock, LiveSchedule, Source, UserInputError, read_first
 from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
-from experiments.user_files import UserSetup
 from latency.models import Empirical
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
@@ -78,6 +77,7 @@ from observer.tracking import (
 from observer.types import SolverResult
 from plant import attitude
 from plant.camera import Camera, image_to_sensor, sensor_to_image
+from plant.user_files import UserSetup
 
 
 def parse_boxes(text: str) -> NDArray[np.float64]:
@@ -305,7 +305,7 @@ def run_track(
     ground_truth : a CVAT for video 1.1 XML of the recording: its first-frame boxes start the
         tracker (unless ``boxes_image_px`` is given) and its centres score the run (precision at
         20 px and centre errors, ``experiments.tracking_bench``).
-    setup : the user's motor and camera (``experiments.user_files.load_setup``; default the
+    setup : the user's motor and camera (``plant.user_files.load_setup``; default the
         seed's motor and the default camera); the camera's image size must be the frames'.
     max_frames : stop after this many processed frames.
     clock : seconds, monotonic; times the stages and paces a live source.

@@ -11,7 +11,7 @@
   rotor and the ORB matches of ``observer.orb``; its ``Capture.orb`` carries the
   ``OrbMeasurement`` for ``observer.orb_observer.OrbObserver`` (no marker truth: NaN).
   ``orb_reference`` renders the reference view it matches against. A scenario selects it with
-  an ORB observer kind (``experiments.scenario``: ``observer.kind: orb_aekf``, image mode).
+  an ORB observer kind (``latency.scenario``: ``observer.kind: orb_aekf``, image mode).
 
 Both return a ``Capture`` in full-sensor pixels, with the truth beside the measurement so that the
 loop can flag tracking loss by the seed's 20 px criterion (seed 000 §4.2).
@@ -20,8 +20,9 @@ loop can flag tracking loss by the seed's 20 px criterion (seed 000 §4.2).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Literal, Protocol
+from typing import Annotated, Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,11 +36,12 @@ from latency.loss_model import (
     prediction_offset_px,
 )
 from observer.orb import OrbConfig, OrbMeasurement, OrbReference
-from observer.trackers import make_pair_tracker
+from observer.trackers import TRACKERS, make_pair_tracker
 from observer.tracking import PairTracker, attitude_input
 from plant.camera import marker_pixels, sensor_to_image
 from plant.camera_mode import RegionOfInterest
 from plant.params import PlantParams
+from plant.registry import Registry
 from plant.texture import TextureParams
 
 
@@ -316,6 +318,8 @@ class MeasurementFrontEnd:
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
+        """The true marker centres at mid-exposure plus noise, dropouts, outliers and the loss
+        model's verdict (``FrontEnd.capture``)."""
         c = self.config
         truth = marker_pixels(self.params, q)
         nothing = np.full((2, 2), np.nan)
@@ -393,6 +397,7 @@ class ImageFrontEnd:
         self.last_roi_centre_px: NDArray[np.float64] | None = None
 
     def reset(self) -> None:
+        """Forget the tracker's and the prediction's state (a new run)."""
         self.locator.reset()
         self._prediction.reset()
         self.last_roi_centre_px = None
@@ -419,6 +424,8 @@ class ImageFrontEnd:
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
+        """Render the frame, read out the region of interest and track both markers
+        (``FrontEnd.capture``)."""
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
         image = self._read_out(frame)
         self._prediction.frame()
@@ -471,6 +478,8 @@ class OrbFrontEnd:
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
+        """Render the frame and match its ORB features (``Capture.orb``; no marker
+        centres)."""
         frame = self.renderer.render(q, t_exposure=t_exposure, omega=omega)
         m = self.observer.measure(frame)
         nan = np.full((2, 2), np.nan)
@@ -495,3 +504,53 @@ def orb_reference(
         frame.image, frame.binning, params, q_ref, print_half_size_m=size_mm / 2000.0,
         config=config,
     )
+
+
+def _measurement(s: Any, renderer: Any, observer: Any, clock: Callable[[], float]) -> FrontEnd:
+    """``MeasurementFrontEnd`` with the scenario's noise and loss, its own random stream."""
+    return MeasurementFrontEnd(s.plant, s.measurement, np.random.default_rng([s.seed, 1]))
+
+
+def _image(s: Any, renderer: Any, observer: Any, clock: Callable[[], float]) -> FrontEnd:
+    """``ImageFrontEnd`` with the scenario's tracker (``observer.trackers.TRACKERS``) timed by
+    ``clock``, reading the region of interest ``measurement.roi``."""
+    tracker = TRACKERS.get(s.tracker).build(s.plant, clock=clock)
+    return ImageFrontEnd(s.plant, renderer, tracker, roi=s.measurement.roi)
+
+
+def _orb(s: Any, renderer: Any, observer: Any, clock: Callable[[], float]) -> FrontEnd:
+    """``OrbFrontEnd`` feeding the ORB observer its frames."""
+    return OrbFrontEnd(renderer, observer)
+
+
+FRONT_ENDS = Registry(
+    "front_end",
+    "what the loop measures each frame: modelled marker centres, or rendered images through a "
+    "tracker or ORB",
+    "(scenario, renderer, observer, clock) -> FrontEnd",
+    "mode: measurement | image (image with an ORB observer: orb); options under measurement",
+)
+FRONT_ENDS.register("measurement", "the measurement model: true marker centres plus noise, "
+                    "dropouts, outliers and a loss model (mode: measurement)", _measurement,
+                    MeasurementConfig, prefix="measurement.")
+FRONT_ENDS.register("image", "rendered frames through a marker-pair tracker (mode: image, "
+                    "marker observers)", _image)
+FRONT_ENDS.register("orb", "rendered frames of the textured rotor matched by ORB (mode: "
+                    "image, ORB observers)", _orb)
+
+
+def _loss(spec: SearchWindowLoss | CalibratedLoss) -> SearchWindowLoss | LossModel:
+    """The search window's settings (the front end applies them), or the loaded calibration."""
+    return spec.model if isinstance(spec, CalibratedLoss) else spec
+
+
+LOSS_MODELS = Registry(
+    "loss",
+    "when the measurement model loses a marker (measurement.loss)",
+    "(spec) -> SearchWindowLoss | LossModel",
+    "measurement: {loss: {kind: NAME, ...}}",
+)
+LOSS_MODELS.register("search_window", "the hand-set search window, the same for every tracker "
+                     "(our construction)", _loss, SearchWindowLoss)
+LOSS_MODELS.register("calibrated", "a tracker's own loss, calibrated on its image-in-the-loop "
+                     "runs (pmspm calibrate-loss)", _loss, CalibratedLoss)

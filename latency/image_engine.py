@@ -2,7 +2,7 @@
 
 Each run is a ``latency.loop.ClosedLoop`` with an ``ImageFrontEnd`` (its own seed, renderer,
 tracker, delays, controller and reference), built in the process that runs it by a picklable
-``build(spec)`` (e.g. ``experiments.scenario.build_loop`` on ``Scenario`` objects). The engine
+``build(spec)`` (e.g. ``latency.simulation.build_loop`` on ``Scenario`` objects). The engine
 
 * spreads the runs over ``workers`` processes (one per core by default), in batches of
   ``runs_per_batch`` runs;
@@ -135,7 +135,7 @@ def run_images(
     ----------
     build : picklable callable spec -> ``ClosedLoop`` (an image-mode run), called in the worker
         that runs the spec (trackers hold network sessions that do not cross processes).
-    specs : what ``build`` takes, one per run (e.g. ``experiments.scenario.Scenario``).
+    specs : what ``build`` takes, one per run (e.g. ``latency.Scenario``).
     workers : processes (1: in this process, no pool). With more than one, the processes are
         spawned: a script that calls this must guard its top level with
         ``if __name__ == "__main__":``.

@@ -27,6 +27,8 @@ from typing import Annotated, Literal, Protocol
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, field_validator, model_validator
 
+from plant.registry import Registry
+
 #: Seed 000 Table 1: mean per-frame latency (s) of each tracker on an RTX 4060 laptop GPU. The
 #: one copy of these figures in the code: everything else reads them from here.
 SEED_LATENCY_S = {
@@ -68,13 +70,15 @@ class Constant(_Model):
     """A fixed latency ``value_s`` (s)."""
 
     kind: Literal["constant"] = "constant"
-    value_s: float = Field(ge=0.0)
+    value_s: float = Field(ge=0.0, description="The latency, s.")
 
     def sample(self, rng: np.random.Generator) -> float:
+        """``value_s``, every time."""
         return self.value_s
 
     @property
     def mean_s(self) -> float:
+        """``value_s``."""
         return self.value_s
 
 
@@ -83,10 +87,12 @@ class Normal(_Model):
     redrawing (the mean then sits slightly above ``mean_value_s`` when std is large)."""
 
     kind: Literal["normal"] = "normal"
-    mean_value_s: float = Field(ge=0.0)
-    std_s: float = Field(ge=0.0)
+    mean_value_s: float = Field(ge=0.0, description="Mean before truncation, s.")
+    std_s: float = Field(ge=0.0, description="Standard deviation before truncation, s.")
 
     def sample(self, rng: np.random.Generator) -> float:
+        """A draw of N(mean_value_s, std_s²), s, redrawn while negative (0 after 1,000
+        negative draws)."""
         for _ in range(1000):
             x = rng.normal(self.mean_value_s, self.std_s)
             if x >= 0.0:
@@ -95,6 +101,7 @@ class Normal(_Model):
 
     @property
     def mean_s(self) -> float:
+        """``mean_value_s`` (before truncation)."""
         return self.mean_value_s
 
 
@@ -102,15 +109,18 @@ class Gamma(_Model):
     """Gamma-distributed latency: ``offset_s`` plus Gamma(shape k, scale theta_s)."""
 
     kind: Literal["gamma"] = "gamma"
-    shape_k: float = Field(gt=0.0)
-    scale_theta_s: float = Field(gt=0.0)
-    offset_s: float = Field(0.0, ge=0.0)
+    shape_k: float = Field(gt=0.0, description="Gamma shape k (dimensionless).")
+    scale_theta_s: float = Field(gt=0.0, description="Gamma scale theta, s.")
+    offset_s: float = Field(0.0, ge=0.0, description="Fixed part added to the gamma "
+                            "draw, s.")
 
     def sample(self, rng: np.random.Generator) -> float:
+        """``offset_s`` plus a Gamma(k, θ) draw, s."""
         return float(self.offset_s + rng.gamma(self.shape_k, self.scale_theta_s))
 
     @property
     def mean_s(self) -> float:
+        """``offset_s + k·θ``, s."""
         return self.offset_s + self.shape_k * self.scale_theta_s
 
 
@@ -118,8 +128,8 @@ class Uniform(_Model):
     """Latency uniform on [low_s, high_s] (s)."""
 
     kind: Literal["uniform"] = "uniform"
-    low_s: float = Field(ge=0.0)
-    high_s: float = Field(ge=0.0)
+    low_s: float = Field(ge=0.0, description="Lower end, s.")
+    high_s: float = Field(ge=0.0, description="Upper end, s.")
 
     @model_validator(mode="after")
     def _ordered(self) -> Uniform:
@@ -128,10 +138,12 @@ class Uniform(_Model):
         return self
 
     def sample(self, rng: np.random.Generator) -> float:
+        """A uniform draw on [low_s, high_s], s."""
         return float(rng.uniform(self.low_s, self.high_s))
 
     @property
     def mean_s(self) -> float:
+        """The midpoint, s."""
         return 0.5 * (self.low_s + self.high_s)
 
 
@@ -146,10 +158,11 @@ class Empirical(_Model):
     """
 
     kind: Literal["empirical"] = "empirical"
-    samples_s: tuple[float, ...] = Field(min_length=1)
-    source: str = ""
-    machine: str = ""
-    measured_at: str = ""
+    samples_s: tuple[float, ...] = Field(min_length=1, description="The measured "
+                                         "latencies, s.")
+    source: str = Field("", description="What was measured (stage, tracker).")
+    machine: str = Field("", description="Where it was measured.")
+    measured_at: str = Field("", description="When it was measured (ISO 8601).")
 
     @field_validator("samples_s")
     @classmethod
@@ -170,10 +183,12 @@ class Empirical(_Model):
         )
 
     def sample(self, rng: np.random.Generator) -> float:
+        """One of the measured samples, drawn uniformly with replacement, s."""
         return float(self.samples_s[rng.integers(len(self.samples_s))])
 
     @property
     def mean_s(self) -> float:
+        """The samples' mean, s."""
         return float(np.mean(self.samples_s))
 
     def save(self, path: str | Path) -> None:
@@ -190,6 +205,25 @@ LatencyModel = Annotated[
     Constant | Normal | Gamma | Uniform | Empirical, Field(discriminator="kind")
 ]
 _adapter: TypeAdapter = TypeAdapter(LatencyModel)
+
+
+def _as_model(spec: Constant | Normal | Gamma | Uniform | Empirical) -> LatencyDistribution:
+    """A latency model's settings are the model: they draw its samples (``sample``)."""
+    return spec
+
+
+LATENCY_MODELS = Registry(
+    "latency",
+    "a stage's latency distribution: the pipeline's stages, the controller, the observer",
+    "(spec) -> LatencyDistribution",
+    "pipeline.<stage>, controller_latency: {kind: NAME, ...}",
+)
+for _cls, _summary in ((Constant, "a fixed latency"),
+                       (Normal, "a normal latency, truncated at zero"),
+                       (Gamma, "an offset plus a gamma-distributed latency"),
+                       (Uniform, "a latency uniform on [low_s, high_s]"),
+                       (Empirical, "latencies measured here, resampled")):
+    LATENCY_MODELS.register(_cls.model_fields["kind"].default, _summary, _as_model, _cls)
 
 
 def parse_latency(data: dict) -> Constant | Normal | Gamma | Uniform | Empirical:

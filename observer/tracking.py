@@ -145,22 +145,6 @@ class PairResult:
         return cls(nan2, nan2.copy(), True, reason, compute_time_s, True, True, False, False)
 
 
-#: The pair trackers ``observer.trackers.make_pair_tracker`` builds, by name, with what each is.
-PAIR_TRACKER_DESCRIPTIONS = {
-    "gk_transt": "GK-TransT: one TransT network on the red marker inside the GK assistance "
-                 "(seed 000 §3.2)",
-    "dual_transt": "two independent TransT networks, one per marker (the seed's original "
-                   "TransT)",
-    "kcf": "OpenCV KCF, one per marker",
-    "csrt": "OpenCV CSRT, one per marker",
-    "kcf_numpy": "the numpy KCF, one per marker",
-    "k2cf": "K²CF, one per marker (seed 004 §3.2)",
-    "kcf_gk": "OpenCV KCF on the red marker inside the GK assistance (no network)",
-    "csrt_gk": "OpenCV CSRT on the red marker inside the GK assistance (no network)",
-}
-#: Names accepted by ``observer.trackers.make_pair_tracker``.
-PAIR_TRACKERS = tuple(PAIR_TRACKER_DESCRIPTIONS)
-
 #: What an attitude rests on (``attitude_source``), in order of trust.
 ATTITUDE_SOURCES = ("both measured", "one predicted", "both predicted")
 

@@ -59,7 +59,7 @@ def test_pixel_kalman_refuses_a_measurement_noise_without_meaning(scale):
 
 
 def test_a_scenario_refuses_a_pixel_noise_without_meaning():
-    from experiments.scenario import Scenario
+    from latency import Scenario
 
     with pytest.raises(ValueError, match="pixel_r_scale"):
         Scenario.model_validate({"observer": {"kind": "pixel_kalman", "pixel_r_scale": 1e-300}})

@@ -7,8 +7,7 @@ import yaml
 from typer.testing import CliRunner
 
 from experiments.cli import app
-from experiments.scenario import Scenario, build_loop, run_many
-from latency import compiled
+from latency import Scenario, build_loop, compiled, simulate_many
 from latency.batched import run_batched
 from latency.metrics import SETTLE_BAND_DEG
 from plant import attitude as A
@@ -246,13 +245,13 @@ def test_the_grid_covers_what_it_claims(both_engines):
 def test_run_many_keeps_the_order_and_sends_image_runs_to_the_image_engine():
     a, b = _scenario(seed=7, duration_s=0.3), _scenario(seed=8, duration_s=0.3)
     image = Scenario(mode="image", duration_s=0.3, seed=9)
-    ra, ri, rb = run_many([a, image, b], engine="batched")
+    ra, ri, rb = simulate_many([a, image, b], engine="batched")
     assert ra.config["seed"] == 7 and rb.config["seed"] == 8 and ri.config["seed"] == 9
-    assert ri.summary == pytest.approx(run_many([image], engine="event")[0].summary,
+    assert ri.summary == pytest.approx(simulate_many([image], engine="event")[0].summary,
                                        nan_ok=True)
     measured = Scenario(mode="image", duration_s=0.3, observer_latency="measured")
     with pytest.raises(ValueError, match="needs model latencies"):
-        run_many([measured], engine="batched")
+        simulate_many([measured], engine="batched")
 
 
 def test_summary_only_runs_give_the_event_loops_summary_without_tables():
@@ -260,7 +259,7 @@ def test_summary_only_runs_give_the_event_loops_summary_without_tables():
     metrics (the event count included): their summaries equal the event loop's, on a run
     with lost frames and one in contact with the tilt stop."""
     cases = [GRID["lost frames"], GRID["saturation and tilt stop"]]
-    light = run_many(cases, tables=False)
+    light = simulate_many(cases, tables=False)
     for s, res in zip(cases, light, strict=True):
         assert compiled.covers(build_loop(s))
         assert res.steps.empty and res.frames.empty and res.events.empty
@@ -298,11 +297,11 @@ def test_sweep_batches_write_one_row_per_run_and_record_a_bad_config(tmp_path):
     the event loop's entry point for the same config, and an invalid config's error in its
     own row while the others run."""
     from experiments import sweep
-    from experiments.scenario import run_summary
+    from latency.simulation import run_summary
 
     good = [{"duration_s": 0.3, "seed": s, "observer": {"kind": "solver"}} for s in (0, 1)]
     bad = {"duration_s": -1.0}
-    ids = sweep.execute_batch("experiments.scenario:run_summaries", [*good, bad], str(tmp_path))
+    ids = sweep.execute_batch("latency.simulation:run_summaries", [*good, bad], str(tmp_path))
     table = sweep.table(tmp_path).set_index("run_id")
     assert len(table) == 3
     assert "duration_s" in table.loc[ids[2], "error"]

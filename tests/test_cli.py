@@ -190,7 +190,7 @@ def test_sweep_grid_expansion():
 def test_every_command_has_an_example_in_its_help():
     commands = ("study", "simulate", "margins", "sweep", "measure-latency", "tune-kalman",
                 "bench-trackers", "track", "calibrate", "calibrate-mount", "calibrate-loss",
-                "codesign")
+                "codesign", "parts")
     for cmd in commands:
         result = RUNNER.invoke(app, [cmd, "--help"])
         assert result.exit_code == 0 and "Example" in result.output, cmd

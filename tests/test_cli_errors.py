@@ -472,19 +472,19 @@ CASES = [
 def _forbid_work(monkeypatch: pytest.MonkeyPatch) -> None:
     """Replace the entry points of expensive work with functions that fail the test."""
     import experiments.codesign.search
-    import experiments.scenario
     import experiments.sequences
     import experiments.study
     import experiments.sweep
     import experiments.tuning
     import latency.margins
     import latency.profile
+    import latency.simulation
 
     def work(*args, **kwargs):
         raise AssertionError("expensive work started before the mistake was caught")
 
     for module, name in [
-        (experiments.scenario, "run"),
+        (latency.simulation, "simulate"),
         (experiments.codesign.search, "run_search"),
         (experiments.sweep, "run_sweep"),
         (experiments.study, "run_study"),
@@ -526,7 +526,7 @@ def test_cli_mistake_exits_2_with_a_message(case: Case, tmp_path, monkeypatch):
 
 
 def test_the_default_scenario_gives_no_reach_warning():
-    from experiments.scenario import Scenario
+    from latency import Scenario
 
     assert Scenario().reach_warnings() == []
 
@@ -538,7 +538,7 @@ def test_the_default_scenario_gives_no_reach_warning():
 def test_the_nyquist_warning_sits_at_pi_times_the_frame_rate(
     crossover_rad_s, frame_rate_hz, warned
 ):
-    from experiments.scenario import Scenario
+    from latency import Scenario
 
     # pi x 36 frames/s = 113.1 rad/s; pi x 72 frames/s = 226.2 rad/s.
     s = Scenario.model_validate(

@@ -577,13 +577,13 @@ def test_the_catalogue_reads_the_seeds_latencies_and_the_tracking_benchmark():
 
 def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
     from experiments.codesign.report import image_check, image_scenarios
-    from experiments.scenario import PAIR_TRACKER_OF
+
 
     # a user's tracker without an image implementation (image_tracker None) is skipped
     mine = {"latency": {"kind": "constant", "value_s": 0.01}, "image_tracker": None}
     spec = _tiny(image_check={"seeds": [0, 1]}, tracker_models={"mine": mine})
-    expected = {"gk_transt": "transt", "dual_transt": "dual_transt", "kcf_gk": "kcf",
-                "csrt_gk": "csrt", "k2cf": "k2cf", "mine": None}
+    expected = {"gk_transt": "gk_transt", "dual_transt": "dual_transt", "kcf_gk": "kcf_gk",
+                "csrt_gk": "csrt_gk", "k2cf": "k2cf", "mine": None}
     assert set(spec.tracker_models) == set(expected)
     for name, scenario_tracker in expected.items():
         design = Design(frame_rate_hz=36.0, tracker=name, observer="solver")
@@ -596,14 +596,13 @@ def test_the_image_check_runs_each_catalogue_tracker_that_scenarios_render():
         assert len(runs) == 2  # seeds x references
         for s in runs:
             assert (s.mode, s.tracker, s.measurement.roi) == ("image", scenario_tracker, None)
-            assert PAIR_TRACKER_OF[s.tracker] == name  # the loop builds this pair tracker
 
 
 def test_the_image_check_runs_the_designs_camera_mode_region_and_timing():
     """A 512 × 1024 region following the markers: the image runs read it (the loop's image
     front end gets it) at the mode's rate, (512 + 16 blank rows) line times per frame."""
     from experiments.codesign.report import image_scenarios
-    from experiments.scenario import Scenario, build_loop
+    from latency import Scenario, build_loop
 
     spec = _tiny(image_check={"seeds": [0]})
     design = Design(rows=512, cols=1024, follow=True, tracker="kcf_gk", observer="solver")

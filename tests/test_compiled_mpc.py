@@ -9,8 +9,7 @@ from controller import codegen
 from controller.mpc import MPCConfig, MPCController
 from controller.mpc_machine import call_casadi, machine_mpc, weight_values
 from experiments import study
-from experiments.scenario import Scenario, build_loop
-from latency import compiled
+from latency import Scenario, build_loop, compiled
 from latency.batched import run_batched
 from latency.mpc_law import _Hold
 from plant import attitude as A

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from experiments.scenario import Scenario, build_loop
+from latency import Scenario, build_loop
 from latency.image_engine import run_batch, run_images
 from observer.transt.network import build_transt
 from observer.transt.service import NetworkService, shared_services
@@ -27,7 +27,7 @@ def _scenario(tracker: str, seed: int, **extra) -> Scenario:
 
 
 def test_batched_image_runs_equal_the_event_loop_run_by_run() -> None:
-    specs = [_scenario(t, s) for t in ("transt", "dual_transt", "kcf") for s in (1, 2)]
+    specs = [_scenario(t, s) for t in ("gk_transt", "dual_transt", "kcf_gk") for s in (1, 2)]
     event = [build_loop(s).run() for s in specs]
     before = {id(sv): sum(n for k, n in sv.batch_sizes.items() if k > 1)
               for sv in shared_services()}

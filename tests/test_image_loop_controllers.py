@@ -5,7 +5,7 @@ measured compute time as latency), a 3° tilt step at GK-TransT's seed latency."
 import numpy as np
 import pytest
 
-from experiments.scenario import Scenario, build_loop
+from latency import Scenario, build_loop
 
 
 @pytest.mark.parametrize("controller", ["pid", "mpc"])

@@ -129,7 +129,7 @@ def test_measuring_a_profile_is_one_call(tmp_path):
 def test_measuring_the_orb_observer_profile_is_one_call(tmp_path):
     """The textured rotor's ORB-AEKF: one call gives its per-frame compute time as a
     profile, which a scenario with an ORB observer then takes as its (reproducible) latency."""
-    from experiments.scenario import Scenario, build_loop
+    from latency import Scenario, build_loop
     from latency.profile import measure_orb_latency
     from plant.params import PlantParams
     from plant.texture import TextureParams

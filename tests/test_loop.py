@@ -236,7 +236,7 @@ def test_motion_loss_model_of_the_measurement_front_end():
 def test_fixed_rate_controller_runs_on_its_own_clock():
     """``controller_rate_hz``: commands at k/rate + the controller latency, on the latest
     released estimate (a safe command before the first); the loop still follows the step."""
-    from experiments.scenario import Scenario, build_loop
+    from latency import Scenario, build_loop
 
     sc = Scenario.model_validate({
         "duration_s": 1.5, "controller_rate_hz": 100.0,

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 import latency.loss_model as lm
-from experiments.scenario import Scenario, build_loop, run_many
-from latency import compiled
+from latency import Scenario, build_loop, compiled, simulate_many
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
 from latency.loss_model import (
     FORMAT_VERSION,
@@ -94,8 +93,8 @@ def test_compiled_and_event_loop_lose_the_same_frames(models) -> None:
     write_loss_model(_file(hazard=(-4.0, 1.2, 0.5), persistence=(0.5, 0.3, -0.2, -0.5)))
     scenarios = [_calibrated_scenario(s) for s in (0, 1, 2)]
     assert all(compiled.covers(build_loop(s)) for s in scenarios)
-    batched = run_many(scenarios, engine="batched")
-    event = run_many(scenarios, engine="event")
+    batched = simulate_many(scenarios, engine="batched")
+    event = simulate_many(scenarios, engine="event")
     compared = 0
     for a, b in zip(event, batched, strict=True):
         np.testing.assert_array_equal(a.frames["lost"].to_numpy(dtype=float),

@@ -14,12 +14,12 @@ from experiments.cli import app
 from experiments.mount import MIN_ARC_DEG, run_calibrate_mount
 from experiments.sources import UserInputError, open_source
 from experiments.track import attitude_errors_deg, run_track
-from experiments.user_files import UserSetup, load_setup
 from observer.trackers import make_pair_tracker
 from plant import attitude as A
 from plant.camera import Camera, marker_pixels
 from plant.params import PlantParams
 from plant.render_analytic import AnalyticRenderer
+from plant.user_files import UserSetup, load_setup
 
 P = PlantParams()
 ROLL_DEG = 3.0

@@ -11,8 +11,9 @@ from controller import codegen
 from controller.mpc import MPCConfig, MPCController, _problem_of
 from controller.pid import truth_estimate
 from controller.reference import RandomSmooth, Steps, pure_tilt
-from experiments.scenario import MPCSpec, Scenario, run
+from controller.registry import MPCSpec
 from experiments.study import GK_MS
+from latency import Scenario, simulate
 from plant import attitude as A
 from plant.params import PlantParams
 
@@ -138,7 +139,7 @@ def test_real_time_iteration_closes_the_study_step_as_the_converged_solve():
                      reference={"kind": "tilt_step", "tilt_deg": 5.0, "t_step_s": 0.1},
                      pipeline={"observer": {"kind": "constant", "value_s": GK_MS / 1e3}},
                      measurement={"sigma_px": 0.0})
-        out[max_iter] = run(s)
+        out[max_iter] = simulate(s)
     q_full, q_rti = (out[k].steps[["qw", "qx", "qy", "qz"]].to_numpy() for k in (8, 1))
     gap = max(A.geodesic_angle(a, b) for a, b in zip(q_full, q_rti, strict=True))
     assert gap < np.deg2rad(0.5)

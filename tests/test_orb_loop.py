@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from experiments.scenario import Scenario, build_loop
+from latency import Scenario, build_loop
 from latency.frontends import OrbFrontEnd
 from latency.loop import ClosedLoop, LoopConfig
 from observer.orb import OrbReference
@@ -45,7 +45,7 @@ def test_orb_aekf_closes_the_loop_with_its_measured_latency():
     )
 
 
-# --- from a scenario (experiments.scenario) ------------------------------------------------
+# --- from a scenario (latency.scenario) ------------------------------------------------
 def test_orb_aekf_scenario_closes_the_loop():
     """``observer.kind: orb_aekf`` in image mode builds the textured rotor, the ORB front end
     and the ORB-AEKF, with the front end's measured latency, and closes the loop."""

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from pydantic import ValidationError
 
-from experiments.scenario import Scenario, run
+from latency import Scenario, simulate
 from latency.metrics import summarize
 from tests.test_loss_of_control import H, _frames, _steps
 
@@ -51,9 +51,9 @@ def test_scenarios_measure_steps_on_step_references_only(engine):
                                      "duration_s": 0.3}}
     common = dict(duration_s=0.5, observer={"kind": "solver"})
     for ref in (random_ref, ramp):
-        r = run(Scenario(reference=ref, **common), engine=engine).summary
+        r = simulate(Scenario(reference=ref, **common), engine=engine).summary
         assert all(np.isnan(r[k]) for k in STEP_KEYS) and np.isfinite(r["rms_error_deg"])
-    step = run(Scenario(reference={"kind": "tilt_step", "tilt_deg": 3.0}, **common),
+    step = simulate(Scenario(reference={"kind": "tilt_step", "tilt_deg": 3.0}, **common),
                engine=engine).summary
     assert step["step_size_deg"] == pytest.approx(3.0)
     seed_steps = Scenario(reference={"kind": "seed_steps", "args": {"axis": "tilt",

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from controller.mpc import MPCConfig
-from experiments.scenario import MPCSpec, Scenario, run
+from controller.registry import MPCSpec
 from experiments.study import GK_MS
+from latency import Scenario, simulate
 from plant import attitude
 
 T_STEP_S = 0.1
@@ -28,7 +29,7 @@ def runs():
             pipeline={"observer": {"kind": "constant", "value_s": GK_MS / 1e3}},
             measurement={"sigma_px": 0.0},
         )
-        out[preview] = run(s).steps
+        out[preview] = simulate(s).steps
     return out
 
 

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from experiments.scenario import MPC_CALL_MEDIAN_S, MPCSpec, Scenario, build_loop
+from controller.registry import MPCSpec
+from latency import Scenario, build_loop
 from latency.models import Constant
+from latency.scenario import MPC_CALL_MEDIAN_S
 from tests.fake_clock import StepClock
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
@@ -114,15 +116,31 @@ def test_image_mode_runs_k2cf_on_rendered_frames():
 
 
 def test_image_mode_takes_the_transt_tracker_and_rejects_it_elsewhere():
-    """``tracker: transt`` runs GK-TransT (the shipped network in the GK assistance) on the
+    """``tracker: gk_transt`` runs GK-TransT (the shipped network in the GK assistance) on the
     rendered frames; a tracker other than the default outside image mode names the field."""
     from observer.transt.tracker import TransTTracker
 
-    sc = Scenario.model_validate({"duration_s": 0.4, "mode": "image", "tracker": "transt"})
+    sc = Scenario.model_validate({"duration_s": 0.4, "mode": "image", "tracker": "gk_transt"})
     loop = build_loop(sc)
     assert isinstance(loop.front_end.locator.tracker, TransTTracker)
     r = loop.run()
     assert r.summary["lost_frame_fraction"] == 0.0
     assert r.frames.centre_error_px.max() < 5.0  # sensor px, against the renderer's truth
     with pytest.raises(ValidationError, match="tracker"):
-        Scenario.model_validate({"tracker": "csrt"})
+        Scenario.model_validate({"tracker": "csrt_gk"})
+
+
+def test_tracker_names_say_what_they_are():
+    """Scenario tracker names are the registry's: ``kcf`` is OpenCV's KCF alone on each marker
+    (with a warning that scenarios used to mean the GK-assisted one), ``kcf_gk`` the assisted
+    one; the former ``transt`` is accepted for ``gk_transt`` with a warning; an unknown name
+    lists the known ones."""
+    image = {"duration_s": 0.4, "mode": "image"}
+    with pytest.warns(FutureWarning, match="kcf_gk"):
+        plain = Scenario.model_validate({**image, "tracker": "kcf"})
+    assert build_loop(plain).front_end.locator.name == "kcf"
+    assert build_loop(Scenario.model_validate(image)).front_end.locator.name == "kcf_gk"
+    with pytest.warns(FutureWarning, match="now called 'gk_transt'"):
+        assert Scenario.model_validate({**image, "tracker": "transt"}).tracker == "gk_transt"
+    with pytest.raises(ValidationError, match="unknown tracker 'magic'; choose one of gk_transt"):
+        Scenario.model_validate({**image, "tracker": "magic"})

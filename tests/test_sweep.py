@@ -14,10 +14,10 @@ import pandas as pd
 import psutil
 import pytest
 
-from experiments.scenario import run_summary
 from experiments.sweep import run_id, run_sweep, sweep_id, table
+from latency.simulation import run_summary
 
-TARGET = "experiments.scenario:run_summary"
+TARGET = "latency.simulation:run_summary"
 
 
 def configs():
@@ -211,9 +211,9 @@ import signal
 from pathlib import Path
 
 if os.environ.get("SWEEP_TEST_GATE"):
-    import experiments.scenario
+    import latency.simulation
     import tests.test_sweep
-    experiments.scenario.run_summary = tests.test_sweep.gated_run_summary
+    latency.simulation.run_summary = tests.test_sweep.gated_run_summary
     if os.environ.pop("SWEEP_TEST_MAIN", None):
         gate = Path(os.environ["SWEEP_TEST_GATE"])
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from experiments.scenario import Scenario
+from latency import Scenario
 from latency.models import Constant
 from latency.pipeline import FrameScheduler, PipelineConfig, loop_timing
 

@@ -274,8 +274,8 @@ def test_calibrated_camera_and_motor_file_give_the_rendered_attitudes(recording,
     from pathlib import Path
 
     from experiments.calibrate import calibrate_frames
-    from experiments.user_files import load_setup
     from plant.calibration import random_board_poses, render_checkerboard
+    from plant.user_files import load_setup
 
     p = PlantParams()
     views = [(f"{k}", render_checkerboard(p, r, t, 4))
@@ -341,7 +341,7 @@ def test_aekf_back_end_refuses_a_marker_layout_it_does_not_model(recording, tmp_
     from pathlib import Path
 
     from experiments.sources import UserInputError
-    from experiments.user_files import load_setup
+    from plant.user_files import load_setup
 
     motor = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "motor.yaml")
                            .read_text())

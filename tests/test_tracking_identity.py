@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from experiments.scenario import PAIR_TRACKER_OF
 from experiments.sequences import OCCLUSION_FRAMES, SequenceSpec, development_seeds, render_sequence
 from experiments.tracking_bench import run_tracker, tracker_factories
 from latency.frontends import ImageFrontEnd
@@ -52,7 +51,7 @@ def test_loop_and_benchmark_give_identical_centres(case, n_frames):
     factories, _ = tracker_factories(["gk_transt"], stand_in=True)
     bench = run_tracker(factories["gk_standin"](), seq)
 
-    locator = make_pair_tracker(PAIR_TRACKER_OF["transt"], seq.params, transt_factory=NumpyKCF)
+    locator = make_pair_tracker("gk_transt", seq.params, transt_factory=NumpyKCF)
     front = ImageFrontEnd(seq.params, _Replay(seq), locator)
     q, w = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
     caps = [front.capture(q, w, k / seq.fps) for k in range(seq.n_frames)]

@@ -14,7 +14,7 @@ import scipy.signal
 
 from controller.pid import PIDController
 from experiments import tuning
-from experiments.scenario import Scenario, run
+from latency import Scenario, simulate
 from latency.margins import attitude_plant, loop_margins, loop_model
 from latency.pipeline import PipelineConfig
 from observer.gk.pixel_kalman import PixelKalman, PixelKalmanConfig
@@ -131,7 +131,7 @@ def test_run_cost_counts_lost_frames_and_penalises_them():
     (config,) = obj.configs(0.01, 0.1)
     res = tuning.run_cost(config)
     # Independent count: the same scenario run again, lost frames counted from its table.
-    frames = run(Scenario.model_validate(config["scenario"])).frames
+    frames = simulate(Scenario.model_validate(config["scenario"])).frames
     processed = frames[~frames.dropped]
     n_lost = int(processed["lost"].astype(bool).sum())
     assert n_lost > 0

@@ -11,9 +11,9 @@ import yaml
 from typer.testing import CliRunner
 
 from experiments.cli import app
-from experiments.scenario import Scenario
-from experiments.user_files import load_setup
+from latency import Scenario
 from plant.params import PlantParams
+from plant.user_files import load_setup
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -110,7 +110,7 @@ def off_centre_camera(tmp_path_factory):
 
 
 def test_a_calibrated_principal_point_moves_the_markers_as_a_pinhole_says(off_centre_camera):
-    from experiments.scenario import build_loop
+    from latency import build_loop
     from observer.cor_model import CorModel
     from observer.cor_solver import CorSolver
     from plant import attitude

@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.scenario import Scenario, run_many
 from experiments.study import (
     StudyConfig,
     _controller_spec,
@@ -21,6 +20,7 @@ from experiments.study import (
     study_plant,
 )
 from experiments.study_plots import plot_sweep
+from latency import Scenario, simulate_many
 
 #: Runs per controller and side of the boundary, and their length (s): the length the
 #: benchmark found needed (docs/closed_loop.md).
@@ -37,7 +37,7 @@ def _runs(ctrl: str, delay_ms: float, cfg: StudyConfig) -> list[dict]:
                  measurement={"sigma_px": cfg.sigma_px,
                               "search_radius_px": cfg.search_radius_px})
         for seed in range(100, 100 + N_RUNS)]  # seeds apart from the benchmark's 0-199
-    return [r.summary for r in run_many(scenarios, engine="batched", tables=False)]
+    return [r.summary for r in simulate_many(scenarios, engine="batched", tables=False)]
 
 
 @pytest.mark.slow

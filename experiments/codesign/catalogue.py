@@ -21,8 +21,8 @@ Each catalogue tracker is named as ``observer.trackers.make_pair_tracker`` names
   after the marker reappeared until it was tracked within 20 px for 5 frames): the frame it is
   lost on plus the slower marker's frames; None (never) where the tracker never re-acquired
   it. The search window and blur limit stay ``TrackerModel``'s defaults (not measured).
-* **image-in-the-loop**: the scenario tracker that renders with it
-  (``experiments.scenario.PAIR_TRACKER_OF``), None where scenarios have none.
+* **image-in-the-loop**: the tracker's own name (``observer.trackers.TRACKERS``), which a
+  scenario renders with.
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.scenario import PAIR_TRACKER_OF
 from latency.models import SEED_LATENCY_S
 
 #: The tracking benchmark's results (benchmarks/bench_tracking.py).
@@ -52,8 +51,6 @@ CATALOGUE: dict[str, tuple[str, str | None]] = {
     "csrt_gk": ("gk_transt", "csrt"),
     "k2cf": ("k2cf", None),
 }
-#: ``make_pair_tracker`` name -> the scenario tracker that runs it on rendered frames.
-SCENARIO_TRACKER_OF = {pair: scenario for scenario, pair in PAIR_TRACKER_OF.items()}
 
 
 def noise_scales(metrics_csv: Path = METRICS_CSV) -> dict[str, float]:
@@ -105,5 +102,5 @@ def catalogue_figures() -> dict[str, dict]:
                    else measured_latency_s(row))
         out[name] = {"latency_s": latency, "noise_scale": float(scales[row]),
                      "reacquire_after_frames": reacquire_after_frames(row),
-                     "image_tracker": SCENARIO_TRACKER_OF.get(name)}
+                     "image_tracker": name}
     return out

@@ -22,7 +22,7 @@ from experiments import sweep
 from experiments.codesign.space import Design, scenario_dict
 from experiments.codesign.spec import CodesignSpec
 from experiments.intervals import bootstrap_mean_ci, wilson_ci
-from experiments.scenario import run_summaries
+from latency.simulation import run_summaries
 
 #: The sweep runner's entry point for a batch of runs (the batched engine).
 BATCH_TARGET = "experiments.codesign.evaluate:run_batch"

@@ -29,7 +29,7 @@ from experiments.codesign.search import evaluate_designs
 from experiments.codesign.space import Design, scenario_dict, seed_design, space_summary, tracker_of
 from experiments.codesign.spec import CodesignSpec
 from experiments.report import md_table
-from experiments.scenario import Scenario, run_many
+from latency import Scenario, simulate_many
 
 #: Columns of the designs table, from a record (``search.evaluate_designs``).
 _MC_COLUMNS = ("rms_error_deg", "rms_torque_Nm", "lost_frame_fraction", "p_loss_of_control")
@@ -143,7 +143,7 @@ def image_check(spec: CodesignSpec, design: Design, mc: dict) -> dict:
     if tracker is None:
         return {"skipped": f"tracker {design.tracker!r} has no image-in-the-loop implementation"}
     rows = []
-    for res in run_many(image_scenarios(spec, design), engine="event"):
+    for res in simulate_many(image_scenarios(spec, design), engine="event"):
         s = res.summary
         rows.append({"error": "", **{f"result.{k}": float(s[k]) for k in (
             "rms_error_deg", "rms_torque_Nm", "lost_frame_fraction", "loss_of_control")}})

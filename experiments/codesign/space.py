@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from experiments.codesign.spec import CodesignSpec, FloatRange, TrackerModel
-from experiments.scenario import Scenario
 from experiments.tuning.objective import SEED_Q_SCALE, SEED_R_SCALE
+from latency import Scenario
 from plant.camera_mode import CameraMode
 from plant.params import PlantParams
 

@@ -1,9 +1,9 @@
 """The co-design spec file: what may be designed, how designs are scored and searched.
 
-Loaded strictly (``experiments.config_files.load_mapping``) and validated by pydantic: an
+Loaded strictly (``plant.config_files.load_mapping``) and validated by pydantic: an
 unknown field, a value out of range or an inconsistent range fails before any work, with a
 message that names the field. The plant comes from ``plant``, or from ``motor_file`` /
-``camera_file`` as in a scenario (``experiments.user_files.plant_from_files``).
+``camera_file`` as in a scenario (``plant.user_files.plant_from_files``).
 
 Each variable of the design space is a ``FloatRange`` (``[low, high]``, sampled on a log scale
 when ``log``; a single number fixes it) or a list of choices (one element fixes it).
@@ -20,19 +20,19 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    field_validator,
     model_validator,
 )
 
+from controller.registry import ReferenceSpec, RefSpec, TiltStepSpec
 from experiments.codesign.catalogue import catalogue_figures
-from experiments.config_files import load_mapping
-from experiments.scenario import ReferenceSpec, RefSpec, Scenario, TiltStepSpec
-from experiments.user_files import plant_from_files
+from latency import Scenario
 from latency.models import Constant, Empirical, LatencyModel
+from observer.trackers import TRACKERS
 from plant.camera_mode import SensorTiming
+from plant.config_files import load_mapping
 from plant.params import PlantParams
-
-#: The trackers a scenario renders with in image mode (``Scenario.tracker``).
-ScenarioTracker = Scenario.model_fields["tracker"].annotation
+from plant.user_files import plant_from_files
 
 
 class _Model(BaseModel):
@@ -132,7 +132,14 @@ class TrackerModel(_Model):
         "(it stays lost for the rest of the run).")
     blur_limit_px: float | None = Field(48.0, gt=0.0)
     dropout_prob: float = Field(0.0, ge=0.0, le=1.0)
-    image_tracker: ScenarioTracker | None = None
+    image_tracker: str | None = Field(
+        None, description="The tracker (observer.trackers.TRACKERS) that runs it on rendered "
+        "frames; None: no image-in-the-loop check.")
+
+    @field_validator("image_tracker")
+    @classmethod
+    def _known_tracker(cls, v: str | None) -> str | None:
+        return None if v is None else TRACKERS.canonical(v)
 
     @model_validator(mode="after")
     def _one_latency(self) -> TrackerModel:

@@ -7,7 +7,7 @@ frame. The seed's values are ``q = 0.01``, ``r = 0.1``.
 
 Objective (our construction)
 ----------------------------
-One closed-loop run of the measurement-model loop (``experiments.scenario``) costs, in degrees,
+One closed-loop run of the measurement-model loop (``latency.scenario``) costs, in degrees,
 
     J = e_rms + λ · T²_ms + μ · n_lost + D · diverged
 

@@ -12,8 +12,9 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from controller.pid import PIDController
-from experiments.scenario import PIDSpec, Scenario
+from controller.registry import PIDSpec
 from experiments.tuning.objective import TuningObjective, _ratio
+from latency import Scenario
 from latency.margins import Margins, attitude_plant, loop_margins, loop_model, sampled_margins
 from latency.pipeline import FrameScheduler, PipelineConfig
 from observer.gk.pixel_kalman import F_CV_AXIS, H_CV_AXIS

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from tqdm import tqdm
 
 from experiments import sweep
-from experiments.scenario import Engine, Scenario, run, run_many
+from latency import Engine, Scenario, simulate, simulate_many
 from latency.loop import LoopResult
 from latency.models import SEED_LATENCY_S
 
@@ -71,7 +71,7 @@ def _default_references() -> tuple[dict, ...]:
 class TuningObjective(BaseModel):
     """The closed-loop cost of a pixel-Kalman setting (q, r) at one vision delay.
 
-    ``references`` are scenario reference specs (``experiments.scenario.ReferenceSpec`` as
+    ``references`` are scenario reference specs (``controller.registry.ReferenceSpec`` as
     dicts); a ``"random"`` one without a ``seed`` in its ``args`` takes the run's seed, so each
     run seed also draws a new trajectory. ``scenario`` holds further overrides of the scenario
     (e.g. ``{"plant": ...}`` or other ``pipeline`` fields); it may not set the observer, the
@@ -188,7 +188,7 @@ def run_cost(config: dict) -> dict:
     ``config`` is one element of ``TuningObjective.configs``. Returns ``cost`` (deg), its terms,
     ``rms_error_deg``, ``mean_square_torque_N2m2``, ``control_effort_N2m2s``, ``n_lost_frames``,
     ``n_processed_frames``, ``lost_frame_fraction`` and ``diverged``."""
-    return _cost(run(Scenario.model_validate(config["scenario"]), engine="event"), config)
+    return _cost(simulate(Scenario.model_validate(config["scenario"]), engine="event"), config)
 
 
 def run_costs(configs: list[dict]) -> list[dict | Exception]:
@@ -203,7 +203,7 @@ def run_costs(configs: list[dict]) -> list[dict | Exception]:
             out.append({})
         except (ValidationError, KeyError) as exc:
             out.append(exc)
-    results = iter(run_many(scenarios))
+    results = iter(simulate_many(scenarios))
     return [
         o if isinstance(o, Exception) else _cost(next(results), c)
         for o, c in zip(out, configs, strict=True)
@@ -298,7 +298,7 @@ def _run_configs(
     starting a worker; ``progress`` then shows a bar over the batches or runs). ``engine``:
     the batched engine (``run_costs``, ``BATCH_SIZE`` runs at a time) or the event loop
     (``run_cost``)."""
-    batched = engine == "batched"
+    batched = engine != "event"
     if scheduler is None and workers == 1:
         out_dir.mkdir(parents=True, exist_ok=True)
         todo = sweep.pending(configs, out_dir)
@@ -350,7 +350,7 @@ def _results(configs: Sequence[dict], engine: Engine) -> list[dict | Exception]:
     """``run_cost`` of each config, or the exception it raised (a failed run is a failed
     point, not a failed evaluation): all together on the batched engine, or one by one on the
     event loop."""
-    if engine == "batched":
+    if engine != "event":
         return run_costs(list(configs))
     results: list[dict | Exception] = []
     for c in configs:

@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from experiments.scenario import Engine
 from experiments.tuning.filter import margin_columns
 from experiments.tuning.objective import (
     DEFAULT_DELAYS_S,
@@ -27,6 +26,7 @@ from experiments.tuning.objective import (
 )
 from experiments.tuning.plots import plot_heatmap, plot_tradeoff
 from experiments.tuning.search import grid_search, log_grid, optuna_search, trials_table
+from latency import Engine
 
 # --------------------------------------------------------------------------------------------
 # Comparison and the whole tuning

@@ -11,7 +11,6 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from experiments.scenario import Engine
 from experiments.tuning.filter import margin_columns
 from experiments.tuning.objective import (
     SEED_Q_SCALE,
@@ -23,6 +22,7 @@ from experiments.tuning.objective import (
     aggregate,
     evaluate,
 )
+from latency import Engine
 
 # --------------------------------------------------------------------------------------------
 # Grid search

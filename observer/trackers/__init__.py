@@ -53,7 +53,8 @@ from numpy.typing import ArrayLike, NDArray
 from observer.gk.drift import DriftConfig, DriftMonitor
 from observer.gk.hsv_gate import check_frame, check_rgb_image
 from observer.gk.subpixel import SubpixelConfig, refine_in_box
-from observer.tracking import PAIR_TRACKERS, PairResult
+from observer.trackers.registry import TRACKERS
+from observer.tracking import PairResult
 from plant.params import PlantParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -72,9 +73,13 @@ __all__ = [
     "NumpyKCF",
     "PAIR_TRACKERS",
     "PairResult",
+    "TRACKERS",
     "make_pair_tracker",
     "refine_centre_sensor_px",
 ]
+
+#: Names accepted by ``make_pair_tracker`` (``observer.trackers.registry.TRACKERS``).
+PAIR_TRACKERS = TRACKERS.names()
 
 #: Colours of the two markers, in the order of ``Frame.marker_px`` (seed 000 §3.2.2).
 MARKERS = ("red", "yellow")
@@ -329,8 +334,7 @@ def _build_pair_tracker(
     from observer.trackers.dual import IndependentPairTracker
     from observer.trackers.gk_transt import GKTransTPairTracker
 
-    if name not in PAIR_TRACKERS:
-        raise ValueError(f"unknown tracker {name!r}; choose one of {PAIR_TRACKERS}")
+    name = TRACKERS.canonical(name)
     if name in ("gk_transt", "dual_transt") and transt_factory is None:
         from observer.transt.tracker import TransTTracker
 

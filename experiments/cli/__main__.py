@@ -1,0 +1,5 @@
+"""``python -m experiments.cli``: the ``pmspm`` command line."""
+
+from experiments.cli import app
+
+app()

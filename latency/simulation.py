@@ -1,0 +1,177 @@
+"""The front door: run closed-loop scenarios.
+
+``simulate(scenario)`` runs one ``latency.scenario.Scenario`` and returns its
+``latency.loop.LoopResult``; ``simulate_many(scenarios)`` runs many, in order, each on the
+engine that computes it fastest with the same result, and logs why a run does not take the
+faster engine:
+
+* ``"batched"``: measurement-model runs advance together in ``latency.batched`` (its compiled
+  run loop where ``latency.compiled.coverage`` covers the run, else lockstep rounds); image runs
+  advance together in ``latency.image_engine``, their network calls batched. Run by run the
+  results equal the event loop's.
+* ``"event"``: the timed event loop, ``ClosedLoop.run``, one run at a time; it alone measures
+  compute latencies (``controller_latency: measured``, ``observer_latency: measured``) and runs
+  the ORB observers.
+
+``engine="auto"`` (the default) picks ``"batched"`` for measurement-model runs and for image
+runs when there are several that it can take, ``"event"`` otherwise. ``build_loop`` is the
+composition root: it builds each part from its family's registry.
+
+    >>> from latency import Scenario, simulate
+    >>> result = simulate(Scenario(duration_s=0.5))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from typing import Literal
+
+from pydantic import ValidationError
+
+from controller.registry import build_controller
+from latency import compiled
+from latency.batched import run_batched
+from latency.frontends import FRONT_ENDS, orb_reference
+from latency.image_engine import run_images
+from latency.loop import ClosedLoop, LoopResult
+from latency.scenario import Scenario
+from observer.registry import build_observer
+from plant.renderers import RENDERERS
+
+_log = logging.getLogger(__name__)
+
+#: The engines: ``"auto"`` chooses per run (see the module docstring).
+Engine = Literal["auto", "batched", "event"]
+
+
+def front_end_name(s: Scenario) -> str:
+    """The scenario's front end in ``latency.frontends.FRONT_ENDS``."""
+    if s.observer.is_orb:
+        return "orb"
+    return s.mode
+
+
+def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> ClosedLoop:
+    """The closed loop of a scenario, each part built by its family's registry.
+
+    ``clock`` (seconds, default ``time.perf_counter``) times every measured compute time: the
+    observer's front end and back end, the controller's calls and the loop's timer around them.
+    Tests inject a stand-in so that the ``measured`` latencies do not depend on machine load.
+    """
+    p = s.plant
+    renderer = RENDERERS.get(s.renderer).build(p, s.texture, s.seed) if s.mode == "image" else None
+    reference_view = None
+    if s.observer.is_orb:  # the textured rotor: rendered frames matched to a reference view
+        reference_view = orb_reference(p, renderer, s.texture, config=s.observer.orb)
+    observer = build_observer(s.observer, p, clock, reference_view)
+    front = FRONT_ENDS.get(front_end_name(s)).build(s, renderer, observer, clock)
+    latency = s.controller_latency
+    controller = build_controller(s.controller, p, clock,
+                                  None if latency == "measured" else latency.mean_s)
+    return ClosedLoop(p, controller, s.reference.build(), front, observer, s.loop_config(), clock)
+
+
+def event_only_reason(s: Scenario) -> str | None:
+    """Why ``s`` can run only on the event loop (None if the batched engines take it)."""
+    if s.mode == "image" and s.observer.is_orb:
+        return "the batched image engine runs marker trackers, not the ORB observer"
+    if s.mode == "image" and "measured" in (s.observer_latency, s.controller_latency):
+        return ("the batched image engine needs model latencies (it charges each run the "
+                "model's latency, not the batched wall time); a measured latency needs the "
+                "event loop's own clock")
+    return None
+
+
+def choose_engine(s: Scenario, engine: Engine = "auto", n_image_runs: int = 1
+                  ) -> tuple[Literal["batched", "event"], str]:
+    """The engine that runs ``s`` and why, for ``engine`` and a call with ``n_image_runs``
+    image runs; ``ValueError`` if the engine asked for cannot run it."""
+    reason = event_only_reason(s)
+    if engine == "batched" and reason is not None:
+        raise ValueError(f"scenario {s.name!r}: {reason}; use engine='event'")
+    if engine != "auto":
+        return engine, f"engine {engine!r} asked for"
+    if reason is not None:
+        return "event", reason
+    if s.mode == "image" and n_image_runs < 2:
+        return "event", "a single image run gains nothing from the batched image engine"
+    return "batched", ("measurement-model runs advance together" if s.mode == "measurement"
+                       else "image runs advance together, their network calls batched")
+
+
+def describe_path(s: Scenario, engine: Engine = "auto") -> str:
+    """Which engine and, on the batched engine, which path computes ``s``, with the reason
+    when it is not the compiled run loop (``latency.compiled.coverage``), in words."""
+    e, why = choose_engine(s, engine)
+    if e == "event":
+        return f"engine: event loop ({why})"
+    if s.mode == "image":
+        return "engine: batched image engine"
+    cov = compiled.coverage(build_loop(s))
+    if cov.path == "compiled":
+        return "engine: batched, compiled run loop"
+    return f"engine: batched, not the compiled run loop ({cov.reason})"
+
+
+def simulate(scenario: Scenario, engine: Engine = "auto", progress: bool = False) -> LoopResult:
+    """Run one scenario (see ``simulate_many`` for ``engine``); its result, with the steps,
+    frames and events tables."""
+    return simulate_many([scenario], engine, progress)[0]
+
+
+def simulate_many(scenarios: Sequence[Scenario], engine: Engine = "auto",
+                  progress: bool = False, tables: bool = True) -> list[LoopResult]:
+    """Run scenarios and return their results in order.
+
+    Parameters
+    ----------
+    scenarios : the runs.
+    engine : ``"auto"`` (each run on the fastest engine that takes it, the reason logged at
+        INFO on ``latency.simulation`` when that is the event loop), ``"batched"`` (every run
+        batched; ``ValueError`` for one it cannot take) or ``"event"``.
+    progress : show progress bars.
+    tables : False returns results without their steps, frames and events tables where the
+        batched engine can skip them (only the summaries are wanted).
+    """
+    n_image = sum(s.mode == "image" and event_only_reason(s) is None for s in scenarios)
+    choices = [choose_engine(s, engine, n_image) for s in scenarios]
+    for reason in sorted({why for e, why in choices if e == "event" and engine == "auto"}):
+        _log.info("event loop: %s", reason)
+    out: list[LoopResult | None] = [None] * len(scenarios)
+    batched = [i for i, (e, _) in enumerate(choices) if e == "batched"]
+    measured = [i for i in batched if scenarios[i].mode == "measurement"]
+    images = [i for i in batched if scenarios[i].mode == "image"]
+    for i, res in zip(measured, run_batched([build_loop(scenarios[i]) for i in measured],
+                                            progress, tables), strict=True):
+        out[i] = res
+    for i, res in zip(images, run_images(build_loop, [scenarios[i] for i in images], workers=1,
+                                         progress=progress), strict=True):
+        out[i] = res
+    for i, (e, _) in enumerate(choices):
+        if e == "event":
+            out[i] = build_loop(scenarios[i]).run(progress=progress)
+    return [r for r in out if r is not None]
+
+
+def run_summary(config: dict) -> dict:
+    """Sweep entry point: run the scenario given as a dict on the event loop, return its
+    summary metrics."""
+    return simulate(Scenario.model_validate(config), engine="event").summary
+
+
+def run_summaries(configs: list[dict]) -> list[dict | Exception]:
+    """Batched sweep entry point: the summaries of the scenarios given as dicts, together
+    (``simulate_many`` with ``engine="auto"``); an invalid config gives its exception in its
+    place."""
+    scenarios: list[Scenario] = []
+    out: list[dict | Exception] = []
+    for c in configs:
+        try:
+            scenarios.append(Scenario.model_validate(c))
+            out.append({})
+        except ValidationError as exc:
+            out.append(exc)
+    results = iter(simulate_many(scenarios, tables=False))
+    return [o if isinstance(o, Exception) else next(results).summary for o in out]

@@ -1,0 +1,71 @@
+"""The front door: ``from latency import Scenario, simulate, simulate_many`` is how the README
+and the notebooks run a loop, and ``simulate_many`` says which engine runs what and why."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from pathlib import Path
+
+import pytest
+
+from latency import Scenario, simulate, simulate_many
+from latency.simulation import choose_engine
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Ways to run a loop other than the front door.
+BACK_DOORS = re.compile(r"build_loop|ClosedLoop|run_batched|run_images|experiments\.scenario")
+
+
+def _notebook_code(path: Path) -> str:
+    cells = json.loads(path.read_text())["cells"]
+    return "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
+
+
+def test_the_readme_example_runs_through_the_front_door():
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 1 and "from latency import Scenario, simulate" in blocks[0]
+    namespace: dict = {}
+    exec(compile(blocks[0], "README.md", "exec"), namespace)  # noqa: S102 - our own README
+    assert len(namespace["runs"]) == 8
+    assert namespace["runs"][0].summary["duration_s"] == 3.0
+
+
+def test_the_readme_and_notebooks_use_only_the_front_door():
+    sources = {"README.md": "\n".join(re.findall(r"```python\n(.*?)```",
+                                                 (ROOT / "README.md").read_text(), re.S))}
+    for nb in sorted((ROOT / "experiments" / "notebooks").glob("*.ipynb")):
+        sources[nb.name] = _notebook_code(nb)
+    back = {name: BACK_DOORS.findall(code) for name, code in sources.items()}
+    assert not any(back.values()), back
+    running = [name for name, code in sources.items() if re.search(r"\bsimulate(_many)?\(", code)]
+    assert {"README.md", "closed_loop_16_vs_31ms.ipynb"} <= set(running)
+    assert all("from latency import" in sources[name] for name in running)
+
+
+def test_auto_batches_what_it_can_and_says_why_not(caplog):
+    measured = Scenario(duration_s=0.3)
+    image = Scenario(duration_s=0.3, mode="image")
+    orb = Scenario(duration_s=0.3, mode="image", observer={"kind": "orb"})
+    assert choose_engine(measured)[0] == "batched"
+    assert choose_engine(image, n_image_runs=2)[0] == "batched"
+    engine, why = choose_engine(image, n_image_runs=1)
+    assert engine == "event" and "single image run" in why
+    engine, why = choose_engine(orb, n_image_runs=2)
+    assert engine == "event" and "ORB" in why
+    with pytest.raises(ValueError, match="ORB observer; use engine='event'"):
+        choose_engine(orb, "batched")
+    with caplog.at_level(logging.INFO, logger="latency.simulation"):
+        (r,) = simulate_many([image])
+    assert r.summary["simulated_s"] == pytest.approx(0.3)
+    assert any("single image run" in m for m in caplog.messages), caplog.messages
+
+
+def test_simulate_is_simulate_many_of_one_and_equals_the_event_loop():
+    s = Scenario(duration_s=0.5, reference={"kind": "random", "args": {"max_rate_rad_s": 2.0}})
+    auto, event = simulate(s), simulate(s, engine="event")
+    assert auto.summary["rms_error_deg"] == pytest.approx(event.summary["rms_error_deg"],
+                                                          rel=1e-9)
+    assert auto.summary["rms_error_deg"] > 0.0
