@@ -48,7 +48,7 @@ GRID = {
         pipeline={"observer": {"kind": "gamma", "shape_k": 9.0, "scale_theta_s": 0.003}},
     ),
     "aekf": _scenario(seed=5, observer={"kind": "aekf"}),
-    # The compiled run loop's case (latency.compiled.covers): PID and the per-frame solver,
+    # The compiled run loop's case (latency.compiled.coverage): PID and the per-frame solver,
     # sequential and pipelined, constant and random observer and controller latencies,
     # outliers.
     "compiled, sequential, random latencies": _scenario(
@@ -196,14 +196,14 @@ def test_the_compiled_run_loop_takes_exactly_its_cases():
     latencies, the lockstep rounds for the other observers, a region of interest, a blur limit,
     a measured controller latency or a disturbance."""
     for case, s in GRID.items():
-        assert compiled.covers(build_loop(s)) == (case in COMPILED), case
+        assert (compiled.coverage(build_loop(s)).path == "compiled") == (case in COMPILED), case
     base = GRID["nominal"]
     measured = Scenario.model_validate({**base.model_dump(mode="json"),
                                         "controller_latency": "measured"})
-    assert not compiled.covers(build_loop(measured))
+    assert compiled.coverage(build_loop(measured)).path == "lockstep"
     disturbed = build_loop(base)
     disturbed.config = disturbed.config.model_copy(update={"disturbance_psd_Nm2s": (1e-8,) * 3})
-    assert not compiled.covers(disturbed)
+    assert compiled.coverage(disturbed).path == "lockstep"
 
 
 @pytest.mark.parametrize("case", sorted(COMPILED))
@@ -262,7 +262,7 @@ def test_summary_only_runs_give_the_event_loops_summary_without_tables():
     cases = [GRID["lost frames"], GRID["saturation and tilt stop"]]
     light = run_many(cases, tables=False)
     for s, res in zip(cases, light, strict=True):
-        assert compiled.covers(build_loop(s))
+        assert compiled.coverage(build_loop(s)).path == "compiled"
         assert res.steps.empty and res.frames.empty and res.events.empty
         ref = build_loop(s).run().summary
         assert res.summary.keys() == ref.keys()
