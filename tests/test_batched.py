@@ -206,6 +206,22 @@ def test_the_compiled_run_loop_takes_exactly_its_cases():
     assert compiled.coverage(disturbed).path == "lockstep"
 
 
+def test_runs_that_leave_the_compiled_loop_are_logged_once_per_reason(caplog):
+    """Three AEKF runs and a measured controller latency beside a compiled run: one INFO line
+    per reason, with the number of runs it sends to the lockstep rounds; none for the compiled
+    run."""
+    short = {"duration_s": 0.05, "observer": {"kind": "aekf"}}
+    loops = [build_loop(_scenario(seed=s, **short)) for s in range(3)]
+    loops += [build_loop(_scenario(duration_s=0.05, controller_latency="measured")),
+              build_loop(_scenario(duration_s=0.05))]
+    with caplog.at_level("INFO", logger="latency.batched"):
+        run_batched(loops)
+    lines = [r.getMessage() for r in caplog.records if r.name == "latency.batched"]
+    assert len(lines) == 2 and all(r.levelname == "INFO" for r in caplog.records)
+    assert lines[0].startswith("3 of 5 runs not in the compiled run loop: observer FilterObserver")
+    assert lines[1].startswith("1 of 5 runs not in the compiled run loop: a measured controller")
+
+
 @pytest.mark.parametrize("case", sorted(COMPILED))
 def test_compiled_runs_give_the_event_loops_tables(both_engines, case):
     """The compiled loop's frames and events tables are the event loop's: the same columns and

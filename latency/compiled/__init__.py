@@ -46,8 +46,9 @@ its solver statistics (``MPCController.unconverged`` and the like) are not kept.
 why (the first of the run's parts or settings that the compiled loop lacks).
 """
 
-from latency.compiled.coverage import Coverage, _solver_observer, coverage
+from latency.compiled.coverage import Coverage, coverage
+from latency.compiled.coverage import _solver_observer as _solver_observer
 from latency.compiled.layout import CAPTURE_REASONS, EVENT_KINDS
 from latency.compiled.run import run
 
-__all__ = ["CAPTURE_REASONS", "EVENT_KINDS", "Coverage", "_solver_observer", "coverage", "run"]
+__all__ = ["CAPTURE_REASONS", "EVENT_KINDS", "Coverage", "coverage", "run"]
