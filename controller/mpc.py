@@ -617,7 +617,10 @@ class MPCController(Controller):
         return float(np.median(recent)) if recent else 0.0
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
-        """Stator-frame torque (N·m) to hold from the call time ``t`` (s)."""
+        """Stator-frame torque (N·m) to hold from the call time ``t`` (s).
+
+        Mirrored in ``latency.compiled.mpc._mpc`` and ``latency.compiled.mpc._mpc_keep``; keep
+        both in step (tests/test_compiled_mirror.py checks them equal)."""
         t_call = self.clock()
         try:
             return self._command(estimate, reference, float(t))
@@ -644,7 +647,10 @@ class MPCController(Controller):
         """Note that the stator torque ``torque`` (N·m) acts from ``t_apply`` (s) on, for the
         delay compensation. ``command`` calls it itself; a loop that overrides a command (a
         safe stop, a different hold) reports what it really sent. Commands older than the
-        horizon plus 1 s before the newest are forgotten."""
+        horizon plus 1 s before the newest are forgotten.
+
+        Mirrored in ``latency.compiled.mpc._mpc_record``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         self._history.append((float(t_apply), np.array(torque, dtype=float).reshape(3)))
         horizon = self.N * self.h + 1.0
         while len(self._history) > 1 and self._history[1][0] < t_apply - horizon:
@@ -652,7 +658,10 @@ class MPCController(Controller):
 
     def predict(self, x: NDArray[np.float64], t_from: float, t_to: float) -> NDArray[np.float64]:
         """Integrate the twin from state ``x`` (q, omega) at ``t_from`` to ``t_to`` (s) under the
-        commands in this controller's history (zero torque before the first one)."""
+        commands in this controller's history (zero torque before the first one).
+
+        Mirrored in ``latency.compiled.mpc._mpc_predict``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         x = np.asarray(x, dtype=float).copy()
         if t_to <= t_from:
             return x
@@ -687,6 +696,11 @@ class MPCController(Controller):
         return self.last_torque.copy()
 
     def _initial_state(self, est: Estimate, t: float) -> tuple[NDArray[np.float64], float]:
+        """The NLP's initial state (q, omega) and its time t0 (s) from an estimate at the
+        call time ``t`` (s): the rate from successive attitudes when the estimate has none,
+        carried to the command's start when delay-aware. Mirrored in
+        ``latency.compiled.mpc._mpc_initial_state``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         q = attitude.normalize(est.q, "estimate.q")
         omega = np.asarray(est.omega, dtype=float)
         rate = self._rate.update(q, est.state_time)
@@ -703,7 +717,11 @@ class MPCController(Controller):
     ) -> NDArray[np.float64]:
         """The NLP parameters: reference attitude and rate at the N+1 nodes from ``t0`` (s) and
         the feedforward torque of the N intervals (stator frame, N·m). Without
-        ``reference_preview`` the reference at ``t_call`` (s; default ``t0``) is held."""
+        ``reference_preview`` the reference at ``t_call`` (s; default ``t0``) is held.
+
+        Mirrored in ``latency.compiled.mpc._mpc_arrays`` and
+        ``latency.compiled.mpc._mpc_parameters``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         N, h, J = self.N, self.h, self.J
         if self.config.reference_preview:
             ref = reference.sample_many(t0 + h * np.arange(N + 1))
@@ -725,6 +743,10 @@ class MPCController(Controller):
         return np.r_[qr.ravel(), wr.ravel(), tff.ravel()]
 
     def _initial_guess(self, x0: NDArray, t0: float) -> dict:
+        """The solver's initial guess for x0 at t0 (s): the last solution shifted by the
+        steps elapsed (with its multipliers when none has elapsed), or x0 held. Mirrored in
+        ``latency.compiled.mpc._mpc_guess``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         N = self.N
         if self._warm is None:
             X = np.tile(x0, (N + 1, 1))

@@ -25,7 +25,7 @@ some fields of HPIPM's ``d_ocp_qp_ipm_arg`` (CasADi 3.8 with the HPIPM it ships)
 stack garbage and the QPs failed in speed mode; the patch sets them to HPIPM's defaults for
 the mode, as CasADi's own plugin (``d_ocp_qp_ipm_arg_set_default``) does.
 
-Mirrors: ``latency.compiled._mpc`` runs ``MPCController._command`` with these functions.
+Mirrors: ``latency.compiled.mpc._mpc`` runs ``MPCController._command`` with these functions.
 """
 
 from __future__ import annotations

@@ -108,7 +108,10 @@ class RateFromAttitude:
         self._omega = np.full(3, np.nan)
 
     def update(self, q: NDArray[np.float64], t_exposure: float) -> NDArray[np.float64]:
-        """Feed the attitude measured at ``t_exposure`` (s); return the rate estimate."""
+        """Feed the attitude measured at ``t_exposure`` (s); return the rate estimate.
+
+        Mirrored in ``latency.compiled.pid._attitude_rate``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         if self._q is not None and t_exposure > self._t:
             dq = attitude.multiply(attitude.conjugate(self._q), q)
             self._omega = attitude.to_rotvec(dq) / (t_exposure - self._t)
@@ -337,7 +340,10 @@ class PIDController(Controller):
         self.invalid_count = 0
 
     def command(self, estimate: Estimate, reference: Reference, t: float) -> NDArray[np.float64]:
-        """Stator-frame torque (N·m) from time ``t`` (s); see the module docstring."""
+        """Stator-frame torque (N·m) from time ``t`` (s); see the module docstring.
+
+        Mirrored in ``latency.compiled.pid._pid``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         t0 = self.clock()
         try:
             return self._command(estimate, reference, float(t))

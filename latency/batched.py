@@ -28,6 +28,8 @@ dominate), so callers send them to the event loop.
 
 from __future__ import annotations
 
+import logging
+from collections import Counter
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -40,6 +42,8 @@ from plant import attitude
 from plant.params import PlantParams
 from plant.rigid_body import RigidBody
 from plant.torque import N_COILS, Allocation, TorqueMap, allocate
+
+_log = logging.getLogger(__name__)
 
 
 class _Batch:
@@ -128,9 +132,11 @@ def run_batched(
 ) -> list[LoopResult]:
     """Run the closed loops together and return their results, in order.
 
-    Runs of the default case (``latency.compiled.covers``) run whole in the compiled run loop,
-    one after the other; the others advance together in lockstep, those with different
+    Runs of the default case (``latency.compiled.coverage``) run whole in the compiled run
+    loop, one after the other; the others advance together in lockstep, those with different
     ``PlantParams`` in separate batches, and a run alone in its batch runs on the event loop.
+    Why runs leave the compiled run loop is logged (``logging``, INFO, logger
+    ``latency.batched``): one line per distinct reason, with the number of runs.
     Each result is what ``loop.run()`` returns (the same tables and ``summarize`` metrics).
     ``tables=False`` lets the compiled run loop leave its results' steps, frames and events
     tables empty (``latency.compiled.run``), for sweeps that keep the summaries only.
@@ -140,13 +146,18 @@ def run_batched(
             raise ValueError("mujoco_sensor_delay_s needs MuJoCo's sensors: use the event loop")
     results: list[LoopResult | None] = [None] * len(loops)
     groups: dict[str, list[int]] = {}
+    fallbacks: Counter[str] = Counter()
     bar = tqdm(total=len(loops), disable=not progress, desc="batched runs", unit="run")
     for i, lp in enumerate(loops):
-        if compiled.covers(lp):  # the default case: the whole run in the compiled loop
+        cov = compiled.coverage(lp)
+        if cov.path == "compiled":  # the default case: the whole run in the compiled loop
             results[i] = compiled.run(lp, tables)
             bar.update(1)
         else:
+            fallbacks[cov.reason] += 1
             groups.setdefault(lp.params.model_dump_json(), []).append(i)
+    for reason, n in fallbacks.items():
+        _log.info("%d of %d runs not in the compiled run loop: %s", n, len(loops), reason)
     for members in groups.values():
         group = [loops[i] for i in members]
         # A batch of one gains nothing from the lockstep rounds: the event loop calls the same

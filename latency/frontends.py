@@ -318,8 +318,10 @@ class MeasurementFrontEnd:
     def capture(
         self, q: NDArray[np.float64], omega: NDArray[np.float64], t_exposure: float
     ) -> Capture:
-        """The true marker centres at mid-exposure plus noise, dropouts, outliers and the loss
-        model's verdict (``FrontEnd.capture``)."""
+        """The measurement of a frame exposed at ``t_exposure`` (s) at attitude ``q`` and
+        body rate ``omega`` (rad/s): the true marker pixels, lost or plus noise
+        (``MeasurementConfig``). Mirrored in ``latency.compiled.frontend._capture``; keep
+        both in step (tests/test_compiled_mirror.py checks them equal)."""
         c = self.config
         truth = marker_pixels(self.params, q)
         nothing = np.full((2, 2), np.nan)

@@ -303,7 +303,10 @@ class ClosedLoop:
         stopping at every physics grid point on the way; it is sent back the ``Segment`` (the
         time reached and the state at each grid point passed). It returns the ``LoopResult``.
         ``run`` advances a ``MujocoPlant`` (``_advance_segment``); ``latency.batched``
-        advances many runs at once."""
+        advances many runs at once.
+
+        Mirrored in ``latency.compiled.kernel._run_events``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         c, p = self.config, self.params
         rng_pipe, rng_ctrl, rng_dist = run_streams(c.seed)
         native = c.mujoco_sensor_delay_s is not None
@@ -385,7 +388,10 @@ class ClosedLoop:
 
     # --- event handlers --------------------------------------------------------------------
     def _on_frame(self, run: _Run, t: float) -> None:
-        """A frame's mid-exposure: measure (unless the frame is dropped), schedule release."""
+        """A frame's mid-exposure: measure (unless the frame is dropped), schedule release.
+
+        Mirrored in ``latency.compiled.kernel._on_frame``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         c, plant = self.config, run.plant
         err = attitude.geodesic_angle(plant.q, self.reference.sample(t).q)
         far = not np.isfinite(err) or np.degrees(err) > c.divergence_deg
@@ -448,7 +454,10 @@ class ClosedLoop:
 
     def _on_release(self, run: _Run, t: float, payload: tuple[int, Capture, float]) -> None:
         """An estimate becomes available: the observer fuses the frame's measurement (at its
-        exposure time) and hands over its estimate; compute the command, schedule it."""
+        exposure time) and hands over its estimate; compute the command, schedule it.
+
+        Mirrored in ``latency.compiled.kernel._on_release``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         frame_row, cap, t_exposure = payload
         self.observer.process(cap.measurement, t_exposure, cap.lost, cap.reason,
                               cap.compute_time_s)
@@ -498,7 +507,10 @@ class ClosedLoop:
 
     def _on_command(self, run: _Run, t: float,
                     payload: tuple[NDArray[np.float64], Estimate, bool]) -> None:
-        """Apply a torque command: allocate currents within the limits, hold them."""
+        """Apply a torque command: allocate currents within the limits, hold them.
+
+        Mirrored in ``latency.compiled.kernel._on_command``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         torque, est, overridden = payload
         if overridden:
             self.controller.record_command(t, torque)  # e.g. the MPC's delay compensation
@@ -562,7 +574,10 @@ def _advance_segment(
 ) -> Segment:
     """Serve an ``Advance`` on one plant: step to the next grid point or the target, whichever
     is first (``MujocoPlant.advance`` puts the target on its exact time), record the state at
-    each grid point up to ``n_steps``, until within 1e-12 s of the target."""
+    each grid point up to ``n_steps``, until within 1e-12 s of the target.
+
+    Mirrored in ``latency.compiled.steps._advance``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal)."""
     t, k = req.t_s, req.k_log
     rows: list[tuple] = []
     while True:
@@ -603,7 +618,10 @@ class _StepLog:
 
     def write_rows(self, k0, t, seg, q_ref, T_cmd, T_del, q_est, sat, stop) -> None:
         """Rows k0 ... k0 + n - 1: times t (n,), the states of ``seg``, the references
-        q_ref (n, 4), the held command, estimate and flags, the stop flags (n,)."""
+        q_ref (n, 4), the held command, estimate and flags, the stop flags (n,).
+
+        Mirrored in ``latency.compiled.steps._record``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         rows = self.a[k0 : k0 + len(t)]
         rows[:, 0] = t
         rows[:, 1:5] = seg.q

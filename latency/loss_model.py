@@ -121,7 +121,10 @@ class LossModel:
         return self.data.noise_sigma_px
 
     def p_lost(self, offset_px: float, blur_px: float, frames_lost: int) -> float:
-        """Probability that a frame is lost given its conditions (module docstring)."""
+        """Probability that a frame is lost given its conditions (module docstring).
+
+        Mirrored in ``latency.compiled.frontend._p_lost``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         a, b = math.log1p(offset_px), math.log1p(blur_px)
         if frames_lost <= 0:
             h = self.hazard
@@ -208,7 +211,10 @@ def write_loss_model(data: LossModelFile, folder: Path | None = None) -> Path:
 def blur_travel_px(params: PlantParams, q: ArrayLike, omega: ArrayLike) -> float:
     """Largest marker travel (sensor px) over the camera's exposure at body rate ``omega``
     (rad/s) about mid-exposure attitude ``q``: the two markers projected half an exposure
-    either side."""
+    either side.
+
+    Mirrored in ``latency.compiled.frontend._blur_travel_px``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal)."""
     half = 0.5 * params.camera.exposure_s
     w = np.asarray(omega, dtype=float)
     ends = [marker_pixels(params, attitude.multiply(q, attitude.from_rotvec(s * half * w)))
@@ -218,7 +224,10 @@ def blur_travel_px(params: PlantParams, q: ArrayLike, omega: ArrayLike) -> float
 
 def prediction_offset_px(truth_px: NDArray[np.float64],
                          predicted_px: NDArray[np.float64] | None) -> float:
-    """Max over the markers of |truth - prediction| (sensor px); 0 without a prediction."""
+    """Max over the markers of |truth - prediction| (sensor px); 0 without a prediction.
+
+    Mirrored in ``latency.compiled.frontend._p_lost``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal)."""
     if predicted_px is None:
         return 0.0
     return float(np.max(np.linalg.norm(truth_px - predicted_px, axis=1)))

@@ -213,6 +213,9 @@ class FrameScheduler:
         ``measure``, if given, is called with the frame index only for a frame that is not
         dropped, and returns the processing latency (s) to use instead of the model's: for an
         observer whose compute time is measured while the loop runs.
+
+        Mirrored in ``latency.compiled.events._event_queue``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal).
         """
         c = self.config
         k = self._k

@@ -344,7 +344,10 @@ class CorSolver:
     def solve(
         self, marker_px: NDArray[np.float64], q_prev: NDArray[np.float64] | None = None
     ) -> SolverResult:
-        """Attitude from marker pixels; never raises on bad input (see the class docstring)."""
+        """Attitude from marker pixels; never raises on bad input (see the class docstring).
+
+        Mirrored in ``latency.compiled.observer._solve``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         cfg = self.config
         try:
             uv = np.asarray(marker_px, dtype=float)

@@ -279,6 +279,11 @@ class PixelKalmanObserver:
         reason: str = "",
         compute_time_s: float = 0.0,
     ) -> None:
+        """Filter the measured centres ``marker_px`` (2, 2), sensor px, each marker with
+        its own filter (the prior stands in for a lost frame), and hand the filtered
+        centres to the per-frame solver. Mirrored in
+        ``latency.compiled.observer._pixel_kalman``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         z = np.asarray(marker_px, dtype=float).reshape(-1, 2)
         filtered = np.full_like(z, np.nan)
         for i, f in enumerate(self.filters):

@@ -159,7 +159,10 @@ def from_rotvec(rv: ArrayLike) -> NDArray[np.float64]:
 
 
 def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
-    """Rotation vector (rad) of a unit quaternion, angle in [0, pi]."""
+    """Rotation vector (rad) of a unit quaternion, angle in [0, pi].
+
+    Mirrored in ``latency.compiled.rotations._rotvec``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal)."""
     q = normalize(q)
     if q[0] < 0:
         q = -q

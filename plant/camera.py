@@ -149,6 +149,9 @@ def rotor_to_stator(q: ArrayLike, points_rotor: ArrayLike) -> NDArray[np.float64
 
 def marker_pixels(p: PlantParams, q: ArrayLike, binning: int = 1) -> NDArray[np.float64]:
     """Ground-truth pixels (2, 2) of the red and yellow marker centres at attitude ``q``:
-    the projections of the 3-D disc centres (full-sensor pixels when ``binning`` = 1)."""
+    the projections of the 3-D disc centres (full-sensor pixels when ``binning`` = 1).
+
+    Mirrored in ``latency.compiled.frontend._project``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal)."""
     cam = Camera.from_plant(p)
     return cam.project(rotor_to_stator(q, marker_points(p.rotor, p.vfc)), binning)

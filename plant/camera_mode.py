@@ -99,7 +99,10 @@ class RegionOfInterest(_Strict):
         """Centre (u, v) of the region for the next frame, sensor px: the sensor's centre, or
         with ``follow`` the mean of the predicted marker centres ``predicted_px`` (2, 2) when
         there is a prediction; shifted so that the region lies on the ``sensor_px``
-        (width, height) sensor."""
+        (width, height) sensor.
+
+        Mirrored in ``latency.compiled.frontend._roi_misses``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         size = np.asarray(sensor_px, dtype=float)
         centre = (size - 1.0) / 2.0
         if self.follow and predicted_px is not None:
@@ -109,7 +112,10 @@ class RegionOfInterest(_Strict):
 
     def contains(self, points_px: ArrayLike, centre_px: ArrayLike) -> bool:
         """All ``points_px`` (n, 2; u, v sensor px) lie in the region centred on
-        ``centre_px`` (a NaN point does not)."""
+        ``centre_px`` (a NaN point does not).
+
+        Mirrored in ``latency.compiled.frontend._roi_misses``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         offset = np.abs(np.asarray(points_px, dtype=float) - np.asarray(centre_px, dtype=float))
         return bool(np.all(offset <= 0.5 * np.array([self.cols, self.rows])))
 

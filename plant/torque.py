@@ -55,7 +55,10 @@ class TorqueMap:
         return self.from_matrix(attitude.to_matrix(q))
 
     def from_matrix(self, R: NDArray[np.float64]) -> NDArray[np.float64]:
-        """K for the rotation matrix R = R(q) (rotor to stator), N·m/A."""
+        """K for the rotation matrix R = R(q) (rotor to stator), N·m/A.
+
+        Mirrored in ``latency.compiled.allocation._torque_map``; keep both in step
+        (tests/test_compiled_mirror.py checks them equal)."""
         r = self.m @ R.T  # (18, 3) magnet axes in the stator frame
         gain = self.motor.k_T_Nm_per_A * self.s * window(self.c @ r.T, self.cos_cutoff)  # (16, 18)
         # sum_j g_ij (c_i x r_j) = c_i x (sum_j g_ij r_j): one cross product per coil, written
@@ -102,6 +105,9 @@ def allocate(
         Per-coil current limit, A.
     reg : float
         Weight of the current norm in the bounded solve (relative; keeps it least-norm).
+
+    Mirrored in ``latency.compiled.allocation._least_norm``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal).
     """
     T = attitude.check_finite("torque", torque).reshape(-1)
     if T.shape != (3,):

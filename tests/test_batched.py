@@ -7,7 +7,7 @@ import yaml
 from typer.testing import CliRunner
 
 from experiments.cli import app
-from latency import Scenario, build_loop, compiled, simulate_many
+from latency import Scenario, batched, build_loop, compiled, simulate_many
 from latency.batched import run_batched
 from latency.metrics import SETTLE_BAND_DEG
 from plant import attitude as A
@@ -47,7 +47,7 @@ GRID = {
         pipeline={"observer": {"kind": "gamma", "shape_k": 9.0, "scale_theta_s": 0.003}},
     ),
     "aekf": _scenario(seed=5, observer={"kind": "aekf"}),
-    # The compiled run loop's case (latency.compiled.covers): PID and the per-frame solver,
+    # The compiled run loop's case (latency.compiled.coverage): PID and the per-frame solver,
     # sequential and pipelined, constant and random observer and controller latencies,
     # outliers.
     "compiled, sequential, random latencies": _scenario(
@@ -195,14 +195,31 @@ def test_the_compiled_run_loop_takes_exactly_its_cases():
     latencies, the lockstep rounds for the other observers, a region of interest, a blur limit,
     a measured controller latency or a disturbance."""
     for case, s in GRID.items():
-        assert compiled.covers(build_loop(s)) == (case in COMPILED), case
+        assert (compiled.coverage(build_loop(s)).path == "compiled") == (case in COMPILED), case
     base = GRID["nominal"]
     measured = Scenario.model_validate({**base.model_dump(mode="json"),
                                         "controller_latency": "measured"})
-    assert not compiled.covers(build_loop(measured))
+    assert compiled.coverage(build_loop(measured)).path == "lockstep"
     disturbed = build_loop(base)
     disturbed.config = disturbed.config.model_copy(update={"disturbance_psd_Nm2s": (1e-8,) * 3})
-    assert not compiled.covers(disturbed)
+    assert compiled.coverage(disturbed).path == "lockstep"
+
+
+def test_runs_that_leave_the_compiled_loop_are_logged_once_per_reason(caplog, monkeypatch):
+    """Three AEKF runs and a measured controller latency beside a compiled run: one INFO line
+    per reason, with the number of runs it sends to the lockstep rounds (stubbed here: the
+    test is about the choice, not the rounds); none for the compiled run."""
+    monkeypatch.setattr(batched, "_run_group", lambda group: [None] * len(group))
+    short = {"duration_s": 0.15, "observer": {"kind": "aekf"}}
+    loops = [build_loop(_scenario(seed=s, **short)) for s in range(3)]
+    loops += [build_loop(_scenario(duration_s=0.15, controller_latency="measured")),
+              build_loop(_scenario(duration_s=0.15))]
+    with caplog.at_level("INFO", logger="latency.batched"):
+        run_batched(loops)
+    lines = [r.getMessage() for r in caplog.records if r.name == "latency.batched"]
+    assert len(lines) == 2 and all(r.levelname == "INFO" for r in caplog.records)
+    assert lines[0].startswith("3 of 5 runs not in the compiled run loop: observer FilterObserver")
+    assert lines[1].startswith("1 of 5 runs not in the compiled run loop: a measured controller")
 
 
 @pytest.mark.parametrize("case", sorted(COMPILED))
@@ -261,7 +278,7 @@ def test_summary_only_runs_give_the_event_loops_summary_without_tables():
     cases = [GRID["lost frames"], GRID["saturation and tilt stop"]]
     light = simulate_many(cases, tables=False)
     for s, res in zip(cases, light, strict=True):
-        assert compiled.covers(build_loop(s))
+        assert compiled.coverage(build_loop(s)).path == "compiled"
         assert res.steps.empty and res.frames.empty and res.events.empty
         ref = build_loop(s).run().summary
         assert res.summary.keys() == ref.keys()

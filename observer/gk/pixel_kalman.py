@@ -145,6 +145,9 @@ class PixelKalman:
         The underlying filter (``kf.x`` (4, 1), ``kf.P`` (4, 4), ``kf.K`` (4, 2), ...).
     initialised : bool
         Whether a first observation has been seen since construction or ``reset()``.
+
+    Mirrored in ``latency.compiled.observer._pixel_kalman``; keep both in step
+    (tests/test_compiled_mirror.py checks them equal).
     """
 
     def __init__(self, config: PixelKalmanConfig | None = None) -> None:
