@@ -38,7 +38,8 @@ colour red.
 ``CropPairs`` adds joint dihedral flips (horizontal, vertical, transpose) of both crops at load
 time in training (the disc and the square plate are symmetric under them).
 
-Run ``python -m observer.transt.data --out runs/transt_cache/train --pairs 8000 --seed 1``.
+Run ``python -m observer.transt.training.data --out runs/transt_cache/train --pairs 8000
+--seed 1``.
 """
 
 from __future__ import annotations
@@ -59,9 +60,9 @@ from observer.transt.crop import box_to_crop, context_side, crop_square, normali
 from observer.transt.network import SMALL, TransTConfig
 from plant import attitude
 from plant.appearance import (
-    LIGHTINGS,
-    OCCLUDER_FAMILIES,
-    PATTERNS,
+    TRAIN_LIGHTINGS,
+    TRAIN_OCCLUDERS,
+    TRAIN_PATTERNS,
     occluder_rgb,
     random_options,
     random_params,
@@ -76,14 +77,6 @@ GENERATOR_VERSION = 1
 N_RENDERERS = 12
 #: Renderers of the randomised pool (``PairSpec.randomise``), each its own appearance.
 N_RANDOM_RENDERERS = 48
-#: Appearance families never used for training, kept for evaluation (chosen before training):
-#: a checkerboard rotor pattern, an off-axis light spot, purple occluders.
-HELD_OUT_PATTERN = "checker"
-HELD_OUT_LIGHTING = "spot"
-HELD_OUT_OCCLUDER = "purple"
-TRAIN_PATTERNS = tuple(p for p in PATTERNS if p != HELD_OUT_PATTERN)
-TRAIN_LIGHTINGS = tuple(x for x in LIGHTINGS if x != HELD_OUT_LIGHTING)
-TRAIN_OCCLUDERS = tuple(f for f in OCCLUDER_FAMILIES if f != HELD_OUT_OCCLUDER)
 #: Search frames rendered per template frame (our choice: reuses the template render).
 SEARCHES_PER_SCENE = 2
 #: Image pixels a marker moves per radian of rotation about a horizontal axis at the default
@@ -452,20 +445,6 @@ def generate_cache(
     return out
 
 
-def heldout_options(seed: int, family: str) -> tuple[PlantParams, AnalyticRenderOptions]:
-    """Plant parameters and renderer options of a scene from a held-out appearance family
-    (``"pattern"``: the held-out rotor pattern under training lighting; ``"lighting"``: the
-    held-out lighting on a training pattern), drawn from ``seed``."""
-    rng = np.random.default_rng([seed, 4243])
-    if family == "pattern":
-        pats, lights = (HELD_OUT_PATTERN,), TRAIN_LIGHTINGS
-    elif family == "lighting":
-        pats, lights = TRAIN_PATTERNS, (HELD_OUT_LIGHTING,)
-    else:
-        raise ValueError(f"family must be 'pattern' or 'lighting', got {family!r}")
-    return random_params(rng), random_options(rng, pats, lights, noise_sigma_dn=2.0)
-
-
 def validation_sequence(
     seed: int,
     n_frames: int = 120,
@@ -478,7 +457,8 @@ def validation_sequence(
     0-15°, yaw turning at a random rate (up to 2π per 90 frames), spin wandering by up to
     ±0.4 rad, τ in frames at the camera's 36 frames/s; the markers move up to about 10 sensor px
     a frame. Read noise 2 DN, the frame's motion blur from the body rate, random highlights and
-    colour distractor; ``options`` replaces these renderer options (e.g. ``heldout_options``).
+    colour distractor; ``options`` replaces these renderer options (e.g.
+    ``plant.appearance.heldout_options``).
     Seeds used for reported numbers are never used to generate training data (training scenes
     come from ``render_scene`` with its own seed streams).
     """
@@ -747,7 +727,7 @@ class CropPairs:
         if not meta_path.is_file() or not json.loads(meta_path.read_text()).get("complete"):
             raise FileNotFoundError(
                 f"no complete crop-pair cache in {self.folder}; generate it with "
-                f"python -m observer.transt.data --out {self.folder}"
+                f"python -m observer.transt.training.data --out {self.folder}"
             )
         self.meta = json.loads(meta_path.read_text())
         self.template = np.load(self.folder / "template.npy", mmap_mode="r")

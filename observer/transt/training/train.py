@@ -2,15 +2,16 @@
 
 Recipe (a 1.9 M-parameter TransT-shaped model with TransT's loss weights, AdamW 5e-4 and batch
 32 reached 0.1 marker diameters median error in 300 steps in a first trial here, docs/transt.md):
-TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background weight 0.0625),
-AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32, a 30-step linear
-warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1 (our choice),
-dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched here).
+TransT's loss (``observer.transt.training.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
+weight 0.0625), AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32,
+a 30-step linear warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1
+(our choice), dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched
+here).
 
-Data: ``observer.transt.data``, a training cache (seed 1) and a validation cache (seed 2) that is
-never trained on; both are rendered first if missing. Every ``--eval-every`` steps the script
-measures the validation centre error; at the end it also tracks three rendered validation
-sequences (seeds 1001-1003) with ``TransTTracker``.
+Data: ``observer.transt.training.data``, a training cache (seed 1) and a validation cache
+(seed 2) that is never trained on; both are rendered first if missing. Every ``--eval-every``
+steps the script measures the validation centre error; at the end it also tracks three rendered
+validation sequences (seeds 1001-1003) with ``TransTTracker``.
 
 Checkpoints (``--out``, default ``runs/transt_train/``): ``last.pt`` every ``--ckpt-every`` steps
 (model, optimiser, step, wall time, RNG state); rerunning the same command resumes from it
@@ -39,22 +40,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from observer.transt.data import (
-    HELD_OUT_LIGHTING,
-    HELD_OUT_OCCLUDER,
-    HELD_OUT_PATTERN,
-    N_RANDOM_RENDERERS,
-    TRAIN_LIGHTINGS,
-    TRAIN_OCCLUDERS,
-    TRAIN_PATTERNS,
-    CropPairs,
-    PairSpec,
-    generate_cache,
-    heldout_options,
-    marker_box_image,
-    validation_sequence,
-)
-from observer.transt.losses import TransTLoss, cxcywh_to_xyxy, giou
 from observer.transt.network import (
     CONFIGS,
     TransTConfig,
@@ -63,7 +48,25 @@ from observer.transt.network import (
     count_parameters,
 )
 from observer.transt.tracker import TransTTracker, hanning_window
+from observer.transt.training.data import (
+    N_RANDOM_RENDERERS,
+    CropPairs,
+    PairSpec,
+    generate_cache,
+    marker_box_image,
+    validation_sequence,
+)
+from observer.transt.training.losses import TransTLoss, cxcywh_to_xyxy, giou
 from observer.transt.weights import CARD_NAME, card_file_line, load_weights, save_weights
+from plant.appearance import (
+    HELD_OUT_LIGHTING,
+    HELD_OUT_OCCLUDER,
+    HELD_OUT_PATTERN,
+    TRAIN_LIGHTINGS,
+    TRAIN_OCCLUDERS,
+    TRAIN_PATTERNS,
+    heldout_options,
+)
 
 #: Seeds of the validation tracking sequences (never used for training data).
 VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
@@ -140,8 +143,8 @@ def evaluate_sequences(
     """Track rendered validation sequences from the true first box of marker 0 (red; keys
     ``seq_*``) or 1 (yellow; keys ``seq_yellow_*``); centre error (sensor px) of the box centre
     against ``Frame.marker_px[marker]`` and the per-frame track time. ``heldout`` ("pattern" or
-    "lighting") renders them in that held-out appearance family (``data.heldout_options``;
-    keys ``heldout_<family>_*``)."""
+    "lighting") renders them in that held-out appearance family
+    (``plant.appearance.heldout_options``; keys ``heldout_<family>_*``)."""
     errs, times = [], []
     for seed in seeds:
         frames = validation_sequence(seed, n_frames, *(heldout_options(seed, heldout)
@@ -207,7 +210,7 @@ def _randomisation_lines() -> list[str]:
         "occluders. Training used the patterns " + ", ".join(TRAIN_PATTERNS) + " and the "
         "lightings " + ", ".join(TRAIN_LIGHTINGS) + ". The `heldout_pattern_*` and "
         "`heldout_lighting_*` metrics below track sequences rendered in those families "
-        "(`data.heldout_options`); the tracking benchmark has the held-out cases too.",
+        "(`plant.appearance.heldout_options`); the tracking benchmark has the held-out cases too.",
         "",
     ]
 
@@ -261,7 +264,7 @@ def write_model_card(path: Path, meta: dict, weights: Path, digest: str) -> None
     lines = [
         "# Model card: TransT `small` (observer/transt/weights/transt_small.pt)",
         "",
-        "Written by `observer.transt.train` at export; numbers are from the runs below.",
+        "Written by `observer.transt.training.train` at export; numbers are from the runs below.",
         "",
         "## Model",
         "",
@@ -282,11 +285,12 @@ def write_model_card(path: Path, meta: dict, weights: Path, digest: str) -> None
         "## Training data",
         "",
         "Crop pairs rendered by `plant.render_analytic` (generator version "
-        f"{meta['generator_version']}, `observer/transt/data.py`): random workspace attitudes "
-        "(tilt 0-15°, free spin and yaw), a short motion between template and search frame, "
-        "motion blur up to about 1.2 marker diameters, partial occlusion (25 %), highlights and "
-        "colour stickers as distractors, illumination 0.5-1.6x, read noise 0-5 DN, TransT's "
-        "centre jitter (factor 3) and scale jitter (0.25), joint dihedral flips at load time.",
+        f"{meta['generator_version']}, `observer/transt/training/data.py`): random workspace "
+        "attitudes (tilt 0-15°, free spin and yaw), a short motion between template and search "
+        "frame, motion blur up to about 1.2 marker diameters, partial occlusion (25 %), "
+        "highlights and colour stickers as distractors, illumination 0.5-1.6x, read noise "
+        "0-5 DN, TransT's centre jitter (factor 3) and scale jitter (0.25), joint dihedral "
+        "flips at load time.",
         "",
         *(_randomisation_lines() if meta.get("randomise") else []),
         f"Validation (never trained on): {meta['val_pairs']} red-target pairs from seed "
@@ -349,7 +353,7 @@ def write_model_card(path: Path, meta: dict, weights: Path, digest: str) -> None
 
 
 def _parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m observer.transt.train``."""
+    """The command line of ``python -m observer.transt.training.train``."""
     ap = argparse.ArgumentParser(description="Train the small TransT on analytic renders.")
     ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
     ap.add_argument("--cache", default="runs/transt_cache", help="folder of the pair caches")
@@ -611,7 +615,8 @@ def main(argv: list[str] | None = None) -> None:
             "absent_prob": a.absent_prob,
             "appearance_prob": a.appearance_prob,
             "tracking_fraction": a.tracking_fraction,
-            "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
+            "command": ("python -m observer.transt.training.train "
+                        + " ".join(_training_args(sys.argv[1:]))),
         }
         export = Path(a.export)
         digest = save_weights(net, export, meta)

@@ -1,0 +1,14 @@
+"""Training of the TransT network, kept apart from the runtime package ``observer.transt``.
+
+Only the training commands, the benchmarks and the tests import this package; the tracker, the
+network service, the export and the weight loading never do (a test checks it), so a tracker
+in the loop loads no training code.
+
+* ``data``: the crop pairs rendered by the analytic renderer into a cache (``CropPairs``), the
+  validation sequences and the augmentations (target removal, appearance jitter);
+* ``losses``: TransT's loss (``TransTLoss``);
+* ``train``: the training command, ``python -m observer.transt.training.train``, which exports
+  the shipped weights with their SHA-256 and model card.
+
+See docs/transt.md.
+"""
