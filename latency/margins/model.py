@@ -11,7 +11,7 @@ import control as ct
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from latency.margins.nyquist import _grid
+from latency.margins.grid import _grid
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,8 @@ class LoopModel:
 
     def frd(self, omega: ArrayLike | None = None) -> ct.FrequencyResponseData:
         """The loop as python-control FRD data on ``omega`` (rad/s; default: the analysis grid)."""
-        w = _grid(self) if omega is None else np.asarray(omega, dtype=float)
+        w = (_grid(self.response, self.features_rad_s) if omega is None
+             else np.asarray(omega, dtype=float))
         return ct.frd(self.response(w), w)
 
 

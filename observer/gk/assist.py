@@ -203,11 +203,6 @@ class GKResult:
         return np.vstack([self.red_px, self.yellow_px])
 
     @property
-    def virtual_pole_px(self) -> NDArray[np.float64]:
-        """Midpoint of the two centres, sensor px (seed 000 §3.2.3's (u_c, v_c))."""
-        return 0.5 * (self.red_px + self.yellow_px)
-
-    @property
     def valid(self) -> bool:
         """Both centres are finite and the track is not lost."""
         return (not self.lost) and bool(np.all(np.isfinite(self.marker_px)))
