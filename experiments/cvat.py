@@ -93,6 +93,7 @@ class CvatTracks:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames: the longest track's length (0 without tracks)."""
         return max((len(b) for b in self.boxes_px.values()), default=0)
 
 

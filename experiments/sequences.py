@@ -144,6 +144,8 @@ class SequenceSpec(BaseModel):
 
     @property
     def name(self) -> str:
+        """The sequence's name, ``s<seed>_<case>`` (with ``_unseen`` for the evaluation-only
+        source)."""
         return f"s{self.seed}_{self.case}" + ("_unseen" if self.source == "unseen" else "")
 
 
@@ -181,6 +183,7 @@ class TrackingSequence:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames N (the first axis of ``images``)."""
         return int(self.images.shape[0])
 
     def __post_init__(self) -> None:

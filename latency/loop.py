@@ -72,17 +72,24 @@ class PlantState(Protocol):
     disturbance: Callable[[float], NDArray[np.float64]] | None
 
     @property
-    def q(self) -> NDArray[np.float64]: ...
+    def q(self) -> NDArray[np.float64]:
+        """Current attitude (4,), unit quaternion (w, x, y, z), rotor to stator."""
 
     @property
-    def omega(self) -> NDArray[np.float64]: ...
+    def omega(self) -> NDArray[np.float64]:
+        """Current body rate (3,), rad/s."""
 
     @property
-    def currents(self) -> NDArray[np.float64]: ...
+    def currents(self) -> NDArray[np.float64]:
+        """Current coil currents (16,), A."""
 
-    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation: ...
+    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation:
+        """The coil currents that make ``torque`` (3,), N·m, stator frame, at attitude ``q`` (4,)
+        (default: the current one)."""
 
-    def delayed_q(self) -> NDArray[np.float64]: ...
+    def delayed_q(self) -> NDArray[np.float64]:
+        """The attitude MuJoCo's delayed sensor reports now (only with
+        ``mujoco_sensor_delay_s``)."""
 
 
 class LoopConfig(BaseModel):
@@ -275,6 +282,8 @@ class ClosedLoop:
 
     # --- the run ---------------------------------------------------------------------------
     def run(self, progress: bool = False) -> LoopResult:
+        """Run the loop for ``config.duration_s`` on a fresh ``MujocoPlant`` and return its
+        ``LoopResult`` (steps, frames, commands and estimates); ``progress`` shows a bar."""
         c = self.config
         plant = MujocoPlant(
             self.params, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s

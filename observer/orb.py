@@ -214,6 +214,8 @@ class OrbMeasurement:
 
     @classmethod
     def invalid(cls, reason: str, **counts) -> OrbMeasurement:
+        """A failed measurement: no matches (empty arrays), ``valid`` False, ``reason`` saying why,
+        and the feature ``counts`` reached before it failed."""
         empty = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0)
         return cls(*empty, valid=False, reason=reason, **counts)
 

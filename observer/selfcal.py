@@ -158,10 +158,14 @@ class SelfCalProblem:
 
     @property
     def n_shared(self) -> int:
+        """Number of parameters shared by all frames: the free intrinsics, the centre of rotation
+        (3) and the free marker coordinates."""
         return len(self._free_intr) + 3 + int(self._free_P.sum())
 
     @property
     def n_params(self) -> int:
+        """Length of the parameter vector: the shared parameters and a rotation vector (3) per
+        frame."""
         return self.n_shared + 3 * self.q_ref.shape[0]
 
     def names(self) -> tuple[str, ...]:

@@ -78,6 +78,8 @@ class PixelScaleEMA:
 
     @property
     def tilt_max_rad(self) -> float:
+        """The tilt β_max above which the scale stays locked, rad
+        (``ScaleEMAConfig.tilt_max_deg``)."""
         return math.radians(self.config.tilt_max_deg)
 
     def update(self, D_det_px: float, beta_rad: float | None) -> tuple[bool, str]:

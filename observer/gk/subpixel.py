@@ -142,6 +142,8 @@ class SubpixelResult:
 
     @classmethod
     def invalid(cls, reason: str, n_points: int = 0) -> SubpixelResult:
+        """A failed fit: NaN centre, radius and residual, no points removed, ``valid`` False and
+        ``reason`` saying why, with ``n_points`` the edge points that were found."""
         return cls(np.full(2, np.nan), math.nan, math.nan, n_points, 0, 0, 0.0, False, reason)
 
     def centre_sensor_px(self, binning: int) -> NDArray[np.float64]:

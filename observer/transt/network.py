@@ -124,6 +124,7 @@ class MLP(nn.Module):
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairs)
 
     def forward(self, x: Tensor) -> Tensor:
+        """``x`` (..., in_dim) through the linear layers with ReLU between them, (..., out_dim)."""
         for i, layer in enumerate(self.layers):
             x = layer(x)
             if i < len(self.layers) - 1:
@@ -173,6 +174,9 @@ class TransTNet(nn.Module):
         return self.class_embed(hs), self.bbox_embed(hs).sigmoid()
 
     def forward(self, template: Tensor, search: Tensor) -> tuple[Tensor, Tensor]:
+        """Class logits (B, H·W, 2) and boxes (B, H·W, 4) as (cx, cy, w, h) fractions of the search
+        crop, one per search-feature cell, for template crops ``template`` and search crops
+        ``search`` (B, 3, side, side), ImageNet-normalised."""
         z, pos_z = self.template_features(template)
         return self.track_features(search, z, pos_z)
 

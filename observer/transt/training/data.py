@@ -129,6 +129,8 @@ class PairSpec(BaseModel):
         cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False,
         tracking_fraction: float = 0.0,
     ) -> PairSpec:
+        """The default spec for a network ``config`` (its template and search crop sides), with the
+        given yellow-target fraction, randomised renderers and tracking-regime fraction."""
         return cls(
             template_size=config.template_size,
             search_size=config.search_size,
@@ -800,6 +802,8 @@ def preview(folder: str | Path, path: str | Path, n: int = 8) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """The command ``python -m observer.transt.training.data``: render a crop-pair cache (and
+    optionally a PNG preview) from the options in ``argv`` (default: the command line)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/transt_cache/train", help="cache folder")
     ap.add_argument("--pairs", type=int, default=8000, help="number of crop pairs")

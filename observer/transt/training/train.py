@@ -571,6 +571,9 @@ def _final_metrics(net: TransTNet, val: CropPairs, config: TransTConfig) -> dict
 
 
 def main(argv: list[str] | None = None) -> None:
+    """The command ``python -m observer.transt.training.train``: render the caches if missing,
+    train (resuming from ``--out/last.pt``), evaluate, and with ``--export`` write the weights,
+    their SHA-256 and the model card (options in ``argv``, default: the command line)."""
     a = _parser().parse_args(argv)
     torch.set_num_threads(a.threads)
     out = Path(a.out)
