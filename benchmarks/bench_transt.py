@@ -27,7 +27,7 @@ from _report import record
 
 from observer.transt.network import count_parameters
 from observer.transt.tracker import TransTTracker
-from observer.transt.training.data import red_box_image, validation_sequence
+from observer.transt.training.validation import red_box_image, validation_sequence
 from observer.transt.weights import load_weights
 
 N_FRAMES = 200

@@ -13,7 +13,7 @@
 #   sh benchmarks/transt_dr.sh start track    # needs the ABSENT export
 #   sh benchmarks/transt_dr.sh export track   # last checkpoint -> shipped weights, SHA-256, card
 #   sh benchmarks/transt_dr.sh start look     # from the shipped weights, with new looks at load
-#                                             # time (data.appearance_jitter); not shipped
+#                                             # time (augment.appearance_jitter); not shipped
 #   sh benchmarks/transt_dr.sh export look    # last checkpoint -> runs/transt_train_look/transt_small_look.pt
 #                                             # compare: python benchmarks/bench_transt_unseen.py --weights FILE
 #   sh benchmarks/transt_dr.sh progress dr|absent|track|look

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from experiments import tracking_bench as tb
-from observer.transt.training.data import appearance_jitter
+from observer.transt.training.augment import appearance_jitter
 from plant import attitude
 from plant.camera import sensor_to_image
 from plant.render_unseen import SensorLook, UnseenLook, UnseenRenderer, draw_look
