@@ -352,29 +352,12 @@ class GKAssist:
         gate, confident = self._gate(image, b, bad_frame, judged, box, why, score_f, reasons)
 
         # 3. observe, or let the prediction stand in
-        red_fit: SubpixelResult | None = None
-        refined = False
-        if confident:
-            if judged is not None:
-                z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
-            else:
-                z, red_fit, refined = self._refine_red(image, b, box, centre)
-            red, red_cov = self._observe(z)
-            source: RedSource = "measurement"
-        else:
-            red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
-            if source == "prediction" and judged is not None \
-                    and judged.stand_in_sensor_px is not None:
-                red, red_cov, source = self._stand_in(judged, reasons)
+        red, red_cov, source, red_fit, refined = self._red_point(
+            image, b, confident, judged, box, centre, prior, prior_cov, reasons)
 
         # 4. the auxiliary point
-        aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
-        if aux.source == "fallback" and judged is not None \
-                and judged.yellow_stand_in_sensor_px is not None:
-            aux = AuxResult(np.asarray(judged.yellow_stand_in_sensor_px, dtype=float),
-                            "inferred", reason=f"{aux.reason}; position inferred")
-        if aux.source != "measurement" and source != "none":
-            reasons.append(f"yellow: {aux.reason}")
+        aux = self._yellow_point(image, b, bad_frame, red, source, tilt_prev_rad, judged,
+                                 reasons)
 
         # 5. the pixel scale
         updated = False
@@ -401,6 +384,51 @@ class GKAssist:
             aux=aux,
             red_fit=red_fit,
         )
+
+    def _red_point(
+        self, image: NDArray[np.uint8], b: int, confident: bool,
+        judged: JudgedObservation | None, box: NDArray[np.float64] | None,
+        centre: NDArray[np.float64] | None, prior: NDArray[np.float64],
+        prior_cov: NDArray[np.float64], reasons: list[str],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], RedSource, SubpixelResult | None,
+               bool]:
+        """Step 3 of ``step``: a confident frame observes the red centre (the trust rule's, or
+        the tracker's refined by the circle fit) and updates the pixel Kalman filter; otherwise
+        the prediction stands in (or the trust rule's stand-in, when it gives one). Returns the
+        red centre (sensor px), its covariance (sensor px²), its source, the circle fit and
+        whether the centre is the fit's; appends the reasons of a frame not observed."""
+        red_fit: SubpixelResult | None = None
+        refined = False
+        if confident:
+            if judged is not None:
+                z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
+            else:
+                z, red_fit, refined = self._refine_red(image, b, box, centre)
+            red, red_cov = self._observe(z)
+            source: RedSource = "measurement"
+        else:
+            red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
+            if source == "prediction" and judged is not None \
+                    and judged.stand_in_sensor_px is not None:
+                red, red_cov, source = self._stand_in(judged, reasons)
+        return red, red_cov, source, red_fit, refined
+
+    def _yellow_point(
+        self, image: NDArray[np.uint8], b: int, bad_frame: str, red: NDArray[np.float64],
+        source: RedSource, tilt_prev_rad: float | None, judged: JudgedObservation | None,
+        reasons: list[str],
+    ) -> AuxResult:
+        """Step 4 of ``step``: the auxiliary (yellow) point located from the red centre, or
+        the trust rule's stand-in where the locator falls back; appends why it was not
+        measured (when there is a red centre at all)."""
+        aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
+        if aux.source == "fallback" and judged is not None \
+                and judged.yellow_stand_in_sensor_px is not None:
+            aux = AuxResult(np.asarray(judged.yellow_stand_in_sensor_px, dtype=float),
+                            "inferred", reason=f"{aux.reason}; position inferred")
+        if aux.source != "measurement" and source != "none":
+            reasons.append(f"yellow: {aux.reason}")
+        return aux
 
     def _gate(
         self, image: NDArray[np.uint8], b: int, bad_frame: str, judged: JudgedObservation | None,
