@@ -51,7 +51,7 @@ from experiments.study import (
 )
 from experiments.sweep import run_id, run_sweep
 from experiments.sweep import table as sweep_table
-from latency.loop import LoopResult
+from latency.loop_config import LoopResult
 from latency.metrics import summarize
 
 HERE = Path(__file__).resolve().parent
