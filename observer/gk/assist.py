@@ -338,11 +338,9 @@ class GKAssist:
         GKResult
         """
         t0 = time.perf_counter()
-        reasons: list[str] = []
         bad_frame = check_frame(image, self.params, binning)
         b = 1 if bad_frame else int(binning)
-        if bad_frame:
-            reasons.append(bad_frame)
+        reasons: list[str] = [bad_frame] if bad_frame else []
         prior = self.kalman.predict()
         prior_cov = self.kalman.position_cov
 
@@ -359,10 +357,9 @@ class GKAssist:
         aux = self._yellow_point(image, b, bad_frame, red, source, tilt_prev_rad, judged,
                                  reasons)
 
-        # 5. the pixel scale
-        updated = False
-        if source == "measurement" and aux.source == "measurement":
-            updated, _ = self.scale.update(aux.D_det_px, tilt_prev_rad)
+        # 5. the pixel scale, from a frame that measured both markers
+        both = source == "measurement" and aux.source == "measurement"
+        updated = both and self.scale.update(aux.D_det_px, tilt_prev_rad)[0]
 
         return GKResult(
             red_px=np.asarray(red, dtype=float),
