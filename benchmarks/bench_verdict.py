@@ -42,13 +42,9 @@ from _report import record
 
 from experiments.intervals import wilson_ci
 from experiments.scenario import Scenario, run_many
-from experiments.study import (
-    StudyConfig,
-    _controller_spec,
-    mpc_headroom_s,
-    pid_headroom_s,
-    study_plant,
-)
+from experiments.study import mpc_headroom_s, pid_headroom_s
+from experiments.study_config import StudyConfig, study_plant
+from experiments.study_sweep import _controller_spec
 from experiments.sweep import run_id, run_sweep
 from experiments.sweep import table as sweep_table
 from latency.loop_config import LoopResult

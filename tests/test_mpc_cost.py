@@ -12,7 +12,7 @@ from controller.mpc import MPCConfig, MPCController, _problem_of
 from controller.pid import truth_estimate
 from controller.reference import RandomSmooth, Steps, pure_tilt
 from experiments.scenario import MPCSpec, Scenario, run
-from experiments.study import GK_MS
+from experiments.study_config import GK_MS
 from plant import attitude as A
 from plant.params import PlantParams
 

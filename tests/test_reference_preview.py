@@ -9,7 +9,7 @@ import pytest
 
 from controller.mpc import MPCConfig
 from experiments.scenario import MPCSpec, Scenario, run
-from experiments.study import GK_MS
+from experiments.study_config import GK_MS
 from plant import attitude
 
 T_STEP_S = 0.1

@@ -13,7 +13,8 @@ import pytest
 from controller.reference import RandomSmooth
 from experiments.intervals import widest_wilson_width, wilson_ci
 from experiments.scenario import Scenario
-from experiments.study import FIXED_REFERENCE_SEED, StudyConfig, sweep_configs, tidy_sweep
+from experiments.study_config import StudyConfig
+from experiments.study_sweep import FIXED_REFERENCE_SEED, sweep_configs, tidy_sweep
 from experiments.sweep import _flatten
 
 CFG = dict(n_seeds=4, delays_ms=(16.33,), max_rates_rad_s=(3.0,), duration_s=1.0)

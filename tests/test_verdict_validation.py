@@ -13,14 +13,10 @@ import pandas as pd
 import pytest
 
 from experiments.scenario import Scenario, run_many
-from experiments.study import (
-    StudyConfig,
-    _controller_spec,
-    mpc_headroom_s,
-    pid_headroom_s,
-    study_plant,
-)
+from experiments.study import mpc_headroom_s, pid_headroom_s
+from experiments.study_config import StudyConfig, study_plant
 from experiments.study_plots import plot_sweep
+from experiments.study_sweep import _controller_spec
 
 #: Runs per controller and side of the boundary, and their length (s): the length the
 #: benchmark found needed (docs/closed_loop.md).
