@@ -438,7 +438,8 @@ def benchmark_cvat_folder(
     (per-run metrics, Table-1 latency table); with ``out_dir`` also writes the CSV tables and the
     precision and error plots there.
     """
-    from experiments import tracking_bench as tb
+    from experiments.tracking_plots import plot_error_curves, plot_precision_curves
+    from experiments.tracking_runs import run_benchmark, table1
     from observer.trackers import make_pair_tracker
 
     seq = load_cvat_sequence(folder, xml_path, params, binning)
@@ -448,14 +449,14 @@ def benchmark_cvat_folder(
     factories = {name: (lambda name=name: make_pair_tracker(name, p,
                                                             transt_factory=transt_factory))
                  for name in trackers}
-    metrics, runs, seqs = tb.run_benchmark(factories, [seq])
-    t1 = tb.table1(runs)
+    metrics, runs, seqs = run_benchmark(factories, [seq])
+    t1 = table1(runs)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         metrics.to_csv(out / f"{seq.name}_metrics.csv", index=False)
         t1.to_csv(out / f"{seq.name}_table1.csv", index=False)
-        tb.plot_precision_curves(runs, seqs, seq.case).savefig(
+        plot_precision_curves(runs, seqs, seq.case).savefig(
             out / f"{seq.name}_precision.png", dpi=110)
-        tb.plot_error_curves(runs, seq).savefig(out / f"{seq.name}_errors.png", dpi=110)
+        plot_error_curves(runs, seq).savefig(out / f"{seq.name}_errors.png", dpi=110)
     return metrics, t1

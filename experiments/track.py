@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from experiments.cvat import read_cvat_xml
 from experiments.sources import Clock, LiveSchedule, Source, UserInputError, read_first
-from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
+from experiments.tracking_metrics import PRECISION_PX, centre_errors, precision_at
 from experiments.user_files import UserSetup
 from latency.models import Empirical
 from observer.aekf import AEKFConfig

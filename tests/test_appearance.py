@@ -18,7 +18,8 @@ from experiments.sequences import (
     disturb,
     render_sequence,
 )
-from experiments.tracking_bench import min_frames, network_checks, summary_table
+from experiments.tracking_bench import min_frames, network_checks
+from experiments.tracking_runs import summary_table
 from observer.gk.hsv_gate import RED, colour_mask
 from observer.transt.network import SMALL
 from observer.transt.training.data import CropPairs, PairSpec, generate_cache

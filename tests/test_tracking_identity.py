@@ -17,7 +17,8 @@ import pytest
 
 from experiments.scenario import PAIR_TRACKER_OF
 from experiments.sequences import OCCLUSION_FRAMES, SequenceSpec, development_seeds, render_sequence
-from experiments.tracking_bench import run_tracker, tracker_factories
+from experiments.tracking_bench import tracker_factories
+from experiments.tracking_runs import run_tracker
 from latency.frontends import ImageFrontEnd
 from observer.trackers import make_pair_tracker
 from observer.trackers.kcf_numpy import NumpyKCF

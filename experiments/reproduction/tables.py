@@ -118,7 +118,7 @@ def tracking_table_markdown(csv_path: str) -> str:
     per tracker and case, with the seed's numbers beside (seed 000 §4, Table 1)."""
     import pandas as pd
 
-    from experiments.tracking_bench import SEED_TABLE1
+    from experiments.tracking_runs import SEED_TABLE1
 
     m = pd.read_csv(csv_path)
     g = m.groupby(["tracker", "case"], sort=False).agg(
