@@ -48,7 +48,7 @@ import control as ct
 import numpy as np
 import pandas as pd
 
-from controller.mpc import MPCConfig
+from controller.mpc_config import MPCConfig
 from controller.pid import PIDConfig, PIDController
 from experiments.report import write_report
 from experiments.scenario import (

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from controller.mpc import MPCConfig
+from controller.mpc_config import MPCConfig
 from controller.pid import PIDConfig
 from experiments.intervals import intervals_overlap, seed_intervals
 from experiments.scenario import (

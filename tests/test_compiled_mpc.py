@@ -6,7 +6,8 @@ import pytest
 from numba import njit
 
 from controller import codegen
-from controller.mpc import MPCConfig, MPCController
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
 from controller.mpc_machine import call_casadi, machine_mpc, weight_values
 from experiments import study_config, study_sweep
 from experiments.scenario import Scenario, build_loop

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from controller import codegen
-from controller.mpc import MPCConfig, MPCController, _problem_of
+from controller.mpc import MPCController, _problem_of
+from controller.mpc_config import MPCConfig
 from controller.pid import truth_estimate
 from controller.reference import RandomSmooth, Steps, pure_tilt
 from experiments.scenario import MPCSpec, Scenario, run

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.mpc import MPCConfig
+from controller.mpc_config import MPCConfig
 from experiments.scenario import MPCSpec, Scenario, run
 from experiments.study_config import GK_MS
 from plant import attitude
