@@ -151,21 +151,32 @@ def _effort_and_contact(t, torque, stop):
     row to the next row without it, or to the end)."""
     n = t.shape[0]
     sum_T2 = effort = 0.0
-    stop_from, longest_stop = np.nan, 0.0
     for k in range(n):
         T2 = torque[k, 0] ** 2 + torque[k, 1] ** 2 + torque[k, 2] ** 2
         sum_T2 += T2
         if k > 0:
             effort += T2 * (t[k] - t[k - 1])
-        if stop[k]:
-            if math.isnan(stop_from):
-                stop_from = t[k]
-        elif not math.isnan(stop_from):
-            longest_stop = max(longest_stop, t[k] - stop_from)
-            stop_from = np.nan
-    if not math.isnan(stop_from):
-        longest_stop = max(longest_stop, t[n - 1] - stop_from)
-    return effort, sum_T2, longest_stop
+    return effort, sum_T2, _longest_run(t, stop, np.zeros(n, dtype=np.bool_), t[n - 1])
+
+
+@njit(cache=True)
+def _longest_run(t, flag, skip, t_end):
+    """The longest run of rows with ``flag`` among those not skipped (``skip``), s: from the
+    run's first row's time ``t`` to that of the next row not skipped without the flag, or to
+    ``t_end`` for a run that lasts to the end; 0 without a flagged row."""
+    start, longest = np.nan, 0.0
+    for i in range(t.shape[0]):
+        if skip[i]:
+            continue
+        if flag[i]:
+            if math.isnan(start):
+                start = t[i]
+        elif not math.isnan(start):
+            longest = max(longest, t[i] - start)
+            start = np.nan
+    if not math.isnan(start):
+        longest = max(longest, t_end - start)
+    return longest
 
 
 @njit(cache=True)
@@ -376,7 +387,7 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
     n = t_exposure.shape[0]
     n_dropped = n_processed = n_lost = n_known = 0
     latency_sum = 0.0
-    loss_from, longest, first_loss = np.nan, 0.0, np.nan
+    first_loss = np.nan
     for i in range(n):
         if dropped[i]:
             n_dropped += 1
@@ -389,13 +400,7 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
             if n_lost == 0:
                 first_loss = t_exposure[i]
             n_lost += 1
-            if math.isnan(loss_from):
-                loss_from = t_exposure[i]
-        elif not math.isnan(loss_from):
-            longest = max(longest, t_exposure[i] - loss_from)
-            loss_from = np.nan
-    if not math.isnan(loss_from):
-        longest = max(longest, t_end - loss_from)
+    longest = _longest_run(t_exposure, lost, dropped, t_end)
     return (n_dropped / n, n_lost / n_processed if n_processed else 0.0,
             latency_sum / n_known if n_known else np.nan, longest, first_loss)
 
