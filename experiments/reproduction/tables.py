@@ -103,7 +103,7 @@ def plot_step_test(result: StepTestResult, keys: Sequence[str] | None = None) ->
 # The tracking table (benchmarks/bench_tracking.py measures it; we only summarise its output)
 # ------------------------------------------------------------------------------------------------
 #: Seed 000 §4.2–4.3: precision at 20 px (main, aux) per case (latency and FPS: Table 1,
-#: ``experiments.tracking_bench.SEED_TABLE1``).
+#: ``experiments.tracking_runs.SEED_TABLE1``).
 SEED_TRACKING: dict[str, dict[str, tuple[float, float]]] = {
     "gk_transt": {"clean": (0.909, 0.944), "occlusion": (0.891, 0.944), "blur": (0.897, 0.926)},
     "dual_transt": {"clean": (0.909, 0.917)},
