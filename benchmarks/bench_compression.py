@@ -23,7 +23,8 @@ import numpy as np
 from _report import record
 
 from experiments.sources import open_source
-from experiments.track import attitude_accuracy, run_track
+from experiments.track import run_track
+from experiments.track_accuracy import attitude_accuracy
 from observer.trackers import make_pair_tracker
 from plant import attitude
 from plant.params import PlantParams

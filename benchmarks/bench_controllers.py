@@ -18,7 +18,8 @@ import time
 import numpy as np
 from _report import record
 
-from controller.mpc import MPCConfig, MPCController
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
 from controller.pid import PIDConfig, PIDController, truth_estimate
 from controller.reference import RandomSmooth, Steps, pure_tilt
 from plant import attitude

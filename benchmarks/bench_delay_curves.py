@@ -19,17 +19,10 @@ from pathlib import Path
 import numpy as np
 from _report import record
 
-from experiments.study import (
-    DUAL_MS,
-    GK_MS,
-    StudyConfig,
-    margins_table,
-    mpc_margins_table,
-    sweep_configs,
-    sweep_intervals,
-    tidy_sweep,
-)
+from experiments.study import margins_table, mpc_margins_table
+from experiments.study_config import DUAL_MS, GK_MS, StudyConfig
 from experiments.study_plots import plot_margins, plot_pm_pid_vs_mpc, plot_steps
+from experiments.study_sweep import sweep_configs, sweep_intervals, tidy_sweep
 from experiments.sweep import run_sweep
 from plant.params import PlantParams
 

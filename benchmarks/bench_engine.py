@@ -20,7 +20,7 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   (``controller.mpc_machine``): ``mpc_batched_B64_realtime_factor`` (with tables),
   ``mpc_batched_summaries_B64_realtime_factor``, ``mpc_event_loop_realtime_factor`` and their
   ratios (target: the batched B = 64 at least 50 times the event loop);
-* wall time of the study's closed-loop sweep (``experiments.study.sweep_configs``), of a small
+* wall time of the study's closed-loop sweep (``experiments.study_sweep.sweep_configs``), of a small
   ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
   loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
   key).
@@ -45,7 +45,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from experiments import study, tuning  # noqa: E402
+from experiments import study_config, study_sweep, tuning  # noqa: E402
 from latency import Scenario, build_loop  # noqa: E402
 from latency.batched import run_batched  # noqa: E402
 from latency.simulation import run_summaries, run_summary  # noqa: E402
@@ -88,11 +88,11 @@ def event_loop_speed(duration_s: float, case: dict = CASE) -> float:
     return duration_s / _wall(loop.run)
 
 
-def study_sweep_walls(cfg: study.StudyConfig) -> tuple[float, float]:
+def study_sweep_walls(cfg: study_config.StudyConfig) -> tuple[float, float]:
     """Wall time (s) of the study's sweep in this process: (event loop, batched)."""
-    configs = study.sweep_configs(cfg)
-    event = _wall(lambda: [study.study_run(c) for c in configs])
-    batched = _wall(lambda: study.study_runs(configs))
+    configs = study_sweep.sweep_configs(cfg)
+    event = _wall(lambda: [study_sweep.study_run(c) for c in configs])
+    batched = _wall(lambda: study_sweep.study_runs(configs))
     return event, batched
 
 
@@ -198,9 +198,9 @@ def main() -> None:
     if "study" in parts:
         # The 2-seed sweep (224 runs), comparable across engines and with earlier records; the
         # default 32-seed study's wall time is bench_study's.
-        cfg = study.StudyConfig(workers=1, n_seeds=2)
+        cfg = study_config.StudyConfig(workers=1, n_seeds=2)
         if quick:
-            cfg = cfg.model_copy(update={"delays_ms": (study.GK_MS,), "max_rates_rad_s": (),
+            cfg = cfg.model_copy(update={"delays_ms": (study_config.GK_MS,), "max_rates_rad_s": (),
                                          "duration_s": 0.6})
         ev, bt = study_sweep_walls(cfg)
         figures["study_sweep_event_wall_s"], figures["study_sweep_batched_wall_s"] = ev, bt

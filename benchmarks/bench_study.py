@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 from _report import record
 
-from experiments.study import DUAL_MS, GK_MS, run_study
+from experiments.study import run_study
+from experiments.study_config import DUAL_MS, GK_MS
 
 
 def main() -> None:

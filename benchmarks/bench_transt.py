@@ -25,9 +25,9 @@ import numpy as np
 import torch
 from _report import record
 
-from observer.transt.data import red_box_image, validation_sequence
 from observer.transt.network import count_parameters
 from observer.transt.tracker import TransTTracker
+from observer.transt.training.validation import red_box_image, validation_sequence
 from observer.transt.weights import load_weights
 
 N_FRAMES = 200

@@ -34,6 +34,7 @@ from _report import record  # noqa: E402
 
 from experiments import tracking_bench as tb  # noqa: E402
 from experiments.sequences import ALL_CASES  # noqa: E402
+from experiments.tracking_runs import markdown_table  # noqa: E402
 from observer.transt.weights import SMALL_WEIGHTS, UNSEEN_ACCURACY, verify  # noqa: E402
 
 
@@ -57,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
              f"(`plant.render_unseen`), validation seeds {a.seeds}, {a.frames} frames, weights "
              f"`{a.weights.name}` SHA-256 `{digest}`; errors in full-sensor px. Targets on the "
              f"clean case: precision@20px >= {tb.TARGET_NETWORK_PRECISION}, median error <= "
-             f"{tb.TARGET_NETWORK_MEDIAN_PX:g} px.\n\n" + tb.markdown_table(summary[cols]))
+             f"{tb.TARGET_NETWORK_MEDIAN_PX:g} px.\n\n" + markdown_table(summary[cols]))
     print(notes)
     if a.no_record:
         return 0

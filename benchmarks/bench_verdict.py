@@ -41,17 +41,13 @@ import pandas as pd
 from _report import record
 
 from experiments.intervals import wilson_ci
-from experiments.study import (
-    StudyConfig,
-    _controller_spec,
-    mpc_headroom_s,
-    pid_headroom_s,
-    study_plant,
-)
+from experiments.study import mpc_headroom_s, pid_headroom_s
+from experiments.study_config import StudyConfig, study_plant
+from experiments.study_sweep import controller_spec
 from experiments.sweep import run_id, run_sweep
 from experiments.sweep import table as sweep_table
 from latency import Scenario, simulate_many
-from latency.loop import LoopResult
+from latency.loop_config import LoopResult
 from latency.metrics import summarize
 
 HERE = Path(__file__).resolve().parent
@@ -98,7 +94,7 @@ def configs(cfg: StudyConfig, delays: dict, n_runs: int, rate_rad_s: float,
                 s = Scenario(
                     name=f"verdict-{ctrl}-{kind}-{rate_rad_s:g}-s{seed}", duration_s=duration_s,
                     seed=seed, plant=params, observer={"kind": "solver"},
-                    controller=_controller_spec(ctrl, cfg),
+                    controller=controller_spec(ctrl, cfg),
                     reference={"kind": "random",
                                "args": {"max_rate_rad_s": rate_rad_s, "seed": seed}},
                     pipeline={"observer": {"kind": "constant", "value_s": d / 1e3}},

@@ -13,7 +13,7 @@
 #   sh benchmarks/transt_dr.sh start track    # needs the ABSENT export
 #   sh benchmarks/transt_dr.sh export track   # last checkpoint -> shipped weights, SHA-256, card
 #   sh benchmarks/transt_dr.sh start look     # from the shipped weights, with new looks at load
-#                                             # time (data.appearance_jitter); not shipped
+#                                             # time (augment.appearance_jitter); not shipped
 #   sh benchmarks/transt_dr.sh export look    # last checkpoint -> runs/transt_train_look/transt_small_look.pt
 #                                             # compare: python benchmarks/bench_transt_unseen.py --weights FILE
 #   sh benchmarks/transt_dr.sh progress dr|absent|track|look
@@ -38,19 +38,19 @@ dr)
     EXPORT=$DR_WEIGHTS
     BEST=best.pt
     # the training commands (also what the model card records); export reuses them
-    TRAIN="-m observer.transt.train $DATA --init-from observer/transt/weights/transt_small.pt \
+    TRAIN="-m observer.transt.training.train $DATA --init-from observer/transt/weights/transt_small.pt \
  --steps 2000 --lr 2e-4 --warmup 50 --out $OUT" ;;
 absent)
     OUT=runs/transt_train_absent
     EXPORT=$ABSENT_WEIGHTS
     BEST=last.pt
-    TRAIN="-m observer.transt.train $DATA --init-from $DR_WEIGHTS --absent-prob 0.2 \
+    TRAIN="-m observer.transt.training.train $DATA --init-from $DR_WEIGHTS --absent-prob 0.2 \
  --steps 600 --lr 1e-4 --warmup 20 --out $OUT" ;;
 track)
     OUT=runs/transt_train_track
     EXPORT=observer/transt/weights/transt_small.pt
     BEST=last.pt
-    TRAIN="-m observer.transt.train --randomise --yellow-fraction 0.5 --train-seed 13 \
+    TRAIN="-m observer.transt.training.train --randomise --yellow-fraction 0.5 --train-seed 13 \
  --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
  --cache runs/transt_cache --tracking-fraction 0.5 --init-from $ABSENT_WEIGHTS --absent-prob 0.2 \
  --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;
@@ -58,7 +58,7 @@ look)
     OUT=runs/transt_train_look
     EXPORT=$OUT/transt_small_look.pt
     BEST=last.pt
-    TRAIN="-m observer.transt.train --randomise --yellow-fraction 0.5 --train-seed 21 \
+    TRAIN="-m observer.transt.training.train --randomise --yellow-fraction 0.5 --train-seed 21 \
  --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
  --cache runs/transt_cache --tracking-fraction 0.5 --appearance-prob 0.7 \
  --init-from observer/transt/weights/transt_small.pt --absent-prob 0.2 \

@@ -40,7 +40,9 @@ class Reference(Protocol):
     Subclass it to inherit a ``sample_many`` that calls ``sample`` once per time; the
     generators of ``controller.reference`` compute it as arrays."""
 
-    def sample(self, t: float) -> RefSample: ...
+    def sample(self, t: float) -> RefSample:
+        """The reference at time ``t`` (s): attitude ``q`` (4,), rate ``omega`` (3,), rad/s, and
+        acceleration ``alpha`` (3,), rad/s²."""
 
     def sample_many(self, t: NDArray[np.float64]) -> RefSample:
         """The reference at each time of ``t`` (n,), s: a ``RefSample`` whose ``q`` is (n, 4),
@@ -68,7 +70,8 @@ class Controller(Protocol):
         gets the controller's ``invalid_command``."""
         ...
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Clear the internal state (integrators, warm starts, command history) before a run."""
 
     def record_command(self, t_apply: float, torque: NDArray[np.float64]) -> None:
         """The loop replaced this controller's command by ``torque`` (N·m, stator frame) from

@@ -93,6 +93,7 @@ class CvatTracks:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames: the longest track's length (0 without tracks)."""
         return max((len(b) for b in self.boxes_px.values()), default=0)
 
 
@@ -222,56 +223,13 @@ def read_cvat_xml(path: Path | str, labels: Sequence[str] = LABELS,
     docstring). ``n_frames`` (the frames annotated, e.g. the files of a folder) bounds the
     frame numbers; without it the task's declared size does. Raises ``CvatError`` (a
     ``ValueError``) if the file is not CVAT XML, has no track of a label or has a bad box."""
-    try:
-        data = Path(path).read_bytes()
-        root = ET.fromstring(data)
-        lines = _element_lines(data)
-    except (ET.ParseError, expat.ExpatError) as exc:
-        raise CvatError(f"{path}: not an XML file ({exc})") from exc
-    except OSError as exc:
-        raise CvatError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
-    line_of = dict(zip(map(id, root.iter()), lines, strict=True))
-    if root.tag != "annotations":
-        raise CvatError(f"{path}: root element is <{root.tag}>, expected <annotations>")
-    version = (root.findtext("version") or "").strip()
-    if version and not version.startswith("1."):
-        raise CvatError(f"{path}: CVAT XML version {version!r}; this reader knows 1.x")
+    root, line_of = _parse(path)
     task = root.find("meta/task")
     if task is None:
         task = root.find("meta/job")
-    def meta(tag: str, default: int, low: int, high: int) -> int:
-        """The integer of ``task``'s element ``tag`` in [low, high], or ``default`` when the
-        file has none; ``CvatError`` naming the element and its line otherwise."""
-        el = task.find(tag) if task is not None else None
-        if el is None or not (el.text or "").strip():
-            return default
-        where = f"{path}, line {line_of[id(el)]}: <{tag}>"
-        try:
-            v = int(el.text.strip())
-        except ValueError:
-            raise CvatError(f"{where} is {el.text.strip()!r}, not an integer") from None
-        if not low <= v <= high:
-            raise CvatError(f"{where} is {v}, outside [{low}, {high}]")
-        return v
-
-    start = meta("start_frame", 0, 0, MAX_DECLARED_FRAMES)
-    size = meta("size", 0, 0, MAX_DECLARED_FRAMES)
-    stop = meta("stop_frame", -1, 0, 2 * MAX_DECLARED_FRAMES)
-    if stop - start + 1 > MAX_DECLARED_FRAMES:
-        raise CvatError(f"{path}: stop_frame {stop} declares {stop - start + 1} frames, more "
-                        f"than {MAX_DECLARED_FRAMES}")
-    width = meta("original_size/width", 0, 1, MAX_IMAGE_SIDE_PX)
-    height = meta("original_size/height", 0, 1, MAX_IMAGE_SIDE_PX)
+    start, size, stop, width, height = _task_numbers(task, path, line_of)
     name = (task.findtext("name") or "") if task is not None else ""
-    if n_frames is not None:
-        limit = (n_frames, f"{n_frames} frames given")
-    elif size > 0:
-        limit = (size, f"task's size of {size} frames")
-    elif stop >= start:
-        limit = (stop - start + 1, f"task's stop_frame {stop}")
-    else:
-        limit = (MAX_UNDECLARED_FRAMES, f"{MAX_UNDECLARED_FRAMES} frames accepted from a file "
-                 "that declares no size or stop_frame")
+    limit = _frame_limit(n_frames, start, size, stop)
     tracks = root.findall("track")
     if not tracks and root.findall("image"):
         raise CvatError(f"{path}: this is a 'CVAT for images' export; export 'CVAT for video'")
@@ -295,17 +253,90 @@ def read_cvat_xml(path: Path | str, labels: Sequence[str] = LABELS,
         raise CvatError(f"{path}: no box track with label(s) {missing}; found labels "
                         f"{sorted({t.get('label', '') for t in tracks})}")
     n = n_frames if n_frames is not None else max(size, last + 1)
+    boxes, occluded = _merged_tracks(per_label, n)
+    return CvatTracks(boxes, occluded, width, height, name, start, extra)
+
+
+def _parse(path: Path | str) -> tuple[ET.Element, dict[int, int]]:
+    """The root ``<annotations>`` element of the file and the line of each element (by
+    ``id``); ``CvatError`` for a file that cannot be read, is not XML, or is not CVAT XML 1.x."""
+    try:
+        data = Path(path).read_bytes()
+        root = ET.fromstring(data)
+        lines = _element_lines(data)
+    except (ET.ParseError, expat.ExpatError) as exc:
+        raise CvatError(f"{path}: not an XML file ({exc})") from exc
+    except OSError as exc:
+        raise CvatError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+    line_of = dict(zip(map(id, root.iter()), lines, strict=True))
+    if root.tag != "annotations":
+        raise CvatError(f"{path}: root element is <{root.tag}>, expected <annotations>")
+    version = (root.findtext("version") or "").strip()
+    if version and not version.startswith("1."):
+        raise CvatError(f"{path}: CVAT XML version {version!r}; this reader knows 1.x")
+    return root, line_of
+
+
+def _task_numbers(task: ET.Element | None, path: Path | str,
+                  line_of: dict[int, int]) -> tuple[int, int, int, int, int]:
+    """The task's start frame, size, stop frame (-1 when not declared) and original image
+    width and height, px (0 when not declared); ``CvatError`` naming the element and its line
+    for a value that is not an integer in range, or a stop frame declaring too many frames."""
+    def meta(tag: str, default: int, low: int, high: int) -> int:
+        """The integer of ``task``'s element ``tag`` in [low, high], or ``default`` when the
+        file has none; ``CvatError`` naming the element and its line otherwise."""
+        el = task.find(tag) if task is not None else None
+        if el is None or not (el.text or "").strip():
+            return default
+        where = f"{path}, line {line_of[id(el)]}: <{tag}>"
+        try:
+            v = int(el.text.strip())
+        except ValueError:
+            raise CvatError(f"{where} is {el.text.strip()!r}, not an integer") from None
+        if not low <= v <= high:
+            raise CvatError(f"{where} is {v}, outside [{low}, {high}]")
+        return v
+
+    start = meta("start_frame", 0, 0, MAX_DECLARED_FRAMES)
+    size = meta("size", 0, 0, MAX_DECLARED_FRAMES)
+    stop = meta("stop_frame", -1, 0, 2 * MAX_DECLARED_FRAMES)
+    if stop - start + 1 > MAX_DECLARED_FRAMES:
+        raise CvatError(f"{path}: stop_frame {stop} declares {stop - start + 1} frames, more "
+                        f"than {MAX_DECLARED_FRAMES}")
+    width = meta("original_size/width", 0, 1, MAX_IMAGE_SIDE_PX)
+    height = meta("original_size/height", 0, 1, MAX_IMAGE_SIDE_PX)
+    return start, size, stop, width, height
+
+
+def _frame_limit(n_frames: int | None, start: int, size: int, stop: int) -> tuple[int, str]:
+    """How many frames a box's frame number may reach, and where that bound comes from: the
+    frames given, else the task's size, else its stop frame, else ``MAX_UNDECLARED_FRAMES``."""
+    if n_frames is not None:
+        return n_frames, f"{n_frames} frames given"
+    if size > 0:
+        return size, f"task's size of {size} frames"
+    if stop >= start:
+        return stop - start + 1, f"task's stop_frame {stop}"
+    return (MAX_UNDECLARED_FRAMES, f"{MAX_UNDECLARED_FRAMES} frames accepted from a file "
+            "that declares no size or stop_frame")
+
+
+def _merged_tracks(
+    per_label: dict[str, list[list[tuple[int, NDArray, bool, bool]]]], n: int,
+) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.bool_]]]:
+    """Per label, the boxes (n, 4) (x, y, w, h; NaN where no track has one) and occluded
+    flags (n,) of its tracks expanded to every frame; where tracks overlap, the first wins."""
     boxes: dict[str, NDArray[np.float64]] = {}
     occluded: dict[str, NDArray[np.bool_]] = {}
-    for lab in labels:
+    for lab, tracks in per_label.items():
         bx = np.full((n, 4), np.nan)
         oc = np.zeros(n, bool)
-        for items in per_label[lab]:
+        for items in tracks:
             tb, to = _expand_track(items, n)
             free = ~np.all(np.isfinite(bx), axis=1) & np.all(np.isfinite(tb), axis=1)
             bx[free], oc[free] = tb[free], to[free]
         boxes[lab], occluded[lab] = bx, oc
-    return CvatTracks(boxes, occluded, width, height, name, start, extra)
+    return boxes, occluded
 
 
 def _expand_track(
@@ -407,7 +438,8 @@ def benchmark_cvat_folder(
     (per-run metrics, Table-1 latency table); with ``out_dir`` also writes the CSV tables and the
     precision and error plots there.
     """
-    from experiments import tracking_bench as tb
+    from experiments.tracking_plots import plot_error_curves, plot_precision_curves
+    from experiments.tracking_runs import run_benchmark, table1
     from observer.trackers import make_pair_tracker
 
     seq = load_cvat_sequence(folder, xml_path, params, binning)
@@ -417,14 +449,14 @@ def benchmark_cvat_folder(
     factories = {name: (lambda name=name: make_pair_tracker(name, p,
                                                             transt_factory=transt_factory))
                  for name in trackers}
-    metrics, runs, seqs = tb.run_benchmark(factories, [seq])
-    t1 = tb.table1(runs)
+    metrics, runs, seqs = run_benchmark(factories, [seq])
+    t1 = table1(runs)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         metrics.to_csv(out / f"{seq.name}_metrics.csv", index=False)
         t1.to_csv(out / f"{seq.name}_table1.csv", index=False)
-        tb.plot_precision_curves(runs, seqs, seq.case).savefig(
+        plot_precision_curves(runs, seqs, seq.case).savefig(
             out / f"{seq.name}_precision.png", dpi=110)
-        tb.plot_error_curves(runs, seq).savefig(out / f"{seq.name}_errors.png", dpi=110)
+        plot_error_curves(runs, seq).savefig(out / f"{seq.name}_errors.png", dpi=110)
     return metrics, t1

@@ -33,7 +33,7 @@ from experiments.intervals import bootstrap_mean_ci, intervals_overlap, wilson_c
 from latency import Scenario, build_loop, simulate_many
 from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
-from latency.loop import LoopResult
+from latency.loop_config import LoopResult
 from latency.loss_model import (
     FORMAT_VERSION,
     LossModelFile,

@@ -82,6 +82,7 @@ class MountEstimate:
 
     @property
     def roll_identified(self) -> bool:
+        """Whether the fit identified the roll (its standard deviation is finite)."""
         return math.isfinite(self.roll_std_deg)
 
     def camera_file(self, base: CameraFile) -> CameraFile:
@@ -92,6 +93,8 @@ class MountEstimate:
         return base.model_copy(update={"camera": cam})
 
     def summary_lines(self) -> list[str]:
+        """The estimate as lines of text: frames and fit RMS (sensor px), roll (deg) and offset (mm)
+        with their standard deviations, then the fit's notes."""
         roll = (f"roll {self.roll_deg:.3f} ± {self.roll_std_deg:.3f} deg" if self.roll_identified
                 else f"roll {self.roll_deg:.3f} deg (not identified: kept from the camera file)")
         return [f"mount from {self.frames_used} frames ({self.mode}), fit RMS "

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from latency.loop import LoopResult
+from latency.loop_config import LoopResult
 from plant.camera import sensor_to_image
 
 if TYPE_CHECKING:

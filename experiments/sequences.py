@@ -36,7 +36,7 @@ hidden, staying and withdrawing (frames with at least half the red disc hidden a
 / ``distractor_yellow`` a disc of marker size and colour beside the pair; ``fast`` the
 trajectory at ``K_FAST`` = 3 times the speed; ``dark`` the brightness down to 30 % and back.
 ``heldout_pattern`` / ``heldout_lighting`` render the whole sequence in an appearance family
-the TransT network never saw in training (``observer.transt.data.heldout_options``), and
+the TransT network never saw in training (``plant.appearance.heldout_options``), and
 ``occluder_purple`` uses the held-out occluder colour.
 
 **Seeds**. Validation sequences use seeds ``VALIDATION_SEED_BASE + i`` (7,000,000 + i); they are
@@ -56,9 +56,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.transt.data import heldout_options
 from plant import attitude
-from plant.appearance import occluder_rgb
+from plant.appearance import heldout_options, occluder_rgb
 from plant.camera import sensor_to_image
 from plant.mjcf import RED_RGB, YELLOW_RGB
 from plant.params import PlantParams
@@ -78,7 +77,7 @@ HARD_CASES: tuple[Case, ...] = (
     "occluder_skin", "occluder_red_brown", "occluder_dark", "occluder_blue", "highlight",
     "distractor_red", "distractor_yellow", "fast", "dark",
 )
-#: Appearance families held out from the network's training (``observer.transt.data``): the
+#: Appearance families held out from the network's training (``plant.appearance``): the
 #: held-out rotor pattern, the held-out lighting, and occluders of the held-out colour.
 HELDOUT_CASES: tuple[Case, ...] = ("heldout_pattern", "heldout_lighting", "occluder_purple")
 ALL_CASES: tuple[Case, ...] = CASES + HARD_CASES + HELDOUT_CASES
@@ -145,6 +144,8 @@ class SequenceSpec(BaseModel):
 
     @property
     def name(self) -> str:
+        """The sequence's name, ``s<seed>_<case>`` (with ``_unseen`` for the evaluation-only
+        source)."""
         return f"s{self.seed}_{self.case}" + ("_unseen" if self.source == "unseen" else "")
 
 
@@ -182,6 +183,7 @@ class TrackingSequence:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames N (the first axis of ``images``)."""
         return int(self.images.shape[0])
 
     def __post_init__(self) -> None:

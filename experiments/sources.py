@@ -74,10 +74,13 @@ class FolderCapture:
         return len(self.files)
 
     def grab(self) -> bool:
+        """Advance to the next image as ``cv2.VideoCapture.grab`` does; False past the last one."""
         self.index += 1
         return self.index <= len(self.files)
 
     def read(self) -> tuple[bool, NDArray[np.uint8] | None]:
+        """The next image (BGR uint8, as ``cv2.imread``) and whether it could be read;
+        ``(False, None)`` past the last one."""
         if self.index >= len(self.files):
             return False, None
         img = cv2.imread(str(self.files[self.index]), cv2.IMREAD_COLOR)
@@ -85,12 +88,15 @@ class FolderCapture:
         return img is not None, img
 
     def release(self) -> None:
+        """Close the source: every later ``read`` returns ``(False, None)``."""
         self.index = len(self.files)
 
     def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+        """Whether images are left to read (``cv2.VideoCapture.isOpened``)."""
         return self.index < len(self.files)
 
     def get(self, prop_id: int) -> float:
+        """The number of images for ``cv2.CAP_PROP_FRAME_COUNT``, 0 for any other property."""
         return float(len(self.files)) if prop_id == cv2.CAP_PROP_FRAME_COUNT else 0.0
 
 

@@ -233,60 +233,75 @@ def run_sweep(
         jobs = [(execute_batch, target, list(chunk), out)
                 for chunk in np.array_split(np.array(todo, dtype=object), n_chunks) if len(chunk)]
     if scheduler is None:
-        pool = ProcessPoolExecutor(
-            max_workers=n_workers, initializer=_watch_parent, initargs=(os.getpid(),)
-        )
-        try:
-            futures = {pool.submit(*job): job for job in jobs}
-            for f in as_completed(futures):
-                f.result()
-                bar.update(_n_runs(futures[f][2]))
-        except BaseException:
-            # Ctrl-C or a failure of the pool: stop now; the runs in flight are lost and
-            # recomputed on resume. (Python < 3.14 has no public way to end the workers.)
-            workers = list((pool._processes or {}).values())
-            pool.shutdown(wait=False, cancel_futures=True)
-            for worker in workers:
-                worker.terminate()
-            raise
-        pool.shutdown()
+        _run_in_processes(jobs, n_workers, bar)
     else:
-        from dask.distributed import Client, LocalCluster
-        from dask.distributed import as_completed as dask_completed
-
-        cluster = None
-        if scheduler == "local":
-            # The worker processes inherit an ignored SIGINT: a Ctrl-C reaches this process
-            # only, which closes the cluster, instead of every worker printing a traceback.
-            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
-            try:
-                cluster = LocalCluster(
-                    n_workers=n_workers, threads_per_worker=1, processes=True,
-                    dashboard_address=None,
-                )
-            finally:
-                signal.signal(signal.SIGINT, handler)
-            client = Client(cluster)
-        else:
-            try:
-                client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
-            except OSError as exc:  # distributed raises OSError (or TimeoutError) on failure
-                bar.close()
-                raise SchedulerUnreachable(
-                    f"cannot reach the Dask scheduler {scheduler!r} within "
-                    f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
-                ) from None
-        try:
-            futures = {client.submit(*job, pure=False): job for job in jobs}
-            for f in dask_completed(list(futures)):
-                f.result()
-                bar.update(_n_runs(futures[f][2]))
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        _run_on_dask(jobs, scheduler, n_workers, bar)
     bar.close()
     return table(out, ids)
+
+
+def _run_in_processes(jobs: list[tuple], n_workers: int, bar: tqdm) -> None:
+    """Run ``jobs`` (function and arguments) in a local pool of ``n_workers`` processes that
+    end with this one, counting the finished runs on ``bar``; on Ctrl-C or a failure the
+    workers are ended at once (the runs in flight are recomputed on resume)."""
+    pool = ProcessPoolExecutor(
+        max_workers=n_workers, initializer=_watch_parent, initargs=(os.getpid(),)
+    )
+    try:
+        futures = {pool.submit(*job): job for job in jobs}
+        for f in as_completed(futures):
+            f.result()
+            bar.update(_n_runs(futures[f][2]))
+    except BaseException:
+        # Ctrl-C or a failure of the pool: stop now; the runs in flight are lost and
+        # recomputed on resume. (Python < 3.14 has no public way to end the workers.)
+        workers = list((pool._processes or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for worker in workers:
+            worker.terminate()
+        raise
+    pool.shutdown()
+
+
+def _run_on_dask(jobs: list[tuple], scheduler: str, n_workers: int, bar: tqdm) -> None:
+    """Run ``jobs`` (function and arguments) on Dask: a ``LocalCluster`` of ``n_workers``
+    processes for ``scheduler="local"``, else the scheduler at that address
+    (``SchedulerUnreachable`` within ``SCHEDULER_TIMEOUT_S``), counting the finished runs on
+    ``bar``; the client (and a local cluster) is closed at the end."""
+    from dask.distributed import Client, LocalCluster
+    from dask.distributed import as_completed as dask_completed
+
+    cluster = None
+    if scheduler == "local":
+        # The worker processes inherit an ignored SIGINT: a Ctrl-C reaches this process
+        # only, which closes the cluster, instead of every worker printing a traceback.
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            cluster = LocalCluster(
+                n_workers=n_workers, threads_per_worker=1, processes=True,
+                dashboard_address=None,
+            )
+        finally:
+            signal.signal(signal.SIGINT, handler)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except OSError as exc:  # distributed raises OSError (or TimeoutError) on failure
+            bar.close()
+            raise SchedulerUnreachable(
+                f"cannot reach the Dask scheduler {scheduler!r} within "
+                f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
+            ) from None
+    try:
+        futures = {client.submit(*job, pure=False): job for job in jobs}
+        for f in dask_completed(list(futures)):
+            f.result()
+            bar.update(_n_runs(futures[f][2]))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def _n_runs(job_configs: dict | list[dict]) -> int:

@@ -26,9 +26,9 @@ Outputs in the run folder:
   markers shaded) and ``latency.png``.
 
 The back ends receive only the markers the tracker measured (``observer.tracking.attitude_input``,
-the boundary rule of docs/architecture.md): with one marker measured the least-squares solve
-has too few markers and gives no attitude, the AEKF fuses the one marker; with none the frame is
-lost. Accuracy summaries (``score``, ``attitude_accuracy``) count the frames whose markers were
+the boundary rule of docs/architecture.md): with one marker measured the least-squares solve has
+too few markers and gives no attitude, the AEKF fuses the one marker; with none the frame is lost.
+Accuracy summaries (``score``, ``experiments.track_accuracy``) count the frames whose markers were
 measured unless asked otherwise, and say how many predicted frames they left out.
 
 Sources (``experiments.sources``): a folder of images, a video file, or a live camera (an
@@ -43,7 +43,6 @@ Bad input raises ``UserInputError`` with the reason (the CLI exits with status 2
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -54,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from experiments.cvat import read_cvat_xml
 from experiments.sources import Clock, LiveSchedule, Source, UserInputError, read_first
-from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at
+from experiments.tracking_metrics import PRECISION_PX, centre_errors, precision_at
 from latency.models import Empirical
 from observer.aekf import AEKFConfig
 from observer.cor_model import CorModel
@@ -327,13 +326,7 @@ def run_track(
                               f"{w} x {h} px")
     truth = None if ground_truth is None else load_ground_truth(
         ground_truth, w, h, source.n_frames if source.kind != "live" else None)
-    if isinstance(boxes_image_px, str) and boxes_image_px == "auto":
-        boxes_image_px = auto_boxes(first)
-    elif boxes_image_px is None:
-        if truth is None:
-            raise UserInputError("give the first-frame boxes (--boxes) or a CVAT file")
-        boxes_image_px = truth.first_boxes_image_px
-    boxes = check_boxes(boxes_image_px, w, h)
+    boxes = _first_boxes(boxes_image_px, first, truth)
     b = cam.camera.binning
     try:
         tracker.start(cv2.cvtColor(first, cv2.COLOR_BGR2RGB),
@@ -347,6 +340,40 @@ def run_track(
     writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                              source.fps, (w, h)) if write_video else None
     live = LiveSchedule(source.fps, clock, t0) if source.kind == "live" else None
+    rows, interrupted = _track_frames(source, tracker, _Backend(solver, filt, model, camera),
+                                      first, clock=clock, t0=t0, writer=writer, live=live,
+                                      max_frames=max_frames, binning=b)
+    table = pd.DataFrame(rows)
+    outcome = TrackOutcome(table, out, boxes, live.dropped if live else 0, interrupted,
+                           observer=observer)
+    if truth is not None:
+        outcome.metrics = score(table, truth, b)
+    write_outputs(outcome, source, tracker)
+    return outcome
+
+
+@dataclass(frozen=True)
+class _Backend:
+    """The attitude back end of a tracking run: the CoR model and its per-frame solver, the
+    filter (None for the per-frame solve) and the camera (camera-aligned to stator frame)."""
+
+    solver: CorSolver
+    filt: FilterObserver | None
+    model: CorModel
+    camera: Camera
+
+
+def _track_frames(
+    source: Source, tracker: PairTracker, backend: _Backend, first: NDArray[np.uint8], *,
+    clock: Clock, t0: float, writer: cv2.VideoWriter | None, live: LiveSchedule | None,
+    max_frames: int | None, binning: int,
+) -> tuple[list[dict], bool]:
+    """Track the frames of ``source`` from ``first`` (BGR) until the source ends, a frame of
+    another size comes, ``max_frames`` are done or the user interrupts: per frame the
+    tracker's step, the attitude, the table row (times from ``clock`` less ``t0``, s) and the
+    annotated video frame; a live source skips stale frames. The source and the video are
+    released at the end. Returns the rows and whether the user interrupted."""
+    h, w = first.shape[:2]
     rows: list[dict] = []
     q_prev = None
     frame, read_s, index = first, 0.0, 0
@@ -354,17 +381,9 @@ def run_track(
     try:
         while frame is not None and (max_frames is None or len(rows) < max_frames):
             t_received = clock() - t0
-            rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
-            res = tracker.step(rgb)
-            given = attitude_input(res)
+            res = tracker.step(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
             ts = clock()
-            if filt is None:
-                sol = solver.solve(given.marker_px, q_prev) if not given.lost else \
-                    SolverResult.invalid("no marker measured in this frame")
-            else:
-                if not rows:
-                    filt.reset(_first_attitude(solver, given), index / source.fps)
-                sol = filter_step(filt, model, given, res.reason, index / source.fps)
+            sol = _solve(backend, res, q_prev, not rows, index / source.fps)
             solver_s = clock() - ts
             q_prev = sol.q if sol.valid else q_prev
             # the tracker's geometry and drift checks read the latest attitude and residual
@@ -372,13 +391,13 @@ def run_track(
             if sol.valid:
                 tracker.tilt_hint_rad = attitude.tilt(sol.q)
             # the back ends work in the camera-aligned frame; the table is in the stator frame
-            stator = replace(sol, q=camera.stator_attitude(sol.q)) if sol.valid else sol
+            stator = replace(sol, q=backend.camera.stator_attitude(sol.q)) if sol.valid else sol
             row = _frame_row(index, source.fps, t_received, res, stator, read_s, solver_s)
             rows.append(row)
             if writer is not None:
                 text = (f"#{index} tilt {row['tilt_deg']:.2f} yaw {row['yaw_deg']:.1f} spin "
                         f"{row['spin_deg']:.1f} deg" if sol.valid else f"#{index} no attitude")
-                writer.write(_annotate(frame, res, b, text))
+                writer.write(_annotate(frame, res, binning, text))
             if live is not None and not live.skip_stale(source.capture):
                 break
             tr = clock()
@@ -392,13 +411,37 @@ def run_track(
         source.capture.release()
         if writer is not None:
             writer.release()
-    table = pd.DataFrame(rows)
-    outcome = TrackOutcome(table, out, boxes, live.dropped if live else 0, interrupted,
-                           observer=observer)
-    if truth is not None:
-        outcome.metrics = score(table, truth, b)
-    write_outputs(outcome, source, tracker)
-    return outcome
+    return rows, interrupted
+
+
+def _first_boxes(boxes_image_px: ArrayLike | str | None, first: NDArray[np.uint8],
+                 truth: GroundTruth | None) -> NDArray[np.float64]:
+    """The checked first-frame boxes (2, 4), image px: those given, those found by colour in
+    the first frame ``first`` (BGR) for ``"auto"``, or the ground truth's first boxes when
+    none are given; ``UserInputError`` when there are none or they do not fit the frame."""
+    h, w = first.shape[:2]
+    if isinstance(boxes_image_px, str) and boxes_image_px == "auto":
+        boxes_image_px = auto_boxes(first)
+    elif boxes_image_px is None:
+        if truth is None:
+            raise UserInputError("give the first-frame boxes (--boxes) or a CVAT file")
+        boxes_image_px = truth.first_boxes_image_px
+    return check_boxes(boxes_image_px, w, h)
+
+
+def _solve(backend: _Backend, res: PairResult, q_prev: NDArray[np.float64] | None, first: bool,
+           t_s: float) -> SolverResult:
+    """The attitude of one frame from the tracker's result ``res``: the per-frame solve
+    (from ``q_prev``), or with a filter the filter's step at time ``t_s`` (s), the filter
+    started from the frame's solve on the ``first`` frame."""
+    solver, filt, model = backend.solver, backend.filt, backend.model
+    given = attitude_input(res)
+    if filt is None:
+        return solver.solve(given.marker_px, q_prev) if not given.lost else \
+            SolverResult.invalid("no marker measured in this frame")
+    if first:
+        filt.reset(_first_attitude(solver, given), t_s)
+    return filter_step(filt, model, given, res.reason, t_s)
 
 
 def _first_attitude(solver: CorSolver, given: AttitudeInput) -> NDArray[np.float64]:
@@ -533,41 +576,3 @@ def _shade_predicted(ax, table: pd.DataFrame) -> None:
         ax.axvspan(t0, t1, color=_SHADES[src], alpha=0.4, lw=0,
                    label=None if src in labelled else src)
         labelled.add(src)
-
-
-def attitude_errors_deg(table: pd.DataFrame, q_true: Sequence[ArrayLike],
-                        include_predicted: bool = False) -> NDArray[np.float64]:
-    """Geodesic angle (deg) between each row's attitude and ``q_true[frame_index]``; NaN where
-    the run has no attitude and, unless ``include_predicted``, where the attitude does not rest
-    on two measured markers (``attitude_source``)."""
-    q = table[["q_w", "q_x", "q_y", "q_z"]].to_numpy()
-    qt = np.asarray(q_true, dtype=float)[table["frame_index"].to_numpy(int)]
-    err = np.full(len(q), np.nan)
-    ok = np.all(np.isfinite(q), axis=1)
-    if not include_predicted:
-        ok &= _measured_rows(table)
-    if ok.any():
-        err[ok] = np.rad2deg(attitude.geodesic_angle(q[ok], qt[ok]))
-    return err
-
-
-def _measured_rows(table: pd.DataFrame) -> NDArray[np.bool_]:
-    """Rows whose attitude rests on two measured markers."""
-    return (table["attitude_source"] == ATTITUDE_SOURCES[0]).to_numpy(bool)
-
-
-def attitude_accuracy(table: pd.DataFrame, q_true: Sequence[ArrayLike],
-                      include_predicted: bool = False) -> dict[str, float]:
-    """Median, RMS and largest geodesic attitude error (deg) against ``q_true[frame_index]``
-    over the frames with an attitude resting on two measured markers (all frames with an
-    attitude when ``include_predicted``), how many frames were scored and how many frames with
-    a predicted marker were left out."""
-    err = attitude_errors_deg(table, q_true, include_predicted)
-    scored = err[np.isfinite(err)]
-    left_out = 0 if include_predicted else int((~_measured_rows(table)).sum())
-    stats = {"median_deg": float(np.median(scored)),
-             "rms_deg": float(np.sqrt(np.mean(scored ** 2))),
-             "max_deg": float(scored.max())} if scored.size else \
-        {"median_deg": np.nan, "rms_deg": np.nan, "max_deg": np.nan}
-    return {**stats, "frames_scored": float(scored.size),
-            "predicted_frames_left_out": float(left_out)}

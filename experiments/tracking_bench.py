@@ -1,40 +1,9 @@
-"""The tracking benchmark of seed 000 §4: metrics per marker, runs, tables and plots.
+"""The tracking benchmark of seed 000 §4, composed: trackers by name, validation sequences,
+metrics CSV, plots, tables and the targets (``benchmarks/bench_tracking.py`` and
+``pmspm bench-trackers`` both call ``run_tracking_benchmark``).
 
-One module of about 920 lines: its parts (metrics, runs, tables, plots, the whole benchmark) form
-one pipeline that only the benchmark uses; the seams are the section comments below.
-
-**Protocol.** A pair tracker (``observer.trackers``) is started on frame 0 with the true boxes of
-both markers and stepped through frames 1 … N-1; frame 0 is not scored. The trackers of a
-benchmark take turns frame by frame (``run_trackers``), so that on a shared machine they all meet
-the same background load and latency ratios are fair. Per frame and marker
-(main = red, auxiliary = yellow) we keep the reported centre and box (full-sensor px), the lost
-and measured flags and the tracker's measured compute time (``PairResult.compute_time_s``,
-``time.perf_counter`` around the whole step).
-
-**Metrics** (seed 000 §4.2 and the OTB conventions it follows):
-
-* centre location error: Euclidean distance between the reported and the true centre in
-  full-sensor px; a frame without a finite centre counts as an infinite error. Lost flags do not
-  change the error: a flagged guess that happens to be close still counts as close.
-* precision curve: fraction of frames with error ≤ t for t = 0, 1, …, 50 px; precision at 20 px
-  is the seed's figure.
-* success: IoU of the reported and the true box; the success curve is the fraction of frames
-  with IoU > t for t = 0, 0.05, …, 1 and its AUC the mean over those 21 thresholds (OTB).
-* latency: median, p95 and mean of the compute time; FPS = 1 / mean (seed 000 Table 1:
-  61.23 FPS = 1/16.33 ms).
-* the same precision over the frames in which the tracker *measured* the marker
-  (``*_precision_20px_measured``; ``*_predicted_frames`` counts the frames left out): the
-  accuracy of what an attitude back end is given (``observer.tracking.attitude_input``);
-* re-acquisition after the occlusion (frames 100-110): the number of frames after the last
-  occluded frame until the marker is again *measured* (not predicted) within 20 px and stays
-  within 20 px for 5 frames (our choice); 0 = on the first visible frame, inf = never.
-
-The seed's numbers (Table 1 and §4.2-4.3) are kept in ``SEED_TABLE1`` and ``SEED_PRECISION``
-for the side-by-side tables. ``run_benchmark`` returns tidy pandas tables; ``plot_*`` write the
-PNG figures (precision curves like seed Figures 11, 12a/c, 14a/c; error over frames like 12b/d,
-14b/d). ``run_tracking_benchmark`` composes the whole benchmark (trackers by name, validation
-sequences, metrics CSV, plots, tables, the targets): ``benchmarks/bench_tracking.py`` and
-``pmspm bench-trackers`` both call it.
+Its parts are modules of their own: the metrics in ``tracking_metrics``, the runs and
+tables in ``tracking_runs``, the figures in ``tracking_plots``.
 """
 
 from __future__ import annotations
@@ -42,453 +11,28 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
-from numpy.typing import ArrayLike, NDArray
 
 from experiments.sequences import OCCLUSION_FRAMES, TrackingSequence
-from latency.models import SEED_FPS, seed_latency_ms
-from observer.trackers import MARKERS
-from observer.tracking import PairResult, PairTracker, attitude_source
+from experiments.tracking_metrics import REACQUIRE_HOLD
+from experiments.tracking_plots import plot_error_curves, plot_precision_curves
+from experiments.tracking_runs import (
+    MARKER_NAMES,
+    TrackerFactory,
+    TrackRun,
+    latency_ratio,
+    markdown_table,
+    run_benchmark,
+    summary_table,
+    table1,
+)
+from latency.models import seed_latency_ms
+from observer.tracking import PairTracker
 
-#: Centre-error thresholds of the precision curve, full-sensor px (seed 000 §4.2, Figure 11).
-THRESHOLDS_PX = np.arange(0.0, 51.0)
-#: The seed's precision threshold, sensor px (seed 000 §4.2).
-PRECISION_PX = 20.0
-#: IoU thresholds of the success curve (OTB: 0, 0.05, …, 1).
-IOU_THRESHOLDS = np.linspace(0.0, 1.0, 21)
-#: Frames in a row within the threshold that confirm a re-acquisition (our choice).
-REACQUIRE_HOLD = 5
-MARKER_NAMES = ("main", "aux")
-
-#: Seed 000 Table 1 (RTX 4060 laptop GPU): algorithm -> (FPS, latency ms).
-SEED_TABLE1: dict[str, tuple[float, float]] = {
-    name: (SEED_FPS[name], seed_latency_ms(name)) for name in SEED_FPS
-}
-#: Seed 000 §4.2-4.3 precision at 20 px: (algorithm, case) -> (main, aux). For KCF under
-#: occlusion the seed gives one number (0.295).
-SEED_PRECISION: dict[tuple[str, str], tuple[float, float]] = {
-    ("gk_transt", "clean"): (0.909, 0.944),
-    ("dual_transt", "clean"): (0.909, 0.917),
-    ("csrt", "clean"): (0.947, 0.971),
-    ("kcf", "clean"): (0.894, 0.868),
-    ("gk_transt", "occlusion"): (0.891, 0.944),
-    ("kcf", "occlusion"): (0.295, 0.295),
-    ("gk_transt", "blur"): (0.897, 0.926),
-    ("kcf", "blur"): (0.428, 0.431),
-}
-
-
-# --- metrics ------------------------------------------------------------------------------------
-def centre_errors(pred_px: ArrayLike, true_px: ArrayLike) -> NDArray[np.float64]:
-    """Centre location errors (N,), px, of predictions (N, 2) against truth (N, 2); a
-    non-finite prediction gives +inf (a frame with a NaN truth gives NaN: not scored)."""
-    p = np.asarray(pred_px, dtype=float).reshape(-1, 2)
-    t = np.asarray(true_px, dtype=float).reshape(-1, 2)
-    e = np.hypot(*(p - t).T)
-    e[~np.all(np.isfinite(p), axis=1)] = np.inf
-    e[~np.all(np.isfinite(t), axis=1)] = np.nan
-    return e
-
-
-def precision_curve(
-    errors: ArrayLike, thresholds: ArrayLike = THRESHOLDS_PX
-) -> NDArray[np.float64]:
-    """Fraction of scored frames (finite or infinite error; NaN = not scored) with error ≤ t."""
-    e = np.asarray(errors, dtype=float)
-    e = e[~np.isnan(e)]
-    th = np.asarray(thresholds, dtype=float)
-    if e.size == 0:
-        return np.full(th.shape, np.nan)
-    return np.mean(e[None, :] <= th[:, None], axis=1)
-
-
-def precision_at(errors: ArrayLike, threshold_px: float = PRECISION_PX) -> float:
-    """Precision at one threshold (seed 000 §4.2: 20 px)."""
-    return float(precision_curve(errors, [threshold_px])[0])
-
-
-def box_iou(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """IoU (N,) of boxes (N, 4) (x, y, w, h); 0 where a box is not finite or empty."""
-    A = np.asarray(a, dtype=float).reshape(-1, 4)
-    B = np.asarray(b, dtype=float).reshape(-1, 4)
-    x0 = np.maximum(A[:, 0], B[:, 0])
-    y0 = np.maximum(A[:, 1], B[:, 1])
-    x1 = np.minimum(A[:, 0] + A[:, 2], B[:, 0] + B[:, 2])
-    y1 = np.minimum(A[:, 1] + A[:, 3], B[:, 1] + B[:, 3])
-    inter = np.clip(x1 - x0, 0.0, None) * np.clip(y1 - y0, 0.0, None)
-    union = A[:, 2] * A[:, 3] + B[:, 2] * B[:, 3] - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        iou = inter / union
-    ok = np.all(np.isfinite(A), axis=1) & np.all(np.isfinite(B), axis=1) & (union > 0)
-    return np.where(ok, iou, 0.0)
-
-
-def success_curve(ious: ArrayLike, thresholds: ArrayLike = IOU_THRESHOLDS) -> NDArray[np.float64]:
-    """Fraction of frames with IoU > t for each threshold t."""
-    v = np.asarray(ious, dtype=float)
-    th = np.asarray(thresholds, dtype=float)
-    if v.size == 0:
-        return np.full(th.shape, np.nan)
-    return np.mean(v[None, :] > th[:, None], axis=1)
-
-
-def success_auc(ious: ArrayLike, thresholds: ArrayLike = IOU_THRESHOLDS) -> float:
-    """Area under the success curve: its mean over the (equally spaced) thresholds (OTB)."""
-    return float(np.mean(success_curve(ious, thresholds)))
-
-
-def latency_stats(times_s: ArrayLike) -> dict[str, float]:
-    """Median, p95 and mean latency (ms) and FPS = 1 / mean of per-frame compute times (s)."""
-    t = np.asarray(times_s, dtype=float)
-    t = t[np.isfinite(t)]
-    if t.size == 0:
-        return {"latency_median_ms": math.nan, "latency_p95_ms": math.nan,
-                "latency_mean_ms": math.nan, "fps": math.nan}
-    return {
-        "latency_median_ms": 1e3 * float(np.median(t)),
-        "latency_p95_ms": 1e3 * float(np.percentile(t, 95)),
-        "latency_mean_ms": 1e3 * float(np.mean(t)),
-        "fps": 1.0 / float(np.mean(t)),
-    }
-
-
-def reacquisition_frames(
-    errors: ArrayLike,
-    measured: ArrayLike,
-    first_visible: int,
-    threshold_px: float = PRECISION_PX,
-    hold: int = REACQUIRE_HOLD,
-) -> float:
-    """Frames after an occlusion until re-acquisition (see the module docstring).
-
-    ``errors`` and ``measured`` are per frame (index = frame number); ``first_visible`` is the
-    first frame after the occlusion. Returns k - first_visible for the first frame k ≥
-    first_visible that is measured with error ≤ threshold and whose next ``hold`` frames (as
-    many as exist) stay within the threshold; inf if none.
-    """
-    e = np.asarray(errors, dtype=float)
-    m = np.asarray(measured, dtype=bool)
-    n = len(e)
-    for k in range(int(first_visible), n):
-        if m[k] and e[k] <= threshold_px:
-            nxt = e[k:min(k + hold, n)]
-            if np.all(nxt <= threshold_px):
-                return float(k - first_visible)
-    return math.inf
-
-
-# --- runs ---------------------------------------------------------------------------------------
-@dataclass
-class TrackRun:
-    """One tracker on one sequence: per-frame outputs (index = frame number; frame 0 holds the
-    start boxes and is not scored).
-
-    Attributes
-    ----------
-    tracker, sequence, case : names.
-    marker_px : (N, 2, 2) reported centres, sensor px.
-    boxes_px : (N, 2, 4) reported boxes, sensor px.
-    lost, measured : (N, 2) flags per marker.
-    compute_time_s : (N,) per-frame compute time, s (NaN at frame 0).
-    reasons : per-frame reasons.
-    """
-
-    tracker: str
-    sequence: str
-    case: str
-    marker_px: NDArray[np.float64]
-    boxes_px: NDArray[np.float64]
-    lost: NDArray[np.bool_]
-    measured: NDArray[np.bool_]
-    compute_time_s: NDArray[np.float64]
-    reasons: list[str] = field(default_factory=list)
-
-    def errors(self, seq: TrackingSequence) -> NDArray[np.float64]:
-        """(N, 2) centre errors, sensor px, main then aux (frame 0 NaN: not scored)."""
-        e = np.stack([centre_errors(self.marker_px[:, m], seq.marker_px[:, m])
-                      for m in range(2)], axis=1)
-        e[0] = np.nan
-        return e
-
-    def frames_table(self, seq: TrackingSequence) -> pd.DataFrame:
-        """One row per frame: the reported centres (sensor px), the lost and measured flags
-        (the tracker's own), ``attitude_source``, the centre errors (sensor px) and the compute
-        time (s); frame 0 is the start (the true boxes)."""
-        e = self.errors(seq)
-        rows = {"tracker": self.tracker, "sequence": self.sequence, "case": self.case,
-                "frame": np.arange(len(self.marker_px))}
-        for m, colour in enumerate(MARKERS):
-            rows |= {f"{colour}_u_px": self.marker_px[:, m, 0],
-                     f"{colour}_v_px": self.marker_px[:, m, 1],
-                     f"{colour}_lost": self.lost[:, m], f"{colour}_measured": self.measured[:, m],
-                     f"{colour}_error_px": e[:, m]}
-        rows["attitude_source"] = [attitude_source(*f) for f in self.measured]
-        rows["compute_time_s"] = self.compute_time_s
-        return pd.DataFrame(rows)
-
-    def ious(self, seq: TrackingSequence) -> NDArray[np.float64]:
-        """(N, 2) IoU with the true boxes (frame 0 NaN)."""
-        v = np.stack([box_iou(self.boxes_px[:, m], seq.boxes_px[:, m]) for m in range(2)],
-                     axis=1)
-        v[0] = np.nan
-        return v
-
-
-def run_trackers(
-    trackers: Sequence[PairTracker],
-    seq: TrackingSequence,
-    interleave: bool = True,
-    on_step: Callable[[], None] | None = None,
-) -> list[TrackRun]:
-    """Start each tracker on frame 0 with the true boxes and step it through the sequence.
-
-    With ``interleave`` (default) the trackers take turns frame by frame, in an order rotated
-    by one every frame, so that on a shared machine they meet the same background load and
-    their latency ratio is measured fairly; each keeps its own state, so the results are those
-    of separate runs. Otherwise each runs through the whole sequence in turn. ``on_step`` is
-    called once per scored frame (after every tracker has processed it), for a progress bar.
-    """
-    n, m = seq.n_frames, len(trackers)
-    marker = np.full((m, n, 2, 2), np.nan)
-    boxes = np.full((m, n, 2, 4), np.nan)
-    lost = np.zeros((m, n, 2), bool)
-    measured = np.zeros((m, n, 2), bool)
-    times = np.full((m, n), np.nan)
-    reasons = [[""] * n for _ in range(m)]
-
-    def one(i: int, k: int) -> None:
-        r: PairResult = trackers[i].step(seq.images[k])
-        marker[i, k] = r.marker_px
-        boxes[i, k] = r.boxes_px
-        lost[i, k] = (r.red_lost, r.yellow_lost)
-        measured[i, k] = (r.red_measured, r.yellow_measured)
-        times[i, k] = r.compute_time_s
-        reasons[i][k] = r.reason
-
-    for i, tr in enumerate(trackers):
-        tr.start(seq.images[0], seq.boxes_px[0], seq.binning)
-        marker[i, 0], boxes[i, 0], measured[i, 0] = seq.marker_px[0], seq.boxes_px[0], True
-    if interleave:
-        for k in range(1, n):
-            for j in range(m):
-                one((j + k) % m, k)
-            if on_step:
-                on_step()
-    else:
-        for i in range(m):
-            for k in range(1, n):
-                one(i, k)
-                if on_step and i == m - 1:
-                    on_step()
-    return [TrackRun(tr.name, seq.name, seq.case, marker[i], boxes[i], lost[i], measured[i],
-                     times[i], reasons[i]) for i, tr in enumerate(trackers)]
-
-
-def run_tracker(tracker: PairTracker, seq: TrackingSequence) -> TrackRun:
-    """Start ``tracker`` on frame 0 with the true boxes and step it through the sequence."""
-    return run_trackers([tracker], seq)[0]
-
-
-def evaluate(run: TrackRun, seq: TrackingSequence) -> dict[str, float | str]:
-    """One row of metrics for a run: per marker precision@20 px, success AUC, median error,
-    lost and measured fractions, re-acquisition frames (occlusion case), and the latency."""
-    e = run.errors(seq)
-    v = run.ious(seq)
-    row: dict[str, float | str] = {"tracker": run.tracker, "sequence": run.sequence,
-                                   "case": run.case, "frames": float(seq.n_frames - 1)}
-    occl = np.flatnonzero(seq.occluded)
-    for m, name in enumerate(MARKER_NAMES):
-        em = e[1:, m]
-        row[f"{name}_precision_20px"] = precision_at(em)
-        measured = run.measured[1:, m]
-        row[f"{name}_precision_20px_measured"] = precision_at(np.where(measured, em, np.nan))
-        row[f"{name}_predicted_frames"] = float(np.sum(~measured))
-        row[f"{name}_success_auc"] = success_auc(v[1:, m])
-        row[f"{name}_err_median_px"] = float(np.nanmedian(np.where(np.isinf(em), 1e9, em)))
-        row[f"{name}_lost_fraction"] = float(np.mean(run.lost[1:, m]))
-        row[f"{name}_measured_fraction"] = float(np.mean(run.measured[1:, m]))
-        # reported as measured but more than 20 px off: what a trust rule must keep at zero
-        row[f"{name}_wrong_measured_fraction"] = float(
-            np.mean(run.measured[1:, m] & ~(em <= PRECISION_PX)))
-        if occl.size:
-            row[f"{name}_reacquire_frames"] = reacquisition_frames(
-                e[:, m], run.measured[:, m], int(occl.max()) + 1)
-    row.update(latency_stats(run.compute_time_s[1:]))
-    return row
-
-
-TrackerFactory = Callable[[], PairTracker]
-
-
-def run_benchmark(
-    trackers: dict[str, TrackerFactory],
-    sequences: Iterable[TrackingSequence | Callable[[], TrackingSequence]],
-    progress: Callable[[str], None] | None = None,
-    keep_images: bool = True,
-    interleave: bool = True,
-    on_step: Callable[[], None] | None = None,
-) -> tuple[pd.DataFrame, list[TrackRun], list[TrackingSequence]]:
-    """Run every tracker on every sequence (a fresh tracker per run; frame-interleaved, see
-    ``run_trackers``; ``on_step`` once per scored frame of each sequence).
-
-    ``sequences`` may hold sequences or callables that render one (rendered one at a time).
-    The returned sequences keep their ground truth for the plots; with ``keep_images=False``
-    their frames are dropped after the runs (a 300-frame sequence holds 280 MB of images).
-    Returns (metrics table, runs, sequences).
-    """
-    rows, runs, seqs = [], [], []
-    for s in sequences:
-        seq = s() if callable(s) else s
-        if progress:
-            progress(f"{', '.join(trackers)} on {seq.name}")
-        built = [make() for make in trackers.values()]
-        runs_here = run_trackers(built, seq, interleave, on_step)
-        for name, run in zip(trackers, runs_here, strict=True):
-            run.tracker = name
-            runs.append(run)
-            rows.append(evaluate(run, seq))
-        if not keep_images:
-            seq = replace(seq, images=np.zeros((seq.n_frames, 1, 1, 3), np.uint8))
-        seqs.append(seq)
-    return pd.DataFrame(rows), runs, seqs
-
-
-def pooled_precision(
-    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], tracker: str, case: str
-) -> NDArray[np.float64]:
-    """(2, T) precision curves (main, aux) over all frames of a tracker's runs in one case."""
-    by_name = {s.name: s for s in seqs}
-    errs = [r.errors(by_name[r.sequence])[1:] for r in runs
-            if r.tracker == tracker and r.case == case]
-    if not errs:
-        return np.full((2, len(THRESHOLDS_PX)), np.nan)
-    e = np.concatenate(errs)
-    return np.stack([precision_curve(e[:, m]) for m in range(2)])
-
-
-def summary_table(metrics: pd.DataFrame) -> pd.DataFrame:
-    """Mean over sequences per (tracker, case) of precision, AUC and re-acquisition, with the
-    seed's precision beside it."""
-    cols = [c for c in metrics.columns if c.endswith(("precision_20px", "success_auc",
-                                                      "reacquire_frames", "lost_fraction",
-                                                      "err_median_px",
-                                                      "wrong_measured_fraction"))]
-    g = metrics.groupby(["tracker", "case"], sort=False)[cols].mean().reset_index()
-    g["seed_main_precision"] = [SEED_PRECISION.get((t, c), (math.nan, math.nan))[0]
-                                for t, c in zip(g.tracker, g.case, strict=True)]
-    g["seed_aux_precision"] = [SEED_PRECISION.get((t, c), (math.nan, math.nan))[1]
-                               for t, c in zip(g.tracker, g.case, strict=True)]
-    return g
-
-
-def table1(runs: Sequence[TrackRun], cases: Sequence[str] | None = None) -> pd.DataFrame:
-    """Seed Table 1 measured here: per tracker FPS (1/mean) and latency (median, mean, p95) over
-    all scored frames of its runs (optionally only ``cases``), beside the seed's figures, with
-    the GK-TransT / dual-TransT ratio of median latencies when both ran."""
-    rows = []
-    for name in dict.fromkeys(r.tracker for r in runs):
-        t = np.concatenate([r.compute_time_s[1:] for r in runs if r.tracker == name
-                            and (cases is None or r.case in cases)])
-        st = latency_stats(t)
-        seed = SEED_TABLE1.get(name, (math.nan, math.nan))
-        rows.append({"algorithm": name, "fps": st["fps"],
-                     "latency_median_ms": st["latency_median_ms"],
-                     "latency_mean_ms": st["latency_mean_ms"],
-                     "latency_p95_ms": st["latency_p95_ms"], "frames": float(len(t)),
-                     "seed_fps": seed[0], "seed_latency_ms": seed[1]})
-    return pd.DataFrame(rows)
-
-
-def latency_ratio(table: pd.DataFrame, num: str = "gk_transt", den: str = "dual_transt",
-                  column: str = "latency_median_ms") -> float:
-    """Ratio of two trackers' latencies from a ``table1`` (seed: 16.33 / 31.23 = 0.523)."""
-    t = table.set_index("algorithm")
-    if num not in t.index or den not in t.index:
-        return math.nan
-    return float(t.loc[num, column] / t.loc[den, column])
-
-
-# --- plots --------------------------------------------------------------------------------------
-def plot_precision_curves(
-    runs: Sequence[TrackRun], seqs: Sequence[TrackingSequence], case: str
-) -> Figure:
-    """Precision curves of every tracker in one case, main and auxiliary marker side by side
-    (seed Figure 11; 12a/c and 14a/c for the occlusion and blur cases)."""
-    fig = Figure(figsize=(10, 4))
-    axes = fig.subplots(1, 2, sharey=True)
-    for name in dict.fromkeys(r.tracker for r in runs if r.case == case):
-        curves = pooled_precision(runs, seqs, name, case)
-        for m, ax in enumerate(axes):
-            p20 = curves[m][int(PRECISION_PX)]
-            ax.plot(THRESHOLDS_PX, curves[m], label=f"{name} [{p20:.3f}]")
-    for m, ax in enumerate(axes):
-        ax.axvline(PRECISION_PX, color="0.6", lw=0.8, ls="--")
-        ax.set_title(f"{('main (red)', 'auxiliary (yellow)')[m]} marker, {case}")
-        ax.set_xlabel("centre location error threshold (sensor px)")
-        ax.set_xlim(0, THRESHOLDS_PX[-1])
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="lower right", fontsize=8)
-    axes[0].set_ylabel("precision")
-    fig.tight_layout()
-    return fig
-
-
-def plot_error_curves(
-    runs: Sequence[TrackRun], seq: TrackingSequence, ymax_px: float = 100.0
-) -> Figure:
-    """Centre error over frames of every tracker on one sequence, main and auxiliary marker
-    (seed Figures 12b/d, 14b/d); disturbed frames shaded; errors beyond ``ymax_px`` leave the
-    chart as in the seed's figures."""
-    fig = Figure(figsize=(10, 6))
-    axes = fig.subplots(2, 1, sharex=True)
-    frames = np.arange(seq.n_frames)
-    for r in runs:
-        if r.sequence != seq.name:
-            continue
-        e = r.errors(seq)
-        for m, ax in enumerate(axes):
-            # a frame without an estimate (inf) is drawn off the chart; frame 0 (NaN) is not
-            ax.plot(frames, np.where(np.isinf(e[:, m]), 10 * ymax_px, e[:, m]), lw=1,
-                    label=r.tracker)
-    for m, ax in enumerate(axes):
-        for flags, colour, label in ((seq.occluded, "0.3", "occluded"),
-                                     (seq.blurred, "tab:orange", "blurred")):
-            idx = np.flatnonzero(flags)
-            if idx.size:
-                ax.axvspan(idx.min() - 0.5, idx.max() + 0.5, color=colour, alpha=0.15,
-                           label=label)
-        ax.axhline(PRECISION_PX, color="0.6", lw=0.8, ls="--")
-        ax.set_ylim(0, ymax_px)
-        ax.set_ylabel(f"{MARKER_NAMES[m]} error (sensor px)")
-        ax.grid(alpha=0.3)
-    axes[0].set_title(f"centre location error, {seq.name}")
-    axes[0].legend(loc="upper right", fontsize=8, ncol=3)
-    axes[1].set_xlabel("frame")
-    fig.tight_layout()
-    return fig
-
-
-def markdown_table(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
-    """A pandas table as GitHub markdown (without the optional ``tabulate`` dependency)."""
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        cells = []
-        for c in cols:
-            v = row[c]
-            cells.append(format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-# --- the whole benchmark: bench_tracking.py and ``pmspm bench-trackers`` -------------------------
 #: The benchmark's trackers: names of ``observer.trackers.make_pair_tracker`` plus
 #: ``gk_transt_norefine`` (GK-TransT without the sub-pixel circle fit: the seed's algorithm) and
 #: ``dual_transt_refine`` (dual TransT with the circle fit), so that the latency ratio can be
@@ -856,6 +400,45 @@ def _result_notes(summary: pd.DataFrame, t1: pd.DataFrame, all_cases: bool, gk: 
     ]
 
 
+def _run_suite(
+    factories: dict[str, TrackerFactory], specs: list, say: Callable[[str], None],
+    on_step: Callable[[], None] | None, unseen_network: str | None,
+) -> tuple[pd.DataFrame, list[TrackRun], list[TrackingSequence], float]:
+    """Render each sequence of ``specs`` in turn and run every tracker on it; with
+    ``unseen_network`` among the trackers, render each again from the unseen image source and
+    run that tracker alone on it (rows ``unseen_row``). Returns the metrics, runs, sequences
+    and the wall time, s."""
+    from experiments.sequences import render_sequence
+
+    def render(spec):
+        say(f"rendering {spec.name}")
+        return render_sequence(spec)
+
+    t0 = time.perf_counter()
+    metrics, runs, seqs = run_benchmark(
+        factories, [lambda s=s: render(s) for s in specs], progress=say, keep_images=False,
+        on_step=on_step)
+    if unseen_network is not None and unseen_network in factories:
+        unseen_specs = [s.model_copy(update={"source": "unseen"}) for s in specs]
+        m2, r2, s2 = run_benchmark(
+            {unseen_row(unseen_network): factories[unseen_network]},
+            [lambda s=s: render(s) for s in unseen_specs], progress=say, keep_images=False,
+            on_step=on_step)
+        metrics, runs, seqs = pd.concat([metrics, m2], ignore_index=True), runs + r2, seqs + s2
+    return metrics, runs, seqs, time.perf_counter() - t0
+
+
+def _write_tables(out: Path, metrics: pd.DataFrame, runs: list[TrackRun],
+                  seqs: list[TrackingSequence]) -> None:
+    """Write ``tracking_metrics.csv`` (one row per run) and ``tracking_frames.parquet`` (one
+    row per run and frame) into ``out``, made if missing."""
+    out.mkdir(parents=True, exist_ok=True)
+    metrics.to_csv(out / "tracking_metrics.csv", index=False)
+    by_name = {s.name: s for s in seqs}
+    pd.concat([r.frames_table(by_name[r.sequence]) for r in runs], ignore_index=True) \
+        .to_parquet(out / "tracking_frames.parquet", index=False)
+
+
 def run_tracking_benchmark(
     out_dir: Path | str,
     seeds: int = 2,
@@ -889,7 +472,7 @@ def run_tracking_benchmark(
     ``unseen_row(NETWORK_ALONE)``, checked against the network-alone targets on the clean
     case.
     """
-    from experiments.sequences import render_sequence, validation_suite
+    from experiments.sequences import validation_suite
 
     cases = _check_arguments(cases, seeds, frames)
     factories, note_transt = tracker_factories(trackers, stand_in, require_transt)
@@ -899,31 +482,11 @@ def run_tracking_benchmark(
     if note_transt:
         say(note_transt)
     specs = validation_suite(seeds, tuple(cases), frames)
-
-    def render(spec):
-        say(f"rendering {spec.name}")
-        return render_sequence(spec)
-
-    t0 = time.perf_counter()
-    metrics, runs, seqs = run_benchmark(
-        factories, [lambda s=s: render(s) for s in specs], progress=say, keep_images=False,
-        on_step=on_step)
     network = NETWORK_ALONE.replace("_transt", tag_of(stand_in))
-    if unseen and network in factories:
-        unseen_specs = [s.model_copy(update={"source": "unseen"}) for s in specs]
-        m2, r2, s2 = run_benchmark(
-            {unseen_row(network): factories[network]},
-            [lambda s=s: render(s) for s in unseen_specs], progress=say, keep_images=False,
-            on_step=on_step)
-        metrics, runs, seqs = pd.concat([metrics, m2], ignore_index=True), runs + r2, seqs + s2
-    wall = time.perf_counter() - t0
-
+    metrics, runs, seqs, wall = _run_suite(factories, specs, say, on_step,
+                                           network if unseen else None)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    metrics.to_csv(out / "tracking_metrics.csv", index=False)
-    by_name = {s.name: s for s in seqs}
-    pd.concat([r.frames_table(by_name[r.sequence]) for r in runs], ignore_index=True) \
-        .to_parquet(out / "tracking_frames.parquet", index=False)
+    _write_tables(out, metrics, runs, seqs)
     plots = _write_plots(out, runs, seqs, cases)
 
     summary = summary_table(metrics)
@@ -989,46 +552,3 @@ def run_unseen_accuracy(
     figures = {f"{r.case}_{m}_{k}": float(r[f"{m}_{k}"]) for _, r in summary.iterrows()
                for m in MARKER_NAMES for k in ("precision_20px", "err_median_px")}
     return summary, figures
-
-
-__all__ = [
-    "DEFAULT_TRACKERS",
-    "IOU_THRESHOLDS",
-    "OCCLUSION_FRAMES",
-    "PRECISION_PX",
-    "RATIO_PAIRS",
-    "SEED_PRECISION",
-    "SEED_TABLE1",
-    "THRESHOLDS_PX",
-    "BenchmarkReport",
-    "TrackRun",
-    "box_iou",
-    "centre_errors",
-    "evaluate",
-    "latency_ratio",
-    "latency_stats",
-    "markdown_table",
-    "case_target",
-    "min_frames",
-    "network_and_gk_table",
-    "network_checks",
-    "plot_error_curves",
-    "plot_precision_curves",
-    "pooled_precision",
-    "precision_at",
-    "precision_curve",
-    "reacquisition_frames",
-    "run_benchmark",
-    "run_tracker",
-    "run_tracking_benchmark",
-    "run_trackers",
-    "run_unseen_accuracy",
-    "success_auc",
-    "success_curve",
-    "summary_table",
-    "table1",
-    "tag_of",
-    "tracker_factories",
-    "transt_network",
-    "unseen_row",
-]

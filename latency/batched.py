@@ -37,7 +37,8 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from latency import compiled
-from latency.loop import Advance, ClosedLoop, LoopResult, Segment
+from latency.loop import Advance, ClosedLoop, Segment
+from latency.loop_config import LoopResult
 from plant import attitude
 from plant.params import PlantParams
 from plant.rigid_body import RigidBody

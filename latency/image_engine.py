@@ -40,7 +40,8 @@ from typing import TypeVar
 from tqdm import tqdm
 
 from latency.frontends import ImageFrontEnd
-from latency.loop import ClosedLoop, LoopResult
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopResult
 from observer.transt.service import shared_services
 
 Spec = TypeVar("Spec")

@@ -258,25 +258,9 @@ def stationary_cost(
 
     Phi, Gam, Wh, Qx, Qu, c_noise = _grain_discretisation(A, B, (Q1, Q2, R1c), h)
 
-    # grain-level state chi = [x; u_old; u_new; x_c(next)]
-    nchi, nxi = n + 2 * m + nc, n + m + nc
-    ix, iold, inew = slice(0, n), slice(n, n + m), slice(n + m, n + 2 * m)
+    nxi = n + m + nc
     S, H, E = _sample_maps(C, (Ac, Bc, Cc, Dc), m)
-
-    def grain(active: slice) -> tuple[NDArray, NDArray]:
-        """Transition of chi over one grain and the selector z = [x; u_active]."""
-        G = np.eye(nchi)
-        G[ix, ix] = Phi
-        G[ix, active] = Gam
-        Z = np.zeros((n + m, nchi))
-        Z[:n, ix] = np.eye(n)
-        Z[n:, active] = np.eye(m)
-        return G, Z
-
-    G_old, Z_old = grain(iold)
-    G_new, Z_new = grain(inew)
-    W_chi = np.zeros((nchi, nchi))
-    W_chi[ix, ix] = Wh
+    (G_old, Z_old), (G_new, Z_new), W_chi = _grain_maps(Phi, Gam, Wh, m, nc)
     M_list, Gm_list, W_xi = _period_maps(G_old, G_new, W_chi, (S, H, E), Nn)
 
     const = W_xi + sum(pj * Gm @ R2 @ Gm.T for pj, Gm in zip(p, Gm_list, strict=True))
@@ -294,6 +278,32 @@ def stationary_cost(
     state_cost /= T
     input_cost /= T
     return StationaryCost(state_cost + input_cost, state_cost, input_cost, P, rho, True, T, h, p)
+
+
+def _grain_maps(
+    Phi: NDArray, Gam: NDArray, Wh: NDArray, m: int, nc: int,
+) -> tuple[tuple[NDArray, NDArray], tuple[NDArray, NDArray], NDArray]:
+    """The grain-level maps of chi = [x; u_old; u_new; x_c(next)] (n + 2m + nc states): for
+    the old and then the new command acting, the transition of chi over one grain (the plant's
+    ``Phi``, ``Gam``; the rest held) and the selector z = [x; u_active]; and the process-noise
+    covariance of chi over one grain (``Wh`` on x)."""
+    n = Phi.shape[0]
+    nchi = n + 2 * m + nc
+    ix, iold, inew = slice(0, n), slice(n, n + m), slice(n + m, n + 2 * m)
+
+    def grain(active: slice) -> tuple[NDArray, NDArray]:
+        """Transition of chi over one grain and the selector z = [x; u_active]."""
+        G = np.eye(nchi)
+        G[ix, ix] = Phi
+        G[ix, active] = Gam
+        Z = np.zeros((n + m, nchi))
+        Z[:n, ix] = np.eye(n)
+        Z[n:, active] = np.eye(m)
+        return G, Z
+
+    W_chi = np.zeros((nchi, nchi))
+    W_chi[ix, ix] = Wh
+    return grain(iold), grain(inew), W_chi
 
 
 def _grain_discretisation(

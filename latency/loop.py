@@ -1,7 +1,8 @@
 """The timed closed loop: plant, camera, observer and controller on one event timeline.
 
-One module of about 790 lines: the event handlers, the timeline and the run's tables share one
-run's state (event queue, frame scheduler, logs); apart, each would reach into the others'.
+The event handlers, the timeline and the run's tables share one run's state (event queue,
+frame scheduler, logs), so they live together here; a run's settings (``LoopConfig``) and what
+it returns (``LoopResult``) are in ``latency.loop_config``.
 
 Simulated time only (s). Per run:
 
@@ -40,20 +41,18 @@ import itertools
 import time
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Literal, Protocol
+from typing import Protocol
 
 import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from tqdm import tqdm
 
 from controller.base import Controller, Reference
 from latency.frontends import Capture, FrontEnd
+from latency.loop_config import LoopConfig, LoopResult
 from latency.metrics import summarize
-from latency.models import Constant, LatencyModel
-from latency.pipeline import FrameScheduler, PipelineConfig
+from latency.pipeline import FrameScheduler
 from observer.pixel_observer import PixelObserver
 from observer.tracking import attitude_source
 from plant import attitude
@@ -72,137 +71,24 @@ class PlantState(Protocol):
     disturbance: Callable[[float], NDArray[np.float64]] | None
 
     @property
-    def q(self) -> NDArray[np.float64]: ...
+    def q(self) -> NDArray[np.float64]:
+        """Current attitude (4,), unit quaternion (w, x, y, z), rotor to stator."""
 
     @property
-    def omega(self) -> NDArray[np.float64]: ...
+    def omega(self) -> NDArray[np.float64]:
+        """Current body rate (3,), rad/s."""
 
     @property
-    def currents(self) -> NDArray[np.float64]: ...
+    def currents(self) -> NDArray[np.float64]:
+        """Current coil currents (16,), A."""
 
-    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation: ...
+    def allocate(self, torque: ArrayLike, q: ArrayLike | None = None) -> Allocation:
+        """The coil currents that make ``torque`` (3,), N·m, stator frame, at attitude ``q`` (4,)
+        (default: the current one)."""
 
-    def delayed_q(self) -> NDArray[np.float64]: ...
-
-
-class LoopConfig(BaseModel):
-    """Settings of one closed-loop run. Numbers must be finite (an infinite rate or latency
-    cannot run)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    duration_s: float = Field(gt=0.0)
-    pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
-    controller_latency: LatencyModel | Literal["measured"] = Field(
-        default_factory=lambda: Constant(value_s=0.0),
-        description="Controller compute latency: a model (reproducible) or 'measured' (the "
-        "wall-clock time of each command() call).",
-    )
-    observer_latency: Literal["model", "measured"] = Field(
-        "model",
-        description="Observer processing latency from pipeline.observer (reproducible) "
-        "or the front end's measured compute time on this machine.",
-    )
-    controller_rate_hz: float | None = Field(
-        None,
-        gt=0.0,
-        description="None: the controller runs on each new estimate (event-driven). A rate: "
-        "it runs on a fixed clock from t = 0, each time on the latest released estimate (a "
-        "safe command while there is none or it is invalid), Hz.",
-    )
-    allocate_with: Literal["estimate", "truth"] = Field(
-        "estimate", description="Attitude used for K(q) in the current allocation."
-    )
-    loss_threshold_px: float = Field(
-        20.0, gt=0.0, description="Seed 000 §4.2: centre error threshold, sensor px."
-    )
-    divergence_deg: float = Field(
-        60.0,
-        gt=0.0,
-        description="Our choice: a divergence event when the geodesic error between truth and "
-        "reference exceeds this (the run continues, so every run covers its duration).",
-    )
-    disturbance_psd_Nm2s: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="Body-frame white disturbance torque intensity per axis, "
-        "(N·m)²·s (E w(t) w(s) = q δ(t - s)); 0 = none. Drawn per physics step as N(0, q/h)."
-    )
-    mujoco_sensor_delay_s: float | None = Field(
-        None,
-        ge=0.0,
-        description="Cross-check: give the plant MuJoCo's native delayed ballquat sensor with "
-        "this delay (s); the steps table then has its reading (mj_delayed_q*), which describes "
-        "the attitude at t - physics step - delay (MuJoCo evaluates sensors before it "
-        "integrates).",
-    )
-    seed: int = Field(0, ge=0, description="Random seed (numpy needs it >= 0).")
-    step_metrics: bool = Field(
-        True,
-        description="The reference is piecewise constant (steps): the summary measures the "
-        "step after its last change (overshoot, settling time, steady-state error). False for "
-        "a smooth reference (random, ramp, cone): those metrics are NaN (latency.metrics).",
-    )
-    q0: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
-    omega0_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    @model_validator(mode="after")
-    def _latency_fits(self) -> LoopConfig:
-        """Settings that would run without a single estimate or command, or that the camera
-        cannot do (the frame scheduler would stop the run at its first frame)."""
-        pipe = self.pipeline
-        mean = pipe.observer.mean_s
-        if mean >= self.duration_s:
-            raise ValueError(
-                f"pipeline.observer latency (mean {mean} s) is not shorter than duration_s "
-                f"({self.duration_s} s): no estimate would arrive"
-            )
-        if self.controller_latency != "measured":
-            total = mean + self.controller_latency.mean_s
-            if total >= self.duration_s:
-                raise ValueError(
-                    f"pipeline.observer latency plus controller_latency (means, {total:g} s) "
-                    f"is not shorter than duration_s ({self.duration_s} s): no command would "
-                    "take effect"
-                )
-        if pipe.exposure_s > pipe.frame_period_s:
-            raise ValueError(
-                f"pipeline.frame_rate_hz = {pipe.frame_rate_hz:g} is more than the camera can "
-                f"reach with pipeline.exposure_s = {pipe.exposure_s:g} s (at most "
-                f"{1.0 / pipe.exposure_s:g} Hz: each frame is exposed within its period)"
-            )
-        return self
-
-
-@dataclass
-class LoopResult:
-    """What a run returns.
-
-    Attributes
-    ----------
-    steps : one row per physics step: truth, reference, errors, torques, currents.
-    frames : one row per camera frame: timing, true and measured pixels, estimate.
-    events : one row per event (time, kind, detail).
-    summary : scalar metrics (see ``summarize``).
-    config : the run's configuration as a dict.
-    """
-
-    steps: pd.DataFrame
-    frames: pd.DataFrame
-    events: pd.DataFrame
-    summary: dict[str, float]
-    config: dict = field(default_factory=dict)
-
-    def save(self, folder: str | Path) -> Path:
-        """Write ``steps.parquet``, ``frames.parquet``, ``events.parquet`` and
-        ``summary.json`` into ``folder``."""
-        import json
-
-        out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
-        self.steps.to_parquet(out / "steps.parquet")
-        self.frames.to_parquet(out / "frames.parquet")
-        self.events.to_parquet(out / "events.parquet")
-        (out / "summary.json").write_text(json.dumps(self.summary, indent=1, default=str))
-        return out
+    def delayed_q(self) -> NDArray[np.float64]:
+        """The attitude MuJoCo's delayed sensor reports now (only with
+        ``mujoco_sensor_delay_s``)."""
 
 
 @dataclass
@@ -275,6 +161,8 @@ class ClosedLoop:
 
     # --- the run ---------------------------------------------------------------------------
     def run(self, progress: bool = False) -> LoopResult:
+        """Run the loop for ``config.duration_s`` on a fresh ``MujocoPlant`` and return its
+        ``LoopResult`` (steps, frames, commands and estimates); ``progress`` shows a bar."""
         c = self.config
         plant = MujocoPlant(
             self.params, c.q0, c.omega0_rad_s, sensor_delay_s=c.mujoco_sensor_delay_s
@@ -307,47 +195,15 @@ class ClosedLoop:
 
         Mirrored in ``latency.compiled.kernel._run_events``; keep both in step
         (tests/test_compiled_mirror.py checks them equal)."""
-        c, p = self.config, self.params
-        rng_pipe, rng_ctrl, rng_dist = run_streams(c.seed)
+        c = self.config
         native = c.mujoco_sensor_delay_s is not None
-        psd = np.asarray(c.disturbance_psd_Nm2s)
-        if np.any(psd > 0):
-            plant.disturbance = lambda h: rng_dist.normal(size=3) * np.sqrt(psd / h)
-        self.controller.reset()
-        self.front_end.reset()
-        self.observer.reset(c.q0, 0.0)
-        run = _Run(plant, FrameScheduler(c.pipeline, rng_pipe), rng_ctrl)
-        n_steps = self.n_steps
-
-        log = _StepLog(n_steps + 1)
-        # The reference on the whole physics grid, once (one array call, not one per step).
-        q_ref_grid = self.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q
-        run.push(0.5 * c.pipeline.exposure_s, "frame")
-        if c.controller_rate_hz is not None:
-            run.push(0.0, "tick", 0)
+        run, log, q_ref_grid = self._start(plant)
         t, k_log = 0.0, 0
         stopped = ""
-        bar = tqdm(total=n_steps, disable=not progress, desc="closed loop", unit="step")
-
-        def record(k0: int, seg: Segment) -> None:
-            """Rows k0, k0 + 1, ... of the steps table from the states at the grid points;
-            tilt-stop contact and release events where the flag changes (each row shows the
-            flag of the row before)."""
-            n = len(seg.q)
-            times = (k0 + np.arange(n)) * p.physics_dt_s
-            q_ref = q_ref_grid[k0 : k0 + n]
-            stop = tilt_stop_contact(seg.q, p)
-            before = np.concatenate(([run.stop], stop[:-1]))
-            est = run.estimate
-            log.write_rows(k0, times, seg, q_ref, run.torque_cmd, run.delivered,
-                           est.q if est is not None else None, run.saturated, before)
-            for k in np.flatnonzero(stop != before):
-                run.events.append((float(times[k]),
-                                   "tilt_stop_contact" if stop[k] else "tilt_stop_release", ""))
-            run.stop = bool(stop[-1])
-
-        record(0, Segment(0.0, plant.q[None], plant.omega[None], plant.currents[None],
-                          plant.delayed_q()[None] if native else None))
+        bar = tqdm(total=self.n_steps, disable=not progress, desc="closed loop", unit="step")
+        self._record(run, log, q_ref_grid, 0, Segment(
+            0.0, plant.q[None], plant.omega[None], plant.currents[None],
+            plant.delayed_q()[None] if native else None))
         queue = run.queue
         while True:
             t_next_event = queue[0][0] if queue else np.inf
@@ -356,7 +212,7 @@ class ClosedLoop:
                 seg = yield Advance(run.currents, t, t_target, k_log)
                 t = seg.t_s
                 if len(seg.q):
-                    record(k_log + 1, seg)
+                    self._record(run, log, q_ref_grid, k_log + 1, seg)
                     k_log += len(seg.q)
                     bar.update(len(seg.q))
             if t >= c.duration_s - 1e-12:
@@ -364,22 +220,73 @@ class ClosedLoop:
             if not queue or queue[0][0] > t + 1e-12:
                 continue
             _, _, kind, payload = heapq.heappop(queue)
-            if kind == "frame":
-                self._on_frame(run, t)
-            elif kind == "release":
-                self._on_release(run, t, payload)
-            elif kind == "command":
-                self._on_command(run, t, payload)
-            elif kind == "tick":
-                run.push((payload + 1) / c.controller_rate_hz, "tick", payload + 1)
-                est = run.estimate if run.estimate is not None else _no_estimate(t)
-                self._control(run, t, est, None)
+            self._dispatch(run, t, kind, payload)
             if run.diverged and not stopped:
                 stopped = run.diverged  # noted once; the run goes on to its full duration
                 run.events.append((t, "divergence", stopped))
         bar.close()
+        return self._result(run, log.frame(k_log + 1, native), stopped)
 
-        steps = log.frame(k_log + 1, native)
+    def _start(self, plant: PlantState) -> tuple[_Run, _StepLog, NDArray[np.float64]]:
+        """A run's start on ``plant``: its random streams, the disturbance hook, the
+        controller, front end and observer reset, the first frame and controller tick
+        queued, an empty steps log, and the reference's attitudes on the whole physics grid
+        (one array call, not one per step), (n_steps + 1, 4)."""
+        c, p = self.config, self.params
+        rng_pipe, rng_ctrl, rng_dist = run_streams(c.seed)
+        psd = np.asarray(c.disturbance_psd_Nm2s)
+        if np.any(psd > 0):
+            plant.disturbance = lambda h: rng_dist.normal(size=3) * np.sqrt(psd / h)
+        self.controller.reset()
+        self.front_end.reset()
+        self.observer.reset(c.q0, 0.0)
+        run = _Run(plant, FrameScheduler(c.pipeline, rng_pipe), rng_ctrl)
+        n_steps = self.n_steps
+        log = _StepLog(n_steps + 1)
+        q_ref_grid = self.reference.sample_many(np.arange(n_steps + 1) * p.physics_dt_s).q
+        run.push(0.5 * c.pipeline.exposure_s, "frame")
+        if c.controller_rate_hz is not None:
+            run.push(0.0, "tick", 0)
+        return run, log, q_ref_grid
+
+    def _record(self, run: _Run, log: _StepLog, q_ref_grid: NDArray[np.float64], k0: int,
+                seg: Segment) -> None:
+        """Rows k0, k0 + 1, ... of the steps table from the states at the grid points;
+        tilt-stop contact and release events where the flag changes (each row shows the
+        flag of the row before)."""
+        p = self.params
+        n = len(seg.q)
+        times = (k0 + np.arange(n)) * p.physics_dt_s
+        q_ref = q_ref_grid[k0 : k0 + n]
+        stop = tilt_stop_contact(seg.q, p)
+        before = np.concatenate(([run.stop], stop[:-1]))
+        est = run.estimate
+        log.write_rows(k0, times, seg, q_ref, run.torque_cmd, run.delivered,
+                       est.q if est is not None else None, run.saturated, before)
+        for k in np.flatnonzero(stop != before):
+            run.events.append((float(times[k]),
+                               "tilt_stop_contact" if stop[k] else "tilt_stop_release", ""))
+        run.stop = bool(stop[-1])
+
+    def _dispatch(self, run: _Run, t: float, kind: str, payload: object) -> None:
+        """Handle the event of ``kind`` due at ``t`` (s): a frame, a release, a command, or a
+        tick of the controller's clock (which queues the next tick and controls on the latest
+        released estimate)."""
+        if kind == "frame":
+            self._on_frame(run, t)
+        elif kind == "release":
+            self._on_release(run, t, payload)
+        elif kind == "command":
+            self._on_command(run, t, payload)
+        elif kind == "tick":
+            run.push((payload + 1) / self.config.controller_rate_hz, "tick", payload + 1)
+            est = run.estimate if run.estimate is not None else _no_estimate(t)
+            self._control(run, t, est, None)
+
+    def _result(self, run: _Run, steps: pd.DataFrame, stopped: str) -> LoopResult:
+        """The run's ``LoopResult`` from its steps table and its frames and events, with the
+        summary metrics (``stopped``: the divergence noted, if any)."""
+        c = self.config
         frames_df = pd.DataFrame(run.frames)
         events_df = pd.DataFrame(run.events, columns=["t_s", "kind", "detail"])
         summary = summarize(steps, frames_df, events_df, c.duration_s, stopped,

@@ -118,6 +118,7 @@ class LossModel:
 
     @property
     def noise_sigma_px(self) -> float:
+        """Per-coordinate noise of the tracked marker centres, sensor px (from the fitted data)."""
         return self.data.noise_sigma_px
 
     def p_lost(self, offset_px: float, blur_px: float, frames_lost: int) -> float:

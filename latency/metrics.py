@@ -87,19 +87,13 @@ def _zyz_differences(a, b):
 
 
 @njit(cache=True)
-def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step_metrics,
-               late_fraction):
-    """The per-step metrics (``_STEP_VALUES``) of a run from its steps: times t (n,), s,
-    attitudes q and references q_ref (n, 4), delivered torques (n, 3), N·m, and tilt-stop
-    flags (n,). One pass over the rows (and one backwards to the reference's last change).
-    Without ``step_metrics`` (a reference that is not piecewise constant) the step metrics
-    and the steady-state error are NaN. Over the last ``late_fraction`` of the run: the RMS
-    error and the reference's mean angular speed (its geodesic path length over the window's
-    length, deg/s)."""
-    n = t.shape[0]
-    out = np.full(len(_STEP_VALUES), np.nan)
-    t_end = t[n - 1]
-    # The reference's last change: the commanded step runs from q_ref[i0 - 1] to q_ref[i0].
+def _last_step(q_ref):
+    """The reference's last change in q_ref (n, 4): the row i0 where the commanded step from
+    q_ref[i0 - 1] to q_ref[i0] lands (0 when the reference never changes by more than
+    ``_CHANGE_RAD``), the step's size, rad, and its unit rotation axis (3,) in the frame of
+    its start (``attitude.to_rotvec`` of conj(from) ⊗ to over its angle; zeros when i0 is 0).
+    Found by one pass backwards from the last row."""
+    n = q_ref.shape[0]
     i0 = 0
     for k in range(n - 1, 0, -1):
         a, b = q_ref[k - 1], q_ref[k]
@@ -113,7 +107,6 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
     f, g = q_ref[max(i0 - 1, 0)], q_ref[i0]  # the commanded step's start and target
     if i0 > 0:
         size = _geodesic_of(f[0], f[1], f[2], f[3], g[0], g[1], g[2], g[3])
-        # the step's rotation axis (``attitude.to_rotvec`` of conj(from) ⊗ to, over its angle)
         d = np.array(_hamilton(f[0], -f[1], -f[2], -f[3], g[0], g[1], g[2], g[3]))
         d = d / math.sqrt(d @ d)
         if d[0] < 0:
@@ -121,18 +114,86 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
         s = math.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3])
         rv = 2.0 * d[1:] if s < 1e-12 else 2.0 * math.atan2(s, d[0]) * d[1:] / s
         axis = rv / size
-    stepped = step_metrics and i0 > 0 and size >= _MIN_STEP_RAD
-    sum_e2 = sum_T2 = effort = 0.0
-    max_e, nan_e = -np.inf, False
-    sums = np.zeros(3)
-    maxes = np.zeros(3)
+    return i0, size, axis
+
+
+@njit(cache=True)
+def _settling(t, q, q_ref, i0, size, axis, settle_band_deg):
+    """The step response from row i0 (``_last_step``) on: the last row whose error to the
+    step's target exceeds ``settle_band_deg`` (-1 if none), the largest progress along the
+    step's axis (1.0 on target, from the step's start) and whether a progress was NaN."""
+    f, g = q_ref[max(i0 - 1, 0)], q_ref[i0]
+    prog_max, nan_prog, last_out = -np.inf, False, -1
+    for k in range(i0, t.shape[0]):
+        qk, rk = q[k], q_ref[k]
+        rw, rx, ry, rz = _hamilton(f[0], -f[1], -f[2], -f[3], qk[0], qk[1], qk[2], qk[3])
+        sw = rw + 1e-300
+        sign = 1.0 if sw > 0 else (-1.0 if sw < 0 else (0.0 if sw == 0 else np.nan))
+        rw, rx, ry, rz = sign * rw, sign * rx, sign * ry, sign * rz
+        s_half = math.sqrt(rx * rx + ry * ry + rz * rz)
+        scale = 2.0 * math.atan2(s_half, rw) / max(s_half, 1e-300) if s_half > 1e-12 else 2.0
+        prog = scale * (rx * axis[0] + ry * axis[1] + rz * axis[2]) / size
+        if math.isnan(prog):
+            nan_prog = True
+        elif prog > prog_max:
+            prog_max = prog
+        to = rk if (rk[0] == g[0] and rk[1] == g[1] and rk[2] == g[2] and rk[3] == g[3]) else g
+        e_to = math.degrees(_geodesic_of(qk[0], qk[1], qk[2], qk[3], to[0], to[1], to[2], to[3]))
+        if e_to > settle_band_deg:
+            last_out = k
+    return last_out, prog_max, nan_prog
+
+
+@njit(cache=True)
+def _effort_and_contact(t, torque, stop):
+    """The control effort (the integral of |T|², N²·m²·s, by the rectangle rule over the
+    rows), the sum of |T|² over the rows, and the longest tilt-stop contact, s (from its first
+    row to the next row without it, or to the end)."""
+    n = t.shape[0]
+    sum_T2 = effort = 0.0
+    for k in range(n):
+        T2 = torque[k, 0] ** 2 + torque[k, 1] ** 2 + torque[k, 2] ** 2
+        sum_T2 += T2
+        if k > 0:
+            effort += T2 * (t[k] - t[k - 1])
+    return effort, sum_T2, _longest_run(t, stop, np.zeros(n, dtype=np.bool_), t[n - 1])
+
+
+@njit(cache=True)
+def _longest_run(t, flag, skip, t_end):
+    """The longest run of rows with ``flag`` among those not skipped (``skip``), s: from the
+    run's first row's time ``t`` to that of the next row not skipped without the flag, or to
+    ``t_end`` for a run that lasts to the end; 0 without a flagged row."""
+    start, longest = np.nan, 0.0
+    for i in range(t.shape[0]):
+        if skip[i]:
+            continue
+        if flag[i]:
+            if math.isnan(start):
+                start = t[i]
+        elif not math.isnan(start):
+            longest = max(longest, t[i] - start)
+            start = np.nan
+    if not math.isnan(start):
+        longest = max(longest, t_end - start)
+    return longest
+
+
+@njit(cache=True)
+def _error_pass(t, q, q_ref, out, steady_window_s, late_fraction):
+    """Into ``out`` (``_STEP_VALUES`` order): the RMS and largest attitude error (deg), the
+    RMS and largest Z-Y-Z angle errors (tilt on every row, spin and yaw where both tilts
+    exceed 1°, deg); returns the mean error over the last ``steady_window_s`` (s), the RMS
+    error over the last ``late_fraction`` of the run (deg) and the reference's mean angular
+    speed over that window (its geodesic path over the window's length, deg/s)."""
+    n = t.shape[0]
+    t_end = t[n - 1]
+    sum_e2, max_e, nan_e = 0.0, -np.inf, False
+    sums, maxes, counts = np.zeros(3), np.zeros(3), np.zeros(3)
     nan_d = np.zeros(3, dtype=np.bool_)
-    counts = np.zeros(3)
     late_sum, late_n = 0.0, 0
     late_e2, late_e_n, late_path = 0.0, 0, 0.0
     t_late = (1.0 - late_fraction) * t_end
-    prog_max, nan_prog, last_out = -np.inf, False, -1
-    stop_from, longest_stop = np.nan, 0.0
     ref_prev = np.full(4, np.nan)
     ref_R = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k in range(n):
@@ -143,7 +204,6 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
             nan_e = True
         elif e > max_e:
             max_e = e
-        # Z-Y-Z angle errors: tilt on every row, spin and yaw where both tilts exceed 1°
         if not (rk[0] == ref_prev[0] and rk[1] == ref_prev[1] and rk[2] == ref_prev[2]
                 and rk[3] == ref_prev[3]):
             ref_R = _zyz_elements(rk[0], rk[1], rk[2], rk[3])
@@ -161,51 +221,44 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
                     nan_d[i] = True
                 elif abs(d_i) > maxes[i]:
                     maxes[i] = abs(d_i)
-        T2 = torque[k, 0] ** 2 + torque[k, 1] ** 2 + torque[k, 2] ** 2
-        sum_T2 += T2
-        if k > 0:
-            effort += T2 * (t[k] - t[k - 1])
         if t[k] >= t_end - steady_window_s:
             late_sum += e
             late_n += 1
         if t[k] >= t_late:
             late_e2 += e * e
             late_e_n += 1
-        # the longest contact: from its first row to the next row without it (or the end)
-        if stop[k]:
-            if math.isnan(stop_from):
-                stop_from = t[k]
-        elif not math.isnan(stop_from):
-            longest_stop = max(longest_stop, t[k] - stop_from)
-            stop_from = np.nan
-        if stepped and k >= i0:
-            # progress along the step's axis (1.0 on target), from the step's start
-            rw, rx, ry, rz = _hamilton(f[0], -f[1], -f[2], -f[3], qk[0], qk[1], qk[2], qk[3])
-            sw = rw + 1e-300
-            sign = 1.0 if sw > 0 else (-1.0 if sw < 0 else (0.0 if sw == 0 else np.nan))
-            rw, rx, ry, rz = sign * rw, sign * rx, sign * ry, sign * rz
-            s_half = math.sqrt(rx * rx + ry * ry + rz * rz)
-            scale = 2.0 * math.atan2(s_half, rw) / max(s_half, 1e-300) if s_half > 1e-12 else 2.0
-            prog = scale * (rx * axis[0] + ry * axis[1] + rz * axis[2]) / size
-            if math.isnan(prog):
-                nan_prog = True
-            elif prog > prog_max:
-                prog_max = prog
-            same = rk[0] == g[0] and rk[1] == g[1] and rk[2] == g[2] and rk[3] == g[3]
-            e_to = e if same else math.degrees(
-                _geodesic_of(qk[0], qk[1], qk[2], qk[3], g[0], g[1], g[2], g[3]))
-            if e_to > settle_band_deg:
-                last_out = k
-    if not math.isnan(stop_from):
-        longest_stop = max(longest_stop, t_end - stop_from)
     out[0] = math.sqrt(sum_e2 / n)
     out[1] = np.nan if nan_e else max_e
     for i in range(3):
         if counts[i] > 0:
             out[2 + i] = math.degrees(math.sqrt(sums[i] / counts[i]))
             out[5 + i] = np.nan if nan_d[i] else math.degrees(maxes[i])
+    late_s = t_end - t_late
+    steady = late_sum / late_n if late_n else np.nan
+    late_rms = math.sqrt(late_e2 / late_e_n) if late_e_n else 0.0
+    return steady, late_rms, (math.degrees(late_path) / late_s if late_s > 0.0 else 0.0)
+
+
+@njit(cache=True)
+def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step_metrics,
+               late_fraction):
+    """The per-step metrics (``_STEP_VALUES``) of a run from its steps: times t (n,), s,
+    attitudes q and references q_ref (n, 4), delivered torques (n, 3), N·m, and tilt-stop
+    flags (n,): the errors (``_error_pass``), effort and contact (``_effort_and_contact``)
+    and, for a step of at least ``_MIN_STEP_RAD`` (``_last_step``), its settling time to
+    within ``settle_band_deg`` and overshoot (``_settling``). Without ``step_metrics`` (a
+    reference that is not piecewise constant) the step metrics and the steady-state error
+    are NaN. Over the last ``late_fraction`` of the run: the RMS error and the reference's
+    mean angular speed (deg/s)."""
+    n = t.shape[0]
+    out = np.full(len(_STEP_VALUES), np.nan)
+    steady, late_rms, late_speed = _error_pass(t, q, q_ref, out, steady_window_s,
+                                               late_fraction)
+    effort, sum_T2, longest_stop = _effort_and_contact(t, torque, stop)
     out[8], out[9] = effort, math.sqrt(sum_T2 / n)
-    if stepped:
+    i0, size, axis = _last_step(q_ref)
+    if step_metrics and i0 > 0 and size >= _MIN_STEP_RAD:
+        last_out, prog_max, nan_prog = _settling(t, q, q_ref, i0, size, axis, settle_band_deg)
         if last_out < 0:
             out[10] = 0.0
         elif last_out < n - 1:
@@ -213,11 +266,10 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
         over = 100.0 * ((np.nan if nan_prog else prog_max) - 1.0)
         out[11] = over if over > 0.0 else 0.0
         out[12] = math.degrees(size)
-    out[13] = late_sum / late_n if late_n and step_metrics else np.nan
+    out[13] = steady if step_metrics else np.nan
     out[14] = longest_stop
-    out[15] = math.sqrt(late_e2 / late_e_n) if late_e_n else 0.0
-    late_s = t_end - t_late
-    out[16] = math.degrees(late_path) / late_s if late_s > 0.0 else 0.0
+    out[15] = late_rms
+    out[16] = late_speed
     return out
 
 
@@ -335,7 +387,7 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
     n = t_exposure.shape[0]
     n_dropped = n_processed = n_lost = n_known = 0
     latency_sum = 0.0
-    loss_from, longest, first_loss = np.nan, 0.0, np.nan
+    first_loss = np.nan
     for i in range(n):
         if dropped[i]:
             n_dropped += 1
@@ -348,13 +400,7 @@ def _frame_pass(t_exposure, dropped, lost, latency, t_end):
             if n_lost == 0:
                 first_loss = t_exposure[i]
             n_lost += 1
-            if math.isnan(loss_from):
-                loss_from = t_exposure[i]
-        elif not math.isnan(loss_from):
-            longest = max(longest, t_exposure[i] - loss_from)
-            loss_from = np.nan
-    if not math.isnan(loss_from):
-        longest = max(longest, t_end - loss_from)
+    longest = _longest_run(t_exposure, lost, dropped, t_end)
     return (n_dropped / n, n_lost / n_processed if n_processed else 0.0,
             latency_sum / n_known if n_known else np.nan, longest, first_loss)
 

@@ -39,7 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controller.base import Reference, RefSample
-from controller.mpc import MPCConfig, MPCController
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
 from latency.zoh import zoh_integrals
 from plant import attitude
 from plant.params import PlantParams

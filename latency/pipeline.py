@@ -61,6 +61,7 @@ class PipelineConfig(BaseModel):
 
     @property
     def frame_period_s(self) -> float:
+        """Time between frames, s (1 / ``frame_rate_hz``)."""
         return 1.0 / self.frame_rate_hz
 
     @classmethod

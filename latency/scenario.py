@@ -47,7 +47,7 @@ from controller.registry import (
     TiltStepSpec,
 )
 from latency.frontends import LOSS_MODELS, MeasurementConfig
-from latency.loop import LoopConfig
+from latency.loop_config import LoopConfig
 from latency.models import LATENCY_MODELS, Constant, LatencyModel
 from latency.pipeline import PipelineConfig
 from observer.registry import OBSERVERS, FilterObserverSpec, ObserverSpec
@@ -224,7 +224,7 @@ class Scenario(_Model):
     reference: ReferenceSpec = TiltStepSpec()
     controller_rate_hz: float | None = Field(
         None, gt=0.0, description="None: control on each new estimate; a rate (Hz): a fixed "
-        "controller clock on the latest estimate (latency.loop.LoopConfig)."
+        "controller clock on the latest estimate (latency.loop_config.LoopConfig)."
     )
     controller_latency: LatencyModel | Literal["measured"] = Field(
         default_factory=lambda: Constant(value_s=0.0),

@@ -35,7 +35,8 @@ from latency import compiled
 from latency.batched import run_batched
 from latency.frontends import FRONT_ENDS, orb_reference
 from latency.image_engine import run_images
-from latency.loop import ClosedLoop, LoopResult
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopResult
 from latency.scenario import Scenario
 from observer.registry import build_observer
 from plant.renderers import RENDERERS

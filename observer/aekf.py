@@ -78,7 +78,7 @@ class AEKFConfig(BaseModel):
 
     q_quat_per_s: float = Field(
         1e-7, ge=0.0, description="Our choice: small, since the rate is in the state (seed 001, "
-        "whose state has no rate, uses 0.001·I4 per frame; see ``seed001``). 1e-4 would already "
+        "whose state has no rate, uses Q = 0.001·I4 per frame, Table 1). 1e-4 would already "
         "spread the prior over ~90 px² and hide the innovation statistics from λ."
     )
     q_omega_rad2_per_s3: float = Field(
@@ -98,11 +98,6 @@ class AEKFConfig(BaseModel):
         "measurement outside it is rejected as an outlier."
     )
     history_s: float = Field(1.0, gt=0.0, description="Torque history kept, s.")
-
-    @classmethod
-    def seed001(cls, frame_rate_hz: float = 36.0) -> AEKFConfig:
-        """The settings of seed 001 Table 1: Q = 0.001·I4 per frame, R = 5 px², ϑ = 0.8."""
-        return cls(q_quat_per_s=1e-3 * frame_rate_hz, sigma_px=5.0**0.5, theta=0.8)
 
 
 @dataclass(frozen=True)

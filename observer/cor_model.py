@@ -331,6 +331,7 @@ class CorModel:
 
     @property
     def n_markers(self) -> int:
+        """Number of markers N in the model (rows of ``markers_m``)."""
         return int(self.markers_m.shape[0])
 
     def replace(self, **changes) -> CorModel:

@@ -4,7 +4,7 @@
 view, their rotor-frame points known) with one of three back ends, the three methods of seed
 001 Table 2:
 
-* ``"orb"``: ORB alone, the per-frame least-squares solve ``observer.orb.solve_attitude``;
+* ``"orb"``: ORB alone, the per-frame least-squares solve ``observer.orb_pose.solve_attitude``;
 * ``"ekf"``: the quaternion EKF of ``observer.aekf`` on the matched points
   (``QuaternionAEKF.update_points``), driven by the plant model and the recorded torque;
 * ``"aekf"``: the same with covariance matching (seed 001 App. C.3: window N,
@@ -34,13 +34,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from observer.aekf import AEKFConfig, QuaternionAEKF
-from observer.orb import (
-    OrbConfig,
-    OrbFrontEnd,
-    OrbMeasurement,
-    OrbReference,
-    solve_attitude,
-)
+from observer.orb import OrbConfig, OrbFrontEnd, OrbMeasurement, OrbReference
+from observer.orb_pose import solve_attitude
 from plant import attitude
 from plant.camera import Camera
 from plant.estimate import Estimate

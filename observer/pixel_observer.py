@@ -34,9 +34,12 @@ from plant.params import PlantParams
 class PixelObserver(Protocol):
     """Back end from marker pixels (sensor px) to attitude estimates."""
 
-    def reset(self, q0: ArrayLike, t0: float) -> None: ...
+    def reset(self, q0: ArrayLike, t0: float) -> None:
+        """Start from attitude ``q0`` (4,) at time ``t0`` (s), forgetting every earlier frame."""
 
-    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None: ...
+    def record_torque(self, t: float, torque_stator: NDArray[np.float64]) -> None:
+        """The torque (3,), N·m, stator frame, commanded from time ``t`` (s), for back ends that
+        predict with the commands (the others ignore it)."""
 
     def process(
         self,
@@ -45,9 +48,14 @@ class PixelObserver(Protocol):
         lost: bool = False,
         reason: str = "",
         compute_time_s: float = 0.0,
-    ) -> None: ...
+    ) -> None:
+        """Take the marker pixels (N, 2), sensor px, of a frame exposed at ``t_exposure`` (s);
+        ``lost`` True when the front end lost the markers, ``reason`` its explanation and
+        ``compute_time_s`` the front end's compute time (s) to report in the estimate."""
 
-    def release(self, t_release: float) -> Estimate: ...
+    def release(self, t_release: float) -> Estimate:
+        """The ``Estimate`` handed to the controller at ``t_release`` (s) for the last processed
+        frame."""
 
 
 class FilterObserver:
@@ -195,6 +203,8 @@ class SolverObserver:
         self.reset([1.0, 0.0, 0.0, 0.0], 0.0)
 
     def reset(self, q0: ArrayLike, t0: float) -> None:
+        """Start from attitude ``q0`` (4,) at time ``t0`` (s): that attitude is held (with an
+        unknown covariance) until the first valid solution."""
         self._q = attitude.normalize(q0, "q0")
         self._cov = np.full((3, 3), np.nan)
         self._last_valid = t0
@@ -211,6 +221,9 @@ class SolverObserver:
         reason: str = "",
         compute_time_s: float = 0.0,
     ) -> None:
+        """Solve the attitude from the marker pixels (N, 2), sensor px, of the frame exposed at
+        ``t_exposure`` (s), starting from the last solution; a lost frame or a failed solve keeps
+        the last valid solution. The estimate is made by ``release``."""
         z = np.asarray(marker_px, dtype=float)
         if lost:
             reason = reason or "front end lost the markers"
@@ -222,6 +235,9 @@ class SolverObserver:
         self._pending = (z, t_exposure, lost, reason, compute_time_s)
 
     def release(self, t_release: float) -> Estimate:
+        """The estimate at ``t_release`` (s): the last valid solution, whose ``t_state`` is its
+        exposure time; invalid once no valid solution has come for more than ``max_invalid_s``.
+        ``RuntimeError`` before the first ``process``."""
         if self._pending is None:
             raise RuntimeError("release() before process()")
         z, t_exposure, lost, reason, compute_time_s = self._pending
@@ -264,6 +280,8 @@ class PixelKalmanObserver:
         self._lost = False
 
     def reset(self, q0: ArrayLike, t0: float) -> None:
+        """Start the solver from attitude ``q0`` (4,) at time ``t0`` (s) and clear both pixel
+        filters."""
         self.inner.reset(q0, t0)
         for f in self.filters:
             f.reset()
@@ -279,9 +297,10 @@ class PixelKalmanObserver:
         reason: str = "",
         compute_time_s: float = 0.0,
     ) -> None:
-        """Filter the measured centres ``marker_px`` (2, 2), sensor px, each marker with
-        its own filter (the prior stands in for a lost frame), and hand the filtered
-        centres to the per-frame solver. Mirrored in
+        """Filter each marker centre of the frame exposed at ``t_exposure`` (s) (the pixels (N, 2),
+        sensor px): predict, then update with a finite centre or coast without one, and pass the
+        filtered centres to the solver. A lost frame is solved from the predicted centres (seed 000
+        §3.2.1) but its estimate stays flagged lost. Mirrored in
         ``latency.compiled.observer._pixel_kalman``; keep both in step
         (tests/test_compiled_mirror.py checks them equal)."""
         z = np.asarray(marker_px, dtype=float).reshape(-1, 2)
@@ -300,4 +319,5 @@ class PixelKalmanObserver:
         self.inner.process(filtered, t_exposure, lost and not predicted, reason, compute_time_s)
 
     def release(self, t_release: float) -> Estimate:
+        """The solver's estimate at ``t_release`` (s), flagged lost when the last frame was."""
         return replace(self.inner.release(t_release), lost=self._lost)

@@ -158,10 +158,14 @@ class SelfCalProblem:
 
     @property
     def n_shared(self) -> int:
+        """Number of parameters shared by all frames: the free intrinsics, the centre of rotation
+        (3) and the free marker coordinates."""
         return len(self._free_intr) + 3 + int(self._free_P.sum())
 
     @property
     def n_params(self) -> int:
+        """Length of the parameter vector: the shared parameters and a rotation vector (3) per
+        frame."""
         return self.n_shared + 3 * self.q_ref.shape[0]
 
     def names(self) -> tuple[str, ...]:
@@ -347,9 +351,43 @@ def self_calibrate(
         raise ValueError(f"q0 must have shape (M, 4), got {q_ref.shape}")
     prob = SelfCalProblem(uv, model0, q_ref, tuple(gauge), tuple(fixed_intrinsics))
     ns = prob.n_shared
+    x, cost, (A, B, D), it, converged = _levenberg_marquardt(prob, max_iterations, rel_tol)
+    reason = "" if converged else f"did not converge in {max_iterations} iterations"
+    # covariance (seed 002 eq. 22-24) from the undamped normal equations
+    m_meas = 2 * int(prob.mask.sum())
+    sigma2 = cost / (m_meas - prob.n_params)
+    cov, cov_f = _shared_and_frame_covariance(A, B, D, sigma2)
+    intr, t, P, p = prob.unpack(x)
+    q = quat_mul(q_ref, mrp_to_quat(p))
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    q = np.where(q[:, :1] < 0, -q, q)
+    # p is not 0 at the solution (q_ref is the start): map Cov(p) to the body rotation vector
+    Jp = np.array([_drotvec_dmrp(pi) for pi in p])
+    cov_body = Jp @ cov_f @ np.transpose(Jp, (0, 2, 1))
+    names = prob.names()
+    values = x[:ns]
+    return SelfCalResult(
+        model=CorModel(intr, t, P), q=q, names=names, values=values, covariance=cov,
+        sigma={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)},
+        attitude_covariance=cov_body, sigma_px=float(np.sqrt(sigma2)),
+        residual_rms_px=float(np.sqrt(cost / m_meas)), iterations=it, converged=converged,
+        reason=reason,
+    )
+
+
+def _levenberg_marquardt(
+    prob: SelfCalProblem, max_iterations: int, rel_tol: float,
+) -> tuple[NDArray[np.float64], float, tuple[NDArray, NDArray, NDArray], int, bool]:
+    """Levenberg-Marquardt on ``prob`` from its start ``x0``, each step solved by the Schur
+    complement of the per-frame blocks (``_schur_solve``): a step is tried with the damping
+    raised tenfold (at most 20 times) until it lowers the cost; it stops when no step does (a
+    minimum), when an accepted step lowers the cost by less than ``rel_tol`` relative, or
+    after ``max_iterations``. Returns the parameters, the cost (sum of squared residuals,
+    px²), the undamped normal-equation blocks (A, B, D) at the parameters, the iterations
+    and whether it converged."""
     x = prob.x0()
     cost, A, B, D, gg, gf = prob.normal_equations(x)
-    lam, converged, reason, it = 1e-3, False, "", 0
+    lam, converged, it = 1e-3, False, 0
     for it in range(1, max_iterations + 1):  # noqa: B007
         accepted = False
         for _ in range(20):
@@ -375,28 +413,7 @@ def self_calibrate(
         if decrease < rel_tol:
             converged = True
             break
-    if not converged:
-        reason = f"did not converge in {max_iterations} iterations"
-    # covariance (seed 002 eq. 22-24) from the undamped normal equations
-    m_meas = 2 * int(prob.mask.sum())
-    sigma2 = cost / (m_meas - prob.n_params)
-    cov, cov_f = _shared_and_frame_covariance(A, B, D, sigma2)
-    intr, t, P, p = prob.unpack(x)
-    q = quat_mul(q_ref, mrp_to_quat(p))
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(q[:, :1] < 0, -q, q)
-    # p is not 0 at the solution (q_ref is the start): map Cov(p) to the body rotation vector
-    Jp = np.array([_drotvec_dmrp(pi) for pi in p])
-    cov_body = Jp @ cov_f @ np.transpose(Jp, (0, 2, 1))
-    names = prob.names()
-    values = x[:ns]
-    return SelfCalResult(
-        model=CorModel(intr, t, P), q=q, names=names, values=values, covariance=cov,
-        sigma={n: float(np.sqrt(cov[k, k])) for k, n in enumerate(names)},
-        attitude_covariance=cov_body, sigma_px=float(np.sqrt(sigma2)),
-        residual_rms_px=float(np.sqrt(cost / m_meas)), iterations=it, converged=converged,
-        reason=reason,
-    )
+    return x, cost, (A, B, D), it, converged
 
 
 def _drotvec_dmrp(p: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -48,6 +48,7 @@ class SolverResult:
 
     @classmethod
     def invalid(cls, reason: str) -> SolverResult:
+        """A failed solve: NaN attitude, ``valid`` False and ``reason`` saying why."""
         return cls(q=_nan(4), valid=False, reason=reason)
 
 
@@ -57,4 +58,7 @@ class AttitudeSolver(Protocol):
 
     def solve(
         self, marker_px: NDArray[np.float64], q_prev: NDArray[np.float64] | None = None
-    ) -> SolverResult: ...
+    ) -> SolverResult:
+        """The attitude from marker pixels ``marker_px`` (N, 2), sensor px, starting from
+        ``q_prev`` (4,) when given; a ``SolverResult`` that is invalid, with a reason, when the
+        pixels do not determine it."""

@@ -48,6 +48,14 @@ OCCLUDER_HSV: dict[OccluderFamily, tuple[tuple[float, float], ...]] = {
     "purple": ((265.0, 320.0), (0.35, 0.85), (0.3, 0.85)),
 }
 OCCLUDER_FAMILIES: tuple[OccluderFamily, ...] = tuple(OCCLUDER_HSV)
+#: Appearance families never used for training, kept for evaluation (chosen before training):
+#: a checkerboard rotor pattern, an off-axis light spot, purple occluders.
+HELD_OUT_PATTERN = "checker"
+HELD_OUT_LIGHTING = "spot"
+HELD_OUT_OCCLUDER = "purple"
+TRAIN_PATTERNS = tuple(p for p in PATTERNS if p != HELD_OUT_PATTERN)
+TRAIN_LIGHTINGS = tuple(x for x in LIGHTINGS if x != HELD_OUT_LIGHTING)
+TRAIN_OCCLUDERS = tuple(f for f in OCCLUDER_FAMILIES if f != HELD_OUT_OCCLUDER)
 
 
 def occluder_rgb(rng: np.random.Generator, family: OccluderFamily) -> tuple[int, int, int]:
@@ -118,3 +126,17 @@ def random_options(
                  "light_spot_sigma_frac": float(rng.uniform(0.1, 0.3))}
     opts.update(fixed)
     return AnalyticRenderOptions(**opts)
+
+
+def heldout_options(seed: int, family: str) -> tuple[PlantParams, AnalyticRenderOptions]:
+    """Plant parameters and renderer options of a scene from a held-out appearance family
+    (``"pattern"``: the held-out rotor pattern under training lighting; ``"lighting"``: the
+    held-out lighting on a training pattern), drawn from ``seed``."""
+    rng = np.random.default_rng([seed, 4243])
+    if family == "pattern":
+        pats, lights = (HELD_OUT_PATTERN,), TRAIN_LIGHTINGS
+    elif family == "lighting":
+        pats, lights = TRAIN_PATTERNS, (HELD_OUT_LIGHTING,)
+    else:
+        raise ValueError(f"family must be 'pattern' or 'lighting', got {family!r}")
+    return random_params(rng), random_options(rng, pats, lights, noise_sigma_dn=2.0)

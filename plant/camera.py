@@ -65,6 +65,8 @@ class Camera:
 
     @classmethod
     def from_plant(cls, p: PlantParams) -> Camera:
+        """The camera of plant ``p``: its camera parameters and its rotor radius R, m (the
+        bottom pole at Z = -R)."""
         return cls(p.camera, p.rotor.radius_m)
 
     @property

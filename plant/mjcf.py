@@ -71,6 +71,33 @@ def _print_mesh(texture: Texture) -> tuple[str, str]:
     return asset, geom
 
 
+def _delayed_sensor(p: PlantParams, sensor_delay_s: float | None) -> str:
+    """The MJCF line of the ``rotor_quat_delayed`` ballquat sensor delayed by
+    ``sensor_delay_s`` (s), with enough samples kept for the delay at the physics step; ""
+    without a delay. ``ValueError`` for a negative delay."""
+    if sensor_delay_s is None:
+        return ""
+    if not sensor_delay_s >= 0:
+        raise ValueError(f"sensor_delay_s must be >= 0, got {sensor_delay_s}")
+    n = int(np.ceil(sensor_delay_s / p.physics_dt_s)) + 2
+    return (
+        f'\n    <ballquat name="rotor_quat_delayed" joint="ball" nsample="{n}" '
+        f'delay="{sensor_delay_s:.9g}"/>'
+    )
+
+
+def _ring_lights(cam_z: float) -> str:
+    """MJCF lines of the six spot lights of the ring light: 60 mm around the optical axis,
+    20 mm above the camera at height ``cam_z`` (m), pointing up at the rotor."""
+    ring = 0.06
+    return "\n".join(
+        f'    <light name="ring{k}" pos="{_v([ring * np.cos(a), ring * np.sin(a), cam_z + 0.02])}" '
+        f'dir="0 0 1" diffuse="{_v([RING_DIFFUSE] * 3)}" specular="0 0 0" castshadow="false" '
+        f'type="spot" cutoff="40"/>'
+        for k, a in enumerate(np.deg2rad(np.arange(0, 360, 60)))
+    )
+
+
 def build_mjcf(
     p: PlantParams, sensor_delay_s: float | None = None, texture: Texture | None = None
 ) -> str:
@@ -83,15 +110,7 @@ def build_mjcf(
     ``texture`` (default None) replaces the two marker discs by the printed pattern
     of ``plant.texture.generate_texture``; load the model with ``mjcf_assets(texture)``.
     """
-    delayed = ""
-    if sensor_delay_s is not None:
-        if not sensor_delay_s >= 0:
-            raise ValueError(f"sensor_delay_s must be >= 0, got {sensor_delay_s}")
-        n = int(np.ceil(sensor_delay_s / p.physics_dt_s)) + 2
-        delayed = (
-            f'\n    <ballquat name="rotor_quat_delayed" joint="ball" nsample="{n}" '
-            f'delay="{sensor_delay_s:.9g}"/>'
-        )
+    delayed = _delayed_sensor(p, sensor_delay_s)
     r, cam = p.rotor, Camera.from_plant(p)
     R = r.radius_m
     w_full, h_full = cam.size(1)
@@ -107,13 +126,7 @@ def build_mjcf(
     plate_half = 5e-4
     plate_z = -R + 2 * disc_half + plate_half
     cam_z = cam.center_m[2]
-    ring = 0.06
-    lights = "\n".join(
-        f'    <light name="ring{k}" pos="{_v([ring * np.cos(a), ring * np.sin(a), cam_z + 0.02])}" '
-        f'dir="0 0 1" diffuse="{_v([RING_DIFFUSE] * 3)}" specular="0 0 0" castshadow="false" '
-        f'type="spot" cutoff="40"/>'
-        for k, a in enumerate(np.deg2rad(np.arange(0, 360, 60)))
-    )
+    lights = _ring_lights(cam_z)
     markers = f"""
       <geom name="marker_red" type="cylinder" pos="{_v(red + [0, 0, disc_half])}"
             size="{marker_r:.9g} {disc_half:.9g}" rgba="{_v(RED_RGB)} 1"

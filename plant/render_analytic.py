@@ -1,7 +1,6 @@
-"""A fast analytic renderer of the bottom camera's view (for sweeps and training data).
-
-One module of about 710 lines: geometry, shading, texture and compositing are one rendering pass
-over the same pixel grid and share its coverage arrays.
+"""A fast analytic renderer of the bottom camera's view (for sweeps and training data), in one
+file because geometry, shading, texture and compositing are one rendering pass over the same
+pixel grid and share its coverage arrays.
 
 It draws what the camera of ``plant.camera.Camera`` sees, with the same projection
 (``Camera.project``, i.e. ``cv2.projectPoints`` with the lens distortion): the dark housing, the

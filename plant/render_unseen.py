@@ -1,13 +1,13 @@
 """A second, independent image source for evaluation only: MuJoCo with drawn looks and a sensor.
 
-The TransT network is trained on ``plant.render_analytic`` crops (``observer/transt/data.py``).
-Its accuracy on those renders says little about frames from elsewhere, so this module makes
-frames the training never saw: the scene of ``plant.mjcf`` rendered by MuJoCo (OpenGL shading,
-specular highlights, textures, several coloured lights) with materials, lights and backgrounds
-drawn from wide ranges (``draw_look``), then passed through a model of a colour sensor and its
-processing chain (``SensorLook``): vignetting, a Bayer mosaic with shot and read noise,
-OpenCV's demosaicing, colour crosstalk and white balance, a gamma curve, a rolling shutter and
-JPEG compression.
+The TransT network is trained on ``plant.render_analytic`` crops
+(``observer/transt/training/data.py``). Its accuracy on those renders says little about frames
+from elsewhere, so this module makes frames the training never saw: the scene of ``plant.mjcf``
+rendered by MuJoCo (OpenGL shading, specular highlights, textures, several coloured lights) with
+materials, lights and backgrounds drawn from wide ranges (``draw_look``), then passed through a
+model of a colour sensor and its processing chain (``SensorLook``): vignetting, a Bayer mosaic
+with shot and read noise, OpenCV's demosaicing, colour crosstalk and white balance, a gamma
+curve, a rolling shutter and JPEG compression.
 
 **Never train on it.** ``observer/transt`` must not import this module (a test scans the
 training code's imports); its seeds are the tracking benchmark's validation seeds.

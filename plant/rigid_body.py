@@ -33,25 +33,24 @@ make it a critically damped contact with time constant ``STOP_TIMECONST_S`` for 
 about u; pushed steadily, the rotor rests at a constant penetration ``T / k`` (0.03° at
 0.3 N·m).
 
-Code: one numba-compiled loop over the batch rows (``_step_rows``), each row with its own step
-length, the rotor's maths on scalars (no array per stage). The event loop calls it with one row
-(``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). The cost is
-the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. One scan lists the
-coil-magnet pairs whose window can open while the rotor turns by a margin (``_MARGIN_TURNS``
-h |omega| + ``_MARGIN_RAD``), as columns (magnet axis, coil axis, gain times coil axis, and that
+Code: one numba-compiled loop over the batch rows (``_step_rows_counted``), each row with its own
+step length, the rotor's maths on scalars (no array per stage). The event loop calls it with one
+row (``plant.dynamics.MujocoPlant``), the batched engine with many (``latency.batched``). The cost
+is the torque map: 16 x 18 coil-magnet windows, of which about 12 % are open. One scan lists the
+coil-magnet pairs whose window can open while the rotor turns by a margin (``_MARGIN_TURNS`` h
+|omega| + ``_MARGIN_RAD``), as columns (magnet axis, coil axis, gain times coil axis, and that
 times the coil's current of the step); the stages then visit only those pairs (about 36) in one
-flat loop that compiles to vector instructions, and a stage that has turned further than the
-margin lists its own, so the result does not depend on the margin (equal to the full sum to
-rounding, tests/test_rigid_body.py). Apart from the current row, folded in once per step, the
-lists do not depend on the currents: a rotor stepped over and over (the compiled run loop,
-``_step_series``) keeps them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since
-they were made could leave it, which saves most scans (a scan cost about as much as two
-stages before their pair loop was vectorised). The rotor's constants travel as tuples of
-floats, the exponential map and the Bortz coefficient use their series below 0.05 rad, and the
-compiled step runs with LLVM's fast-math licences except the NaN and infinity ones
-(``FASTMATH``). numba caches the machine
-code on disk (``cache=True``): the first call in a fresh process loads it (about 0.4 s measured
-under load) or, without a cache, compiles it (4-8 s under load).
+flat loop that compiles to vector instructions, and a stage that has turned further than the margin
+lists its own, so the result does not depend on the margin (equal to the full sum to rounding,
+tests/test_rigid_body.py). Apart from the current row, folded in once per step, the lists do not
+depend on the currents: a rotor stepped over and over (the compiled run loop, ``_step_series``)
+keeps them, made with ``PAIR_REUSE_RAD`` more margin, until its turn since they were made could
+leave it, which saves most scans (a scan cost about as much as two stages before their pair loop
+was vectorised). The rotor's constants travel as tuples of floats, the exponential map and the
+Bortz coefficient use their series below 0.05 rad, and the compiled step runs with LLVM's fast-math
+licences except the NaN and infinity ones (``FASTMATH``). numba caches the machine code on disk
+(``cache=True``): the first call in a fresh process loads it (about 0.4 s measured under load) or,
+without a cache, compiles it (4-8 s under load).
 """
 
 from __future__ import annotations
@@ -333,7 +332,7 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
               max_angle):
     """Advance one rotor, at attitude qb (4-tuple) and body rate wb (3-tuple, rad/s), by h s
     with the coil currents ``cur`` (16,), A, and the body torque d (3-tuple, N·m) held: RKMK4
-    sub-steps as ``_step_rows`` says. ``rotor`` holds the constants (``_rotor_tuples``),
+    sub-steps as ``_step_rows_counted`` says. ``rotor`` holds the constants (``_rotor_tuples``),
     ``cutoff`` is the windows' cut-off angle phi_c, rad, and ``pairs`` the lists of
     ``_pair_lists``: kept while they cover the step, else made again at its start. Returns
     (q, omega, acceleration evaluations)."""
@@ -400,8 +399,11 @@ def _step_row(qb, wb, cur, h, d, substeps, rotor, coils, magnets, gain, cutoff, 
 @njit(cache=True, fastmath=FASTMATH)
 def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets,
                        gain, scal, max_angle=SUBSTEP_ANGLE_RAD):
-    """``_step_rows``, also returning the number of acceleration evaluations of each row (B,)
-    (four per RKMK4 sub-step)."""
+    """Advance every row b of the batch by h[b] s: RKMK4 sub-steps (module docstring), at least
+    ``substeps`` of them and more where a sub-step would turn the rotor by more than
+    ``max_angle`` rad (``SUBSTEP_ANGLE_RAD``; ``np.inf``: exactly ``substeps``), currents and
+    disturbance held. Returns the new (q (B, 4), omega (B, 3)) and the number of acceleration
+    evaluations of each row (B,) (four per RKMK4 sub-step)."""
     B = q.shape[0]
     q_out = np.empty((B, 4))
     w_out = np.empty((B, 3))
@@ -419,18 +421,6 @@ def _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g
         w_out[b, 0], w_out[b, 1], w_out[b, 2] = wb
         evaluations[b] = n_eval
     return q_out, w_out, evaluations
-
-
-@njit(cache=True)
-def _step_rows(q, omega, currents, h, dist, substeps, J, J_inv, com, m_g, coils, magnets, gain,
-               scal, max_angle=SUBSTEP_ANGLE_RAD):
-    """Advance every row b of the batch by h[b] s: RKMK4 sub-steps (module docstring), at least
-    ``substeps`` of them and more where a sub-step would turn the rotor by more than
-    ``max_angle`` rad (``SUBSTEP_ANGLE_RAD``; ``np.inf``: exactly ``substeps``), currents and
-    disturbance held. Returns the new (q (B, 4), omega (B, 3))."""
-    q_out, w_out, _ = _step_rows_counted(q, omega, currents, h, dist, substeps, J, J_inv, com,
-                                         m_g, coils, magnets, gain, scal, max_angle)
-    return q_out, w_out
 
 
 @njit(cache=True, fastmath=FASTMATH)
@@ -497,8 +487,8 @@ class RigidBody:
 
     States are arrays over the batch: ``q`` (B, 4) unit quaternions (w, x, y, z), rotor to
     stator; ``omega`` (B, 3) body rates, rad/s; ``currents`` (B, 16) coil currents, A. The step
-    is compiled by numba (``_step_rows``, a loop over the rows, each with its own step length);
-    the first call in a process loads it from numba's on-disk cache (or compiles it once).
+    is compiled by numba (``_step_rows_counted``, a loop over the rows, each with its own step
+    length); the first call in a process loads it from numba's on-disk cache (or compiles it once).
     """
 
     def __init__(self, params: PlantParams, min_substeps: int = PHYSICS_SUBSTEPS,

@@ -18,22 +18,24 @@ from experiments.sequences import (
     disturb,
     render_sequence,
 )
-from experiments.tracking_bench import min_frames, network_checks, summary_table
+from experiments.tracking_bench import min_frames, network_checks
+from experiments.tracking_runs import summary_table
 from observer.gk.hsv_gate import RED, colour_mask
-from observer.transt.data import (
+from observer.transt.network import SMALL
+from observer.transt.training.data import CropPairs, PairSpec, generate_cache
+from plant import attitude
+from plant.appearance import (
     HELD_OUT_LIGHTING,
     HELD_OUT_OCCLUDER,
     HELD_OUT_PATTERN,
+    OCCLUDER_HSV,
     TRAIN_LIGHTINGS,
     TRAIN_OCCLUDERS,
     TRAIN_PATTERNS,
-    CropPairs,
-    PairSpec,
-    generate_cache,
+    occluder_rgb,
+    random_options,
+    random_params,
 )
-from observer.transt.network import SMALL
-from plant import attitude
-from plant.appearance import OCCLUDER_HSV, occluder_rgb, random_options, random_params
 from plant.render_analytic import AnalyticRenderer, AnalyticRenderOptions, jpeg_roundtrip
 
 Q = attitude.from_zyz(0.3, np.radians(6.0), 1.1)

@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 
 from experiments.sources import Source
-from experiments.track import attitude_accuracy, predicted_stretches, run_track
+from experiments.track import predicted_stretches, run_track
+from experiments.track_accuracy import attitude_accuracy
 from latency.frontends import ImageFrontEnd
 from latency.profile import cone_attitude
 from observer.cor_model import CorModel

@@ -565,7 +565,7 @@ def test_the_loop_config_rejects_what_cannot_run(fields, fragment):
     scenario (a 1 s run, a 2 ms exposure, GK-TransT's 16.33 ms by default)."""
     from pydantic import ValidationError
 
-    from latency.loop import LoopConfig
+    from latency.loop_config import LoopConfig
 
     with pytest.raises(ValidationError, match=fragment):
         LoopConfig.model_validate({"duration_s": 1.0, **fields})

@@ -159,7 +159,7 @@ def _image_front(roi: RegionOfInterest):
 def _lost_in_loop(cap) -> bool:
     """The loop's verdict on a frame: the front end's, or a centre more than the loop's
     loss threshold (20 px, seed 000 §4.2) from the truth."""
-    from latency.loop import LoopConfig
+    from latency.loop_config import LoopConfig
 
     err = np.linalg.norm(cap.marker_px - cap.true_px, axis=1)
     threshold = LoopConfig.model_fields["loss_threshold_px"].default

@@ -6,9 +6,10 @@ import pytest
 from numba import njit
 
 from controller import codegen
-from controller.mpc import MPCConfig, MPCController
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
 from controller.mpc_machine import call_casadi, machine_mpc, weight_values
-from experiments import study
+from experiments import study_config, study_sweep
 from latency import Scenario, build_loop, compiled
 from latency.batched import run_batched
 from latency.mpc_law import _Hold
@@ -167,10 +168,10 @@ def test_coverage_names_the_path_and_the_reason():
 def test_the_studys_mpc_runs_take_the_compiled_path():
     """Every run of the study's closed-loop sweep, PID and MPC, goes through the compiled run
     loop (the MPC's runs used to take the lockstep rounds)."""
-    configs = study.sweep_configs(study.StudyConfig(workers=1, n_seeds=1))
+    configs = study_sweep.sweep_configs(study_config.StudyConfig(workers=1, n_seeds=1))
     paths = {}
     for c in configs:
-        s = Scenario.model_validate(study._scenario_part(c))
+        s = Scenario.model_validate(study_sweep._scenario_part(c))
         paths.setdefault(s.controller.kind, set()).add(compiled.coverage(build_loop(s)).path)
     assert paths == {"pid": {"compiled"}, "mpc": {"compiled"}}
 

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from experiments.sequences import HARD_FRAMES, SequenceSpec, development_seeds, render_sequence
-from experiments.tracking_bench import PRECISION_PX, precision_at, reacquisition_frames, run_tracker
+from experiments.tracking_metrics import PRECISION_PX, precision_at, reacquisition_frames
+from experiments.tracking_runs import run_tracker
 from observer.gk.hsv_gate import RED
 from observer.gk.subpixel import SubpixelConfig, circle_of_radius, refine_marker_centre
 from observer.gk.trust import TrustConfig, colour_blobs, marker_range, measure_marker

@@ -13,8 +13,9 @@ import pandas as pd
 import pytest
 import scipy.optimize
 
-from experiments import study
-from experiments.study import DUAL_MS, GK_MS, pid_axis_margins, pid_headroom_s
+from experiments import study, study_config, study_summary
+from experiments.study import pid_axis_margins, pid_headroom_s
+from experiments.study_config import DUAL_MS, GK_MS
 from plant.params import PlantParams
 from tests import independent_margins as im
 
@@ -93,7 +94,7 @@ def test_the_studys_table_and_summary_match_the_derivation(derived, monkeypatch)
     table to 1e-3, the summary's printed figures equal to the derived ones at the printed
     precision. The table is restricted to those rows (the study's 0-60 ms grid only adds rows)."""
     monkeypatch.setattr(study, "_vision_delays_ms", lambda: [0.0, GK_MS, DUAL_MS])
-    table = study.margins_table(P, study.StudyConfig())
+    table = study.margins_table(P, study_config.StudyConfig())
     n = 0
     for (mode, d_ms), want in derived.items():
         (row,) = (r for _, r in table.iterrows()
@@ -106,7 +107,8 @@ def test_the_studys_table_and_summary_match_the_derivation(derived, monkeypatch)
     empty = pd.DataFrame(columns=["controller", "reference", "vision_delay_ms"])
     facts = {"frame_rate_hz": P.camera.frame_rate_hz, "coulomb_Nm": P.rotor.coulomb_Nm,
              "frame_period_ms": 1e3 / P.camera.frame_rate_hz, "processor": "x", "cpus": 2.0}
-    (first, *_) = study.summary_text(table, empty, empty, {}, {}, facts, study.StudyConfig())
+    (first, *_) = study_summary.summary_text(table, empty, empty, {}, {}, facts,
+                                               study_config.StudyConfig())
     gk, dual = derived[("sequential", GK_MS)], derived[("sequential", DUAL_MS)]
     boundary = im.derive(P, WC, 0.0, "sequential").headroom_s
     for text in (f"16.33 ms leaves {gk.phase_margin_deg:.1f}°",

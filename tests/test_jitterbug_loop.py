@@ -18,7 +18,8 @@ from controller.reference import Steps
 from latency.batched import run_batched
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
 from latency.jitterbug import compare_with_simulation, stationary_cost
-from latency.loop import ClosedLoop, LoopConfig
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopConfig
 from latency.models import Empirical
 from latency.pipeline import PipelineConfig
 from observer.cor_model import CorModel

@@ -5,7 +5,8 @@ import pytest
 
 from controller.base import Controller, Reference, RefSample
 from latency.frontends import ImageFrontEnd, MeasurementConfig, MeasurementFrontEnd
-from latency.loop import ClosedLoop, LoopConfig
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopConfig
 from latency.models import Constant, seed_profile
 from latency.pipeline import FrameScheduler, PipelineConfig
 from observer.cor_model import CorModel

@@ -16,7 +16,8 @@ import pytest
 from controller.pid import PIDConfig, PIDController
 from controller.reference import Steps, pure_tilt
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd
-from latency.loop import ClosedLoop, LoopConfig
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopConfig
 from latency.margins import attitude_plant, sampled_margins
 from latency.models import Constant, LatencyModel
 from latency.pipeline import PipelineConfig, PipelineMode

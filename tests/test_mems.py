@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from observer import imu as I
 from observer import mems as M
 from observer.types import Estimate
 from plant import attitude as A
@@ -53,7 +54,7 @@ def angle_between(a, b):
 
 
 def stationary(duration_s, q0=(1.0, 0, 0, 0), rate_hz=200.0):
-    return M.constant_rate_trajectory(duration_s, [0.0, 0.0, 0.0], q0, rate_hz)
+    return I.constant_rate_trajectory(duration_s, [0.0, 0.0, 0.0], q0, rate_hz)
 
 
 def effective_density(cfg, which):
@@ -92,7 +93,7 @@ def tilt_noise_sigma(cfg, k):
 )
 def test_bad_imu_config_raises_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
-        M.ImuConfig(**{field: value})
+        I.ImuConfig(**{field: value})
 
 
 @pytest.mark.parametrize(
@@ -104,7 +105,7 @@ def test_bad_estimator_config_raises_naming_the_field(field, value):
 
 
 def test_defaults_are_the_seed_and_datasheet_numbers():
-    c = M.ImuConfig()
+    c = I.ImuConfig()
     assert (c.rate_hz, c.gyro_range_dps, c.accel_range_g) == (200.0, 2000.0, 16.0)  # Table 2
     assert c.gyro_noise_density_dps_rthz == 0.0038 and c.accel_noise_density_ug_rthz == 70.0
     # 16-bit at ±2000 °/s and ±16 g: 16.384 LSB/(°/s) and 2048 LSB/g
@@ -115,11 +116,11 @@ def test_defaults_are_the_seed_and_datasheet_numbers():
 
 # --- reproducibility --------------------------------------------------------------------------
 def test_same_seed_same_samples_and_different_seed_different_samples():
-    tr = M.constant_rate_trajectory(2.0, [0.3, -0.2, 1.0])
-    a = M.simulate_imu_from(tr, seed=7)
-    b = M.simulate_imu_from(tr, seed=7)
-    c = M.simulate_imu_from(tr, seed=np.random.default_rng(7))
-    d = M.simulate_imu_from(tr, seed=8)
+    tr = I.constant_rate_trajectory(2.0, [0.3, -0.2, 1.0])
+    a = I.simulate_imu_from(tr, seed=7)
+    b = I.simulate_imu_from(tr, seed=7)
+    c = I.simulate_imu_from(tr, seed=np.random.default_rng(7))
+    d = I.simulate_imu_from(tr, seed=8)
     for x, y in ((a, b), (a, c)):
         assert np.array_equal(x.gyro, y.gyro) and np.array_equal(x.accel, y.accel)
         assert np.array_equal(x.gyro_bias, y.gyro_bias)
@@ -133,8 +134,8 @@ def test_white_noise_variance_at_200_hz_matches_the_densities(quantize):
     """Half the variance of first differences removes the slow bias terms and leaves the white
     part: σ² = N²·f_s (+ LSB²/12 when quantised). Sampling std of that estimate with n pooled
     differences is about sqrt(3/n) relative (MA(1) differences); tolerance 5 of those."""
-    cfg = M.ImuConfig(quantize=quantize)
-    s = M.simulate_imu_from(stationary(600.0, A.from_zyz(0.4, 10 * DEG, 1.1)), cfg, seed=11)
+    cfg = I.ImuConfig(quantize=quantize)
+    s = I.simulate_imu_from(stationary(600.0, A.from_zyz(0.4, 10 * DEG, 1.1)), cfg, seed=11)
     n = 3 * (len(s.t) - 1)
     tol = 5 * math.sqrt(3.0 / n)
     for x, which in ((s.gyro, "gyro"), (s.accel, "accel")):
@@ -151,8 +152,8 @@ def test_gyro_allan_deviation_has_the_white_noise_slope_and_level():
     """Default IMU at rest, 20 min: ADEV(τ) = N_eff/sqrt(τ) for τ = 0.05–2 s (the Gauss–Markov
     and rate-random-walk terms add < 0.5 % there). Overlapping ADEV with ≥ 900 equivalent
     degrees of freedom per axis: about 1.4 % std for the 3-axis mean; tolerance 8 %."""
-    cfg = M.ImuConfig()
-    s = M.simulate_imu_from(stationary(1200.0), cfg, seed=3)
+    cfg = I.ImuConfig()
+    s = I.simulate_imu_from(stationary(1200.0), cfg, seed=3)
     taus, adev = [], []
     for m in (10, 20, 40, 100, 200, 400):
         taus.append(m / cfg.rate_hz)
@@ -172,18 +173,18 @@ def test_bias_instability_and_random_walks_follow_their_definitions():
     floor of a bias instability B) at τ ≈ 1.89·T_c (here T_c = 0.5 s, so 30 min hold 3,600
     correlation times; ~2 % std, tolerance 8 %). Random walks: increment variance K²·Δt per
     sample (360,000 pooled increments; 5σ = 1.2 %)."""
-    only_gm = M.ImuConfig.ideal(gyro_bias_instability_dph=100.0, gyro_bias_correlation_time_s=0.5)
-    s = M.simulate_imu_from(stationary(1800.0), only_gm, seed=5)
+    only_gm = I.ImuConfig.ideal(gyro_bias_instability_dph=100.0, gyro_bias_correlation_time_s=0.5)
+    s = I.simulate_imu_from(stationary(1800.0), only_gm, seed=5)
     ms = np.unique(np.round(np.geomspace(20, 800, 25)).astype(int))
     adev = np.array([math.sqrt(np.mean(allan_variance(s.gyro, 200.0, m))) for m in ms])
     k = int(np.argmax(adev))
     assert adev[k] == pytest.approx(0.664 * only_gm.gyro_bias_instability, rel=0.08)
     assert ms[k] / 200.0 == pytest.approx(1.89 * 0.5, rel=0.35)  # a flat peak
 
-    only_rw = M.ImuConfig.ideal(
+    only_rw = I.ImuConfig.ideal(
         gyro_rate_random_walk_dph_rth=50.0, accel_bias_random_walk_ug_rts=30.0
     )
-    s = M.simulate_imu_from(stationary(600.0), only_rw, seed=6)
+    s = I.simulate_imu_from(stationary(600.0), only_rw, seed=6)
     n = 3 * (len(s.t) - 1)
     tol = 5 * math.sqrt(2.0 / n)
     dt = 1.0 / 200.0
@@ -199,11 +200,11 @@ def test_bias_instability_and_random_walks_follow_their_definitions():
 def test_turn_on_biases_have_the_configured_spread():
     """Across 400 seeds × 3 axes the turn-on biases have the configured 1σ (std of a std from
     1,200 draws: 2 %, tolerance 10 %)."""
-    cfg = M.ImuConfig.ideal(gyro_turn_on_bias_dps=0.5, accel_turn_on_bias_mg=5.0)
+    cfg = I.ImuConfig.ideal(gyro_turn_on_bias_dps=0.5, accel_turn_on_bias_mg=5.0)
     tr = stationary(0.01)
     g0, a0 = [], []
     for seed in range(400):
-        s = M.simulate_imu_from(tr, cfg, seed=seed)
+        s = I.simulate_imu_from(tr, cfg, seed=seed)
         g0.append(s.gyro_bias[0])
         a0.append(s.accel_bias[0])
     assert np.std(g0) == pytest.approx(0.5 * DEG, rel=0.1)
@@ -216,8 +217,8 @@ def test_specific_force_on_the_seed_yaw_bench_matches_the_closed_form():
     rotation matrices (not from the module), f = ω×(ω×r) + Rᵀ(0, 0, g)."""
     beta, rate = 15 * DEG, 2.0
     t = np.arange(0, 1.0 + 1e-12, 0.005)
-    tr = M.table_yaw_trajectory(t, beta, rate * t - 3.0, np.full_like(t, rate))
-    s = M.simulate_imu_from(tr, M.ImuConfig.ideal(), seed=0)
+    tr = I.table_yaw_trajectory(t, beta, rate * t - 3.0, np.full_like(t, rate))
+    s = I.simulate_imu_from(tr, I.ImuConfig.ideal(), seed=0)
     r = np.array([0.0, 0.0, -0.065])
     h = 1e-6
     for k in range(0, len(s.t), 37):
@@ -242,7 +243,7 @@ def test_tangential_and_centripetal_terms_at_the_bottom_pole(give_omega_dot):
     q = np.stack([np.cos(th / 2), np.sin(th / 2), 0 * t, 0 * t], axis=1)
     w = np.stack([a_acc * t, 0 * t, 0 * t], axis=1)
     wd = np.tile([a_acc, 0.0, 0.0], (len(t), 1)) if give_omega_dot else None
-    s = M.simulate_imu(t, q, w, M.ImuConfig.ideal(), seed=0, omega_dot=wd)
+    s = I.simulate_imu(t, q, w, I.ImuConfig.ideal(), seed=0, omega_dot=wd)
     assert len(s.t) == 401
     ts = s.t
     ths, ws = 0.5 * a_acc * ts**2, a_acc * ts
@@ -257,16 +258,16 @@ def test_tangential_and_centripetal_terms_at_the_bottom_pole(give_omega_dot):
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_gyro_saturates_at_2000_dps_and_the_estimate_falls_short_accordingly(sign):
     rate = sign * 2500 * DEG
-    tr = M.constant_rate_trajectory(2.0, [0.0, 0.0, rate])
-    cfg = M.ImuConfig()
-    s = M.simulate_imu_from(tr, cfg, seed=1)
+    tr = I.constant_rate_trajectory(2.0, [0.0, 0.0, rate])
+    cfg = I.ImuConfig()
+    s = I.simulate_imu_from(tr, cfg, seed=1)
     top = (2**15 - 1) * cfg.gyro_lsb_rad_s if sign > 0 else -(2**15) * cfg.gyro_lsb_rad_s
     assert np.all(s.gyro[:, 2] == top)
     assert abs(top / DEG) == pytest.approx(2000.0, abs=0.07)
     assert np.all(s.gyro_saturated[:, 2]) and not np.any(s.gyro_saturated[:, :2])
     # the estimate from a noise-free, bias-free quantised IMU is the integral of the clipped code
-    ideal = M.ImuConfig.ideal(quantize=True)
-    s = M.simulate_imu_from(tr, ideal, seed=1)
+    ideal = I.ImuConfig.ideal(quantize=True)
+    s = I.simulate_imu_from(tr, ideal, seed=1)
     assert np.all(s.gyro[:, 2] == top) and np.all(s.gyro[:, :2] == 0.0)
     est = M.MemsAttitudeEstimator(M.MemsEstimatorConfig(zero_window_s=0.0), ideal, tr.q[0])
     trk = est.run(s)
@@ -278,9 +279,9 @@ def test_gyro_saturates_at_2000_dps_and_the_estimate_falls_short_accordingly(sig
 
 def test_accelerometer_saturates_at_16_g():
     """Spin about body x at 60 rad/s: centripetal Ω²R = 234 m/s² (23.9 g) at the bottom pole."""
-    tr = M.constant_rate_trajectory(0.5, [60.0, 0.0, 0.0])
-    cfg = M.ImuConfig()
-    s = M.simulate_imu_from(tr, cfg, seed=2)
+    tr = I.constant_rate_trajectory(0.5, [60.0, 0.0, 0.0])
+    cfg = I.ImuConfig()
+    s = I.simulate_imu_from(tr, cfg, seed=2)
     assert np.all(s.accel[:, 2] == (2**15 - 1) * cfg.accel_lsb_m_s2)
     assert np.all(s.accel_saturated[:, 2]) and not np.any(s.accel_saturated[:, :2])
     assert np.all(s.gyro_saturated[:, 0])  # 3,438 °/s
@@ -290,8 +291,8 @@ def test_accelerometer_saturates_at_16_g():
 # --- the estimator: stationary rotor ----------------------------------------------------------
 def test_levelled_initial_attitude_has_the_true_tilt_and_the_given_yaw():
     q_true = A.from_zyz(0.0, 10 * DEG, 0.3)
-    s = M.simulate_imu_from(stationary(3.0, q_true), M.ImuConfig.ideal(), seed=0)
-    est = M.MemsAttitudeEstimator(imu=M.ImuConfig.ideal(), initial_yaw_rad=0.7)
+    s = I.simulate_imu_from(stationary(3.0, q_true), I.ImuConfig.ideal(), seed=0)
+    est = M.MemsAttitudeEstimator(imu=I.ImuConfig.ideal(), initial_yaw_rad=0.7)
     trk = est.run(s)
     k = int(np.argmax(trk.valid))
     assert trk.t[k] == pytest.approx(2.0)  # the window is [0, 2) s
@@ -308,8 +309,8 @@ def test_stationary_tilt_error_is_what_the_accelerometer_correction_leaves(known
     the window mean). Unknown start: the accelerometer bias is not separable from tilt and
     leaves ~0.3°; known start: it is zeroed. Tolerance: 5× the filter's noise std."""
     q_true = A.from_zyz(0.0, 15 * DEG, 40 * DEG)
-    cfg = M.ImuConfig()
-    s = M.simulate_imu_from(stationary(20.0, q_true), cfg, seed=21)
+    cfg = I.ImuConfig()
+    s = I.simulate_imu_from(stationary(20.0, q_true), cfg, seed=21)
     k_p = 1.0
     est = M.MemsAttitudeEstimator(
         M.MemsEstimatorConfig(k_p_rad_s=k_p), cfg, q_init=q_true if known_start else None
@@ -346,8 +347,8 @@ def test_stationary_yaw_drifts_at_the_residual_bias_rate():
     vertical to the gyro alone, so Ψ drifts by ∫ u·(b_gyro - b̂) dt (true bias series, b̂ the
     window mean), up to the angle random walk N_eff·sqrt(T); tolerance 5σ."""
     q_true = A.from_zyz(0.0, 15 * DEG, 40 * DEG)
-    cfg = M.ImuConfig()
-    s = M.simulate_imu_from(stationary(60.0, q_true), cfg, seed=4)
+    cfg = I.ImuConfig()
+    s = I.simulate_imu_from(stationary(60.0, q_true), cfg, seed=4)
     trk = M.MemsAttitudeEstimator(imu=cfg, q_init=q_true).run(s)
     n0 = int(np.argmax(trk.valid))
     b_hat = s.gyro[:n0].mean(axis=0)
@@ -369,14 +370,14 @@ def test_a_known_residual_bias_gives_the_closed_form_yaw_rate_and_tilt_offset():
     offset turned by the vertical part of b (the square root). Tolerance: 5σ of the mean
     misalignment over T/(2/k_P) independent stretches."""
     q_true = A.from_zyz(0.0, 15 * DEG, -70 * DEG)
-    cfg = M.ImuConfig(
+    cfg = I.ImuConfig(
         gyro_turn_on_bias_dps=1.0,
         gyro_bias_instability_dph=0.0,
         gyro_rate_random_walk_dph_rth=0.0,
         accel_turn_on_bias_mg=0.0,
         accel_bias_random_walk_ug_rts=0.0,
     )
-    s = M.simulate_imu_from(stationary(30.0, q_true), cfg, seed=9)
+    s = I.simulate_imu_from(stationary(30.0, q_true), cfg, seed=9)
     b = s.gyro_bias[0]
     assert np.all(s.gyro_bias == b)
     k_p, dt = 1.0, 1.0 / cfg.rate_hz
@@ -417,8 +418,8 @@ def test_constant_spin_at_zero_tilt_integrates_to_the_true_angle():
     ang = np.where(t < t1, 0.0, ang)
     q = np.stack([np.cos(ang / 2), 0 * t, 0 * t, np.sin(ang / 2)], axis=1)
     W = np.stack([0 * t, 0 * t, w], axis=1)
-    cfg = M.ImuConfig(gyro_bias_instability_dph=0.0, gyro_rate_random_walk_dph_rth=0.0)
-    s = M.simulate_imu(t, q, W, cfg, seed=13)
+    cfg = I.ImuConfig(gyro_bias_instability_dph=0.0, gyro_rate_random_walk_dph_rth=0.0)
+    s = I.simulate_imu(t, q, W, cfg, seed=13)
     trk = M.MemsAttitudeEstimator(imu=cfg, q_init=q[0]).run(s)
     n0 = int(np.argmax(trk.valid))
     err = trk.psi_zeroed[n0:] - (ang[n0:] - ang[n0])
@@ -463,7 +464,7 @@ def test_unwrapped_decoupled_yaw_is_continuous_across_pi():
     gam = np.pi - 0.2 + 5 * np.pi * t / 10 + 0.8 * np.sin(2 * np.pi * 0.7 * t)
     gd = 5 * np.pi / 10 + 0.8 * 2 * np.pi * 0.7 * np.cos(2 * np.pi * 0.7 * t)
     gdd = -0.8 * (2 * np.pi * 0.7) ** 2 * np.sin(2 * np.pi * 0.7 * t)
-    tr = M.table_yaw_trajectory(t, 15 * DEG, gam, gd, gdd)
+    tr = I.table_yaw_trajectory(t, 15 * DEG, gam, gd, gdd)
     psi = M.decoupled_yaw(tr.q)
     assert np.max(np.abs(np.diff(psi))) > 6.0  # the wrapped angle jumps
     unw = M.unwrap_phase(psi)
@@ -471,8 +472,8 @@ def test_unwrapped_decoupled_yaw_is_continuous_across_pi():
     # The estimator on a noise-free IMU. Gyro only (k_P = 0): the rotation axis is fixed in the
     # body, so Ψ is the trapezoid rule on γ̇, whose error is Δt²/12·(γ̈(t) - γ̈(0)) + O(Δt⁴)
     # (Euler–Maclaurin).
-    cfg = M.ImuConfig.ideal()
-    s = M.simulate_imu_from(tr, cfg, seed=0)
+    cfg = I.ImuConfig.ideal()
+    s = I.simulate_imu_from(tr, cfg, seed=0)
     dt = 0.005
     em = dt**2 / 12 * (gdd - gdd[0])
     gyro_only = M.MemsEstimatorConfig(zero_window_s=0.0, k_p_rad_s=0.0)
@@ -515,8 +516,8 @@ def test_noise_free_imu_on_a_mujoco_trajectory_tracks_the_truth():
         Q.append(plant.q)
         W.append(plant.omega)
     T, Q, W = np.array(T), np.array(Q), np.array(W)
-    cfg = M.ImuConfig.ideal()
-    s = M.simulate_imu(T, Q, W, cfg, seed=0)
+    cfg = I.ImuConfig.ideal()
+    s = I.simulate_imu(T, Q, W, cfg, seed=0)
     assert len(s.t) == 601
     np.testing.assert_allclose(s.q_true, Q[::5], atol=1e-12)
     est = M.MemsAttitudeEstimator(M.MemsEstimatorConfig(zero_window_s=0.0), cfg, q_init=Q[0])
@@ -534,7 +535,7 @@ def test_noise_free_imu_on_a_mujoco_trajectory_tracks_the_truth():
 
 # --- bad input and the observer seam ------------------------------------------------------------
 def test_bad_samples_give_flagged_estimates_not_exceptions():
-    cfg = M.ImuConfig.ideal()
+    cfg = I.ImuConfig.ideal()
     q0 = A.from_zyz(0.0, 5 * DEG, 0.0)
     # gyro only, so that the constant accelerometer reading fed below does not steer the tilt
     gyro_only = M.MemsEstimatorConfig(zero_window_s=0.0, k_p_rad_s=0.0)
@@ -566,8 +567,8 @@ def test_simulate_imu_rejects_bad_trajectories():
     q = np.tile([1.0, 0, 0, 0], (3, 1))
     w = np.zeros((3, 3))
     with pytest.raises(ValueError, match="increasing"):
-        M.simulate_imu(t[::-1], q, w)
+        I.simulate_imu(t[::-1], q, w)
     with pytest.raises(ValueError, match="omega"):
-        M.simulate_imu(t, q, np.full((3, 3), np.nan))
+        I.simulate_imu(t, q, np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="unit quaternion"):
-        M.simulate_imu(t, 2 * q, w)
+        I.simulate_imu(t, 2 * q, w)

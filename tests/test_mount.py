@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 from experiments.cli import app
 from experiments.mount import MIN_ARC_DEG, run_calibrate_mount
 from experiments.sources import UserInputError, open_source
-from experiments.track import attitude_errors_deg, run_track
+from experiments.track import run_track
+from experiments.track_accuracy import attitude_errors_deg
 from observer.trackers import make_pair_tracker
 from plant import attitude as A
 from plant.camera import Camera, marker_pixels

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from controller.mpc import MPCConfig, MPCController, lqr_weights, terminal_weight
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
+from controller.mpc_problem import lqr_weights, terminal_weight
 from controller.pid import truth_estimate
 from controller.reference import Steps, pure_tilt
 from plant import attitude as A

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from controller import codegen
-from controller.mpc import MPCConfig, MPCController, _problem_of
+from controller.mpc import MPCController, _problem_of
+from controller.mpc_config import MPCConfig
 from controller.pid import truth_estimate
 from controller.reference import RandomSmooth, Steps, pure_tilt
 from controller.registry import MPCSpec
-from experiments.study import GK_MS
+from experiments.study_config import GK_MS
 from latency import Scenario, simulate
 from plant import attitude as A
 from plant.params import PlantParams

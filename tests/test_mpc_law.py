@@ -6,7 +6,8 @@ import control as ct
 import numpy as np
 import pytest
 
-from controller.mpc import MPCConfig, MPCController
+from controller.mpc import MPCController
+from controller.mpc_config import MPCConfig
 from latency.margins import attitude_plant, sampled_margins
 from latency.mpc_law import _Hold, frictionless, mpc_discrete_law, mpc_state_gain
 from plant import attitude

@@ -11,16 +11,9 @@ import pytest
 
 import plant.render_mujoco as render_mujoco  # sets MUJOCO_GL=egl before importing mujoco
 from observer.aekf import AEKFConfig, QuaternionAEKF
-from observer.orb import (
-    OrbConfig,
-    OrbFrontEnd,
-    OrbReference,
-    back_project,
-    initial_attitude,
-    project_with_jacobian,
-    solve_attitude,
-)
+from observer.orb import OrbConfig, OrbFrontEnd, OrbReference, back_project
 from observer.orb_observer import OrbObserver, orb_filter_config
+from observer.orb_pose import initial_attitude, project_with_jacobian, solve_attitude
 from plant import attitude as A
 from plant.camera import Camera, image_to_sensor, marker_pixels, rotor_to_stator
 from plant.dynamics import MujocoPlant

@@ -7,7 +7,8 @@ from pydantic import ValidationError
 
 from latency import Scenario, build_loop
 from latency.frontends import OrbFrontEnd
-from latency.loop import ClosedLoop, LoopConfig
+from latency.loop import ClosedLoop
+from latency.loop_config import LoopConfig
 from observer.orb import OrbReference
 from observer.orb_observer import OrbObserver
 from plant import attitude as A

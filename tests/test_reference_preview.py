@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.mpc import MPCConfig
+from controller.mpc_config import MPCConfig
 from controller.registry import MPCSpec
-from experiments.study import GK_MS
+from experiments.study_config import GK_MS
 from latency import Scenario, simulate
 from plant import attitude
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from pydantic import PrivateAttr
 
-from experiments.study import DUAL_MS, pid_axis_margins, pid_headroom_s
+from experiments.study import pid_axis_margins, pid_headroom_s
+from experiments.study_config import DUAL_MS
 from latency.models import Constant, Empirical, LatencyModel, Uniform
 from tests.test_margin_agreement import P, simulated_rate_amplitudes
 

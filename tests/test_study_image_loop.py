@@ -9,11 +9,9 @@ import pytest
 
 import latency.loss_model as lm
 from experiments.report import _calibration_section, _image_loop_section
-from experiments.study import (
-    DUAL_MS,
-    GK_MS,
-    StudyConfig,
-    _image_loop_lines,
+from experiments.study_config import DUAL_MS, GK_MS, StudyConfig
+from experiments.study_summary import _image_loop_lines
+from experiments.study_sweep import (
     _overlap,
     _twin,
     calibration_table,

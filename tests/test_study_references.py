@@ -12,7 +12,8 @@ import pytest
 
 from controller.reference import RandomSmooth
 from experiments.intervals import widest_wilson_width, wilson_ci
-from experiments.study import FIXED_REFERENCE_SEED, StudyConfig, sweep_configs, tidy_sweep
+from experiments.study_config import StudyConfig
+from experiments.study_sweep import FIXED_REFERENCE_SEED, sweep_configs, tidy_sweep
 from experiments.sweep import _flatten
 from latency import Scenario
 

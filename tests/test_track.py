@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 from experiments.cli import app
 from experiments.cvat import export_cvat_xml
 from experiments.sources import Source, open_source
-from experiments.track import attitude_errors_deg, run_track
+from experiments.track import run_track
+from experiments.track_accuracy import attitude_errors_deg
 from latency.models import Empirical
 from latency.profile import cone_attitude
 from observer.gk.hsv_gate import box_sensor_to_image

@@ -20,7 +20,8 @@ from experiments.sequences import (
     development_seeds,
     render_sequence,
 )
-from experiments.tracking_bench import PRECISION_PX, centre_errors, precision_at, run_tracker
+from experiments.tracking_metrics import PRECISION_PX, centre_errors, precision_at
+from experiments.tracking_runs import run_tracker
 from observer.gk.hsv_gate import box_sensor_to_image
 from observer.opencv_trackers import OpenCVTracker
 from observer.trackers import (

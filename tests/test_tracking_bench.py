@@ -27,22 +27,23 @@ from experiments.sequences import (
     trajectory_index,
     validation_seeds,
 )
-from experiments.tracking_bench import (
+from experiments.tracking_metrics import (
     IOU_THRESHOLDS,
     box_iou,
     centre_errors,
-    evaluate,
-    latency_ratio,
     latency_stats,
-    plot_error_curves,
-    plot_precision_curves,
     precision_at,
     precision_curve,
     reacquisition_frames,
-    run_benchmark,
-    run_trackers,
     success_auc,
     success_curve,
+)
+from experiments.tracking_plots import plot_error_curves, plot_precision_curves
+from experiments.tracking_runs import (
+    evaluate,
+    latency_ratio,
+    run_benchmark,
+    run_trackers,
     summary_table,
     table1,
 )

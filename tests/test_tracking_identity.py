@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from experiments.sequences import OCCLUSION_FRAMES, SequenceSpec, development_seeds, render_sequence
-from experiments.tracking_bench import run_tracker, tracker_factories
+from experiments.tracking_bench import tracker_factories
+from experiments.tracking_runs import run_tracker
 from latency.frontends import ImageFrontEnd
 from observer.trackers import make_pair_tracker
 from observer.trackers.kcf_numpy import NumpyKCF

@@ -28,9 +28,13 @@ from observer.transt import (
 )
 from observer.transt.backbone import SinePositionEncoding
 from observer.transt.crop import box_to_crop, context_side, crop_square, crop_to_box
-from observer.transt.data import marker_box_image, red_box_image, validation_sequence
-from observer.transt.losses import TransTLoss, giou, positive_cells
 from observer.transt.tracker import hanning_window
+from observer.transt.training.losses import TransTLoss, giou, positive_cells
+from observer.transt.training.validation import (
+    marker_box_image,
+    red_box_image,
+    validation_sequence,
+)
 from observer.transt.weights import REBUILD_COMMAND, load_weights, save_weights, verify
 
 torch.set_num_threads(2)
@@ -440,7 +444,7 @@ def test_loss_of_a_target_absent_search_is_background_only() -> None:
 def test_hide_target_removes_the_marker(seed: int) -> None:
     """On a drawn search crop (textured grey rotor, a red disc inside the label box), the
     removal leaves no pixel of the disc's colour and keeps the crop away from the box."""
-    from observer.transt.data import hide_target
+    from observer.transt.training.augment import hide_target
 
     rng = np.random.default_rng(100 + seed)
     side = 64

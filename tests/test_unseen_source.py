@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from experiments import tracking_bench as tb
-from observer.transt.data import appearance_jitter
+from observer.transt.training.augment import appearance_jitter
 from plant import attitude
 from plant.camera import sensor_to_image
 from plant.render_unseen import SensorLook, UnseenLook, UnseenRenderer, draw_look
@@ -36,13 +36,13 @@ def test_training_code_never_imports_the_unseen_source():
     """No module of observer/transt names ``render_unseen``, and importing the training entry
     points does not load it (directly or through another module)."""
     named = []
-    for path in sorted((ROOT / "observer" / "transt").glob("*.py")):
+    for path in sorted((ROOT / "observer" / "transt").rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Import | ast.ImportFrom):
                 names = [a.name for a in node.names] + [getattr(node, "module", None) or ""]
                 named += [path.name for n in names if "render_unseen" in n]
     assert named == []
-    code = ("import sys, observer.transt.data, observer.transt.train; "
+    code = ("import sys, observer.transt.training.data, observer.transt.training.train; "
             "print('plant.render_unseen' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          check=True, env={"PYTHONPATH": str(ROOT), "PATH": ""})

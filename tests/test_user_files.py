@@ -144,13 +144,9 @@ def test_a_calibrated_principal_point_moves_the_markers_as_a_pinhole_says(off_ce
 
 
 def test_the_study_analyses_and_sweeps_the_users_motor_and_camera(tmp_path):
-    from experiments.study import (
-        StudyConfig,
-        machine_facts,
-        pid_axis_margins,
-        study_plant,
-        sweep_configs,
-    )
+    from experiments.study import machine_facts, pid_axis_margins
+    from experiments.study_config import StudyConfig, study_plant
+    from experiments.study_sweep import sweep_configs
 
     motor = yaml.safe_load((EXAMPLES / "motor.yaml").read_text())
     motor["rotor"]["inertia_com_kgm2"] = [4.4e-3, 4.4e-3, 5.0e-3]

@@ -12,14 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.study import (
-    StudyConfig,
-    _controller_spec,
-    mpc_headroom_s,
-    pid_headroom_s,
-    study_plant,
-)
+from experiments.study import mpc_headroom_s, pid_headroom_s
+from experiments.study_config import StudyConfig, study_plant
 from experiments.study_plots import plot_sweep
+from experiments.study_sweep import controller_spec
 from latency import Scenario, simulate_many
 
 #: Runs per controller and side of the boundary, and their length (s): the length the
@@ -31,7 +27,7 @@ def _runs(ctrl: str, delay_ms: float, cfg: StudyConfig) -> list[dict]:
     params = study_plant(cfg)
     scenarios = [
         Scenario(duration_s=LENGTH_S, seed=seed, plant=params, observer={"kind": "solver"},
-                 controller=_controller_spec(ctrl, cfg),
+                 controller=controller_spec(ctrl, cfg),
                  reference={"kind": "random", "args": {"max_rate_rad_s": 1.0, "seed": seed}},
                  pipeline={"observer": {"kind": "constant", "value_s": delay_ms / 1e3}},
                  measurement={"sigma_px": cfg.sigma_px,

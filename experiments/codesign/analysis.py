@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import control as ct
 
-from controller.mpc import MPCConfig
+from controller.mpc_config import MPCConfig
 from controller.pid import PIDConfig, PIDController
 from experiments.codesign.space import Design, compute_per_frame_s, plant_of, tracker_of
 from experiments.codesign.spec import CodesignSpec

@@ -24,11 +24,11 @@ attitude back ends turn the pixels into attitudes: the seed's closed form (§2.3
 ``observer.closed_form``), the CoR-constrained least squares (``observer.cor_solver``), and the
 least squares on the seed's pixel Kalman filter (§3.2.1, ``observer.pixel_observer``).
 
-**The MEMS scheme** (``run_mems``): ``observer.mems`` simulates the IMU (ICM42605 class, 200 Hz,
-bias drift) on the same truth and runs its estimator with the seed's initial bias zeroing, SO(3)
-yaw decoupling Ψ = atan2(R21, R11) and phase unwrapping (§5.3). Its output is sampled at the
-camera's frame times (zero-order hold of the latest IMU sample), since the seed collects both
-schemes synchronously and counts steady-state windows in frames.
+**The MEMS scheme** (``run_mems``): ``observer.imu`` simulates the IMU (ICM42605 class, 200 Hz,
+bias drift) on the same truth and ``observer.mems`` runs its estimator with the seed's initial bias
+zeroing, SO(3) yaw decoupling Ψ = atan2(R21, R11) and phase unwrapping (§5.3). Its output is
+sampled at the camera's frame times (zero-order hold of the latest IMU sample), since the seed
+collects both schemes synchronously and counts steady-state windows in frames.
 
 **What each scheme's angle is** (``measured_angle``):
 

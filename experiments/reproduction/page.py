@@ -242,9 +242,9 @@ def _protocol(results: dict[str, StepTestResult], cfg: ReproductionConfig, df: p
         "matching; the table's torque is unknown to it, so it predicts with zero torque and its "
         "process noise covers the motion). Each frame's estimate is used as released, no "
         "zeroing.",
-        "- MEMS: `observer.mems` with its defaults (ICM42605 datasheet noise densities, "
-        "turn-on bias, bias instability and rate random walk of our choice, 16-bit "
-        "quantisation; see [mems.md](mems.md)), sampled at 200 Hz on the same truth; the "
+        "- MEMS: `observer.imu` and `observer.mems` with their defaults (ICM42605 datasheet "
+        "noise densities, turn-on bias, bias instability and rate random walk of our choice, "
+        "16-bit quantisation; see [mems.md](mems.md)), sampled at 200 Hz on the same truth; the "
         "estimator zeroes the gyro bias over the first 2 s at rest (seed 000 §5.3's initial "
         "zeroing), computes the decoupled yaw Ψ = atan2(R21, R11), unwraps it and zeroes it at "
         "its first valid sample. \"Known start\" also zeroes the accelerometer bias against the "

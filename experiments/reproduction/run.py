@@ -20,36 +20,37 @@ from experiments.reproduction.steady import (
 )
 from experiments.reproduction.table import CAMERA_BACKENDS, MEMS_VARIANTS, Axis, RotaryTable
 from observer import mems
+from observer.imu import ImuConfig, Trajectory, simulate_imu_from
 from plant.params import PlantParams
 
 
 # ------------------------------------------------------------------------------------------------
 # The MEMS scheme
 # ------------------------------------------------------------------------------------------------
-def truth_trajectory(table: RotaryTable, rate_hz: float = 200.0) -> mems.Trajectory:
+def truth_trajectory(table: RotaryTable, rate_hz: float = 200.0) -> Trajectory:
     """The table's exact truth at ``rate_hz`` (the IMU's rate, seed 000 Table 2: 200 Hz) over
     [0, duration]: attitude, body rate (rad/s) and body acceleration (rad/s²)."""
     t = np.arange(int(math.floor(table.duration_s * rate_hz + 1e-9)) + 1) / rate_hz
     samples = [table.sample(float(x)) for x in t]
-    return mems.Trajectory(t, np.array([s.q for s in samples]),
+    return Trajectory(t, np.array([s.q for s in samples]),
                            np.array([s.omega for s in samples]),
                            np.array([s.alpha for s in samples]))
 
 
 def run_mems(table: RotaryTable, frame_times_s: ArrayLike, known_start: bool, seed: int,
-             imu: mems.ImuConfig | None = None, estimator: mems.MemsEstimatorConfig | None = None,
-             truth: mems.Trajectory | None = None) -> NDArray[np.float64]:
+             imu: ImuConfig | None = None, estimator: mems.MemsEstimatorConfig | None = None,
+             truth: Trajectory | None = None) -> NDArray[np.float64]:
     """The MEMS scheme's angle (rad) for the table's axis at ``frame_times_s`` (NaN where the
     estimator has no valid output yet, e.g. during zeroing).
 
-    The IMU model and estimator are ``observer.mems``'s defaults unless given; ``known_start``
-    hands the estimator the table's start attitude (then the accelerometer bias is zeroed too).
-    Spin and yaw are the seed's decoupled, unwrapped and zeroed Ψ plus the table's angle at the
-    first valid sample; tilt is the estimate's β.
+    The IMU model and estimator are ``observer.imu``'s and ``observer.mems``'s defaults unless
+    given; ``known_start`` hands the estimator the table's start attitude (then the accelerometer
+    bias is zeroed too). Spin and yaw are the seed's decoupled, unwrapped and zeroed Ψ plus the
+    table's angle at the first valid sample; tilt is the estimate's β.
     """
-    imu = imu or mems.ImuConfig()
+    imu = imu or ImuConfig()
     truth = truth or truth_trajectory(table, imu.rate_hz)
-    samples = mems.simulate_imu_from(truth, imu, seed)
+    samples = simulate_imu_from(truth, imu, seed)
     est = mems.MemsAttitudeEstimator(estimator, imu, q_init=truth.q[0] if known_start else None)
     trk = est.run(samples)
     tf = np.asarray(frame_times_s, dtype=float).reshape(-1)
@@ -98,7 +99,7 @@ def run_step_test(axis: Axis, cfg: ReproductionConfig | None = None,
                 ang = unwrap_to_reference(ang, ref)
             res.traces[key] = Trace(key, label, ang, steady(ang), row)
     if mems_run:
-        imu = mems.ImuConfig()
+        imu = ImuConfig()
         truth = truth_trajectory(table, imu.rate_hz)
         for key, (label, known) in MEMS_VARIANTS.items():
             runs = [run_mems(table, ts, known, s, imu, truth=truth) for s in cfg.mems_seeds]

@@ -103,7 +103,7 @@ def plot_step_test(result: StepTestResult, keys: Sequence[str] | None = None) ->
 # The tracking table (benchmarks/bench_tracking.py measures it; we only summarise its output)
 # ------------------------------------------------------------------------------------------------
 #: Seed 000 §4.2–4.3: precision at 20 px (main, aux) per case (latency and FPS: Table 1,
-#: ``experiments.tracking_bench.SEED_TABLE1``).
+#: ``experiments.tracking_runs.SEED_TABLE1``).
 SEED_TRACKING: dict[str, dict[str, tuple[float, float]]] = {
     "gk_transt": {"clean": (0.909, 0.944), "occlusion": (0.891, 0.944), "blur": (0.897, 0.926)},
     "dual_transt": {"clean": (0.909, 0.917)},
@@ -118,7 +118,7 @@ def tracking_table_markdown(csv_path: str) -> str:
     per tracker and case, with the seed's numbers beside (seed 000 §4, Table 1)."""
     import pandas as pd
 
-    from experiments.tracking_bench import SEED_TABLE1
+    from experiments.tracking_runs import SEED_TABLE1
 
     m = pd.read_csv(csv_path)
     g = m.groupby(["tracker", "case"], sort=False).agg(

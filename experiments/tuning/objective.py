@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from experiments import sweep
 from latency import Engine, Scenario, simulate, simulate_many
-from latency.loop import LoopResult
+from latency.loop_config import LoopResult
 from latency.models import SEED_LATENCY_S
 
 #: Seed 000 §3.2.1: Q = 0.01·I4 (sensor px², (px/frame)²), R = 0.1·I2 (sensor px²).

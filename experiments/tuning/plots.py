@@ -35,55 +35,8 @@ def plot_heatmap(grid: pd.DataFrame, trials: pd.DataFrame | None = None) -> Figu
         lq, lr = np.log10(qs), np.log10(rs)
         eq, er = _edges(lq), _edges(lr)
         mesh = ax.pcolormesh(eq, er, Z.to_numpy(), norm=norm, cmap="viridis")
-        if "stable" in g:
-            for row in g[~g.stable.astype(bool)].itertuples():
-                iq, ir = int(np.searchsorted(qs, row.q)), int(np.searchsorted(rs, row.r))
-                ax.fill_between(
-                    [eq[iq], eq[iq + 1]],
-                    er[ir],
-                    er[ir + 1],
-                    facecolor="none",
-                    edgecolor="w",
-                    hatch="//",
-                    linewidth=0.0,
-                )
-        if "phase_margin_deg" in g:
-            pm = g.groupby("q_over_r").phase_margin_deg.first().dropna()
-            if len(pm) >= 2 and pm.max() > pm.min():
-                fq, fr = np.meshgrid(
-                    np.linspace(eq[0], eq[-1], 200), np.linspace(er[0], er[-1], 200)
-                )
-                lx = np.log10(pm.index.to_numpy())
-                field_ = np.interp(fq - fr, lx, pm.to_numpy(), left=np.nan, right=np.nan)
-                levels = np.arange(0.0, 90.0, 10.0)
-                levels = levels[(levels > pm.min()) & (levels < pm.max())]
-                if len(levels):
-                    cs = ax.contour(fq, fr, field_, levels=levels, colors="w", linewidths=0.7)
-                    ax.clabel(cs, fmt="PM %.0f°", fontsize=7)
-        if trials is not None and len(trials):
-            t = trials[np.isclose(trials.delay_s, d)]
-            ax.plot(np.log10(t.q), np.log10(t.r), "k.", ms=3, label="optuna trials")
-        if g.cost.notna().any():
-            best = g.loc[g.cost.idxmin()]
-            ax.plot(
-                np.log10(best.q),
-                np.log10(best.r),
-                "o",
-                mfc="none",
-                mec="w",
-                ms=12,
-                mew=2,
-                label=f"grid best ({best.q:.3g}, {best.r:.3g})",
-            )
-        ax.plot(
-            np.log10(SEED_Q_SCALE),
-            np.log10(SEED_R_SCALE),
-            "*",
-            color="w",
-            mec="k",
-            ms=14,
-            label="seed (0.01, 0.1)",
-        )
+        _unstable_and_margins(ax, g, qs, rs, eq, er)
+        _points(ax, g, trials, d)
         ax.set_xlim(eq[0], eq[-1])
         ax.set_ylim(er[0], er[-1])
         ax.set_xlabel("log10 q  (Q = q·I4)")
@@ -97,6 +50,67 @@ def plot_heatmap(grid: pd.DataFrame, trials: pd.DataFrame | None = None) -> Figu
         cb = fig.colorbar(mesh, ax=list(axes), label="mean cost J (deg)")
         _log_labels(cb.ax.yaxis, norm.vmin, norm.vmax)
     return fig
+
+
+def _unstable_and_margins(ax, g: pd.DataFrame, qs: NDArray, rs: NDArray, eq: NDArray,
+                          er: NDArray) -> None:
+    """On one panel (grid rows ``g`` at one delay, cell edges ``eq``, ``er`` in log10 q and
+    log10 r): hatch the cells whose linearised loop is unstable and draw the lines of equal
+    phase margin (every 10°, interpolated in log(q/r)), when ``g`` has those columns."""
+    if "stable" in g:
+        for row in g[~g.stable.astype(bool)].itertuples():
+            iq, ir = int(np.searchsorted(qs, row.q)), int(np.searchsorted(rs, row.r))
+            ax.fill_between(
+                [eq[iq], eq[iq + 1]],
+                er[ir],
+                er[ir + 1],
+                facecolor="none",
+                edgecolor="w",
+                hatch="//",
+                linewidth=0.0,
+            )
+    if "phase_margin_deg" in g:
+        pm = g.groupby("q_over_r").phase_margin_deg.first().dropna()
+        if len(pm) >= 2 and pm.max() > pm.min():
+            fq, fr = np.meshgrid(
+                np.linspace(eq[0], eq[-1], 200), np.linspace(er[0], er[-1], 200)
+            )
+            lx = np.log10(pm.index.to_numpy())
+            field_ = np.interp(fq - fr, lx, pm.to_numpy(), left=np.nan, right=np.nan)
+            levels = np.arange(0.0, 90.0, 10.0)
+            levels = levels[(levels > pm.min()) & (levels < pm.max())]
+            if len(levels):
+                cs = ax.contour(fq, fr, field_, levels=levels, colors="w", linewidths=0.7)
+                ax.clabel(cs, fmt="PM %.0f°", fontsize=7)
+
+
+def _points(ax, g: pd.DataFrame, trials: pd.DataFrame | None, d: float) -> None:
+    """On one panel (grid rows ``g`` at delay ``d``, s): optuna's trials as dots, the grid's
+    best point as a circle and the seed's (0.01, 0.1) as a star."""
+    if trials is not None and len(trials):
+        t = trials[np.isclose(trials.delay_s, d)]
+        ax.plot(np.log10(t.q), np.log10(t.r), "k.", ms=3, label="optuna trials")
+    if g.cost.notna().any():
+        best = g.loc[g.cost.idxmin()]
+        ax.plot(
+            np.log10(best.q),
+            np.log10(best.r),
+            "o",
+            mfc="none",
+            mec="w",
+            ms=12,
+            mew=2,
+            label=f"grid best ({best.q:.3g}, {best.r:.3g})",
+        )
+    ax.plot(
+        np.log10(SEED_Q_SCALE),
+        np.log10(SEED_R_SCALE),
+        "*",
+        color="w",
+        mec="k",
+        ms=14,
+        label="seed (0.01, 0.1)",
+    )
 
 
 def plot_tradeoff(grid: pd.DataFrame, trials: pd.DataFrame | None = None) -> Figure:

@@ -227,36 +227,15 @@ def tune_kalman(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     objs = _objectives(objective or TuningObjective(), delays_s, seeds, duration_s, sigma_px)
-    q_bounds = (SEED_Q_SCALE * 10**-grid_decades, SEED_Q_SCALE * 10**grid_decades)
-    r_bounds = (SEED_R_SCALE * 10**-grid_decades, SEED_R_SCALE * 10**grid_decades)
-
-    grid = pd.DataFrame()
-    if grid_points > 0:
-        grid = grid_search(
-            objs, log_grid(SEED_Q_SCALE, grid_points, grid_decades),
-            log_grid(SEED_R_SCALE, grid_points, grid_decades), out, scheduler=scheduler,
-            workers=workers, progress=progress, engine=engine,
-        )
-
-    trials = []
-    for o in objs:
-        if n_trials > 0:
-            study = optuna_search(
-                o, out, n_trials, storage=storage, sampler_seed=sampler_seed, q_bounds=q_bounds,
-                r_bounds=r_bounds, workers=optuna_workers, progress=progress, engine=engine,
-            )
-            trials.append(trials_table(study, o.delay_s))
-    trials_df = pd.concat(trials, ignore_index=True) if trials else pd.DataFrame()
-
-    comparisons, verdicts = [], {}
-    for o in objs:
-        cmp, verdicts[float(o.delay_s)] = _compare_one(
-            o, grid, trials_df, out, validation_seeds, tie_tolerance, scheduler, workers, progress,
-            engine,
-        )
-        comparisons.append(cmp)
-    comparison = pd.concat(comparisons, ignore_index=True)
-
+    grid = _grid(objs, out, grid_points, grid_decades, scheduler=scheduler, workers=workers,
+                 progress=progress, engine=engine)
+    trials_df = _optuna_trials(objs, out, n_trials, grid_decades, storage=storage,
+                               sampler_seed=sampler_seed, workers=optuna_workers,
+                               progress=progress, engine=engine)
+    pairs = [_compare_one(o, grid, trials_df, out, validation_seeds, tie_tolerance, scheduler,
+                          workers, progress, engine) for o in objs]
+    comparison = pd.concat([cmp for cmp, _ in pairs], ignore_index=True)
+    verdicts = {float(o.delay_s): v for o, (_, v) in zip(objs, pairs, strict=True)}
     settings = dict(
         grid_points=grid_points, grid_decades=grid_decades, n_trials=n_trials,
         seeds=list(seeds), validation_seeds=list(validation_seeds), sampler_seed=sampler_seed,
@@ -264,6 +243,40 @@ def tune_kalman(
     )
     paths = _write_outputs(out, objs, grid, trials_df, comparison, verdicts, locals_=settings)
     return TuningResult(out, grid, trials_df, comparison, verdicts, paths)
+
+
+def _grid(
+    objs: list[TuningObjective], out: Path, grid_points: int, grid_decades: float, *,
+    scheduler: str | None, workers: int | None, progress: bool, engine: Engine,
+) -> pd.DataFrame:
+    """The ``grid_points`` x ``grid_points`` log-grid search over ``grid_decades`` decades on
+    each side of the seed's (q, r), for every objective (``grid_search``); empty for 0 points."""
+    if grid_points <= 0:
+        return pd.DataFrame()
+    return grid_search(
+        objs, log_grid(SEED_Q_SCALE, grid_points, grid_decades),
+        log_grid(SEED_R_SCALE, grid_points, grid_decades), out, scheduler=scheduler,
+        workers=workers, progress=progress, engine=engine)
+
+
+def _optuna_trials(
+    objs: list[TuningObjective], out: Path, n_trials: int, grid_decades: float, *,
+    storage: str | None, sampler_seed: int, workers: int, progress: bool, engine: Engine,
+) -> pd.DataFrame:
+    """``n_trials`` optuna trials per objective (delay) over the grid's ranges, ``grid_decades``
+    decades on each side of the seed's (q, r), as one table (``trials_table``); empty when
+    ``n_trials`` is 0."""
+    q_bounds = (SEED_Q_SCALE * 10**-grid_decades, SEED_Q_SCALE * 10**grid_decades)
+    r_bounds = (SEED_R_SCALE * 10**-grid_decades, SEED_R_SCALE * 10**grid_decades)
+    trials = []
+    for o in objs:
+        if n_trials > 0:
+            study = optuna_search(
+                o, out, n_trials, storage=storage, sampler_seed=sampler_seed, q_bounds=q_bounds,
+                r_bounds=r_bounds, workers=workers, progress=progress, engine=engine,
+            )
+            trials.append(trials_table(study, o.delay_s))
+    return pd.concat(trials, ignore_index=True) if trials else pd.DataFrame()
 
 
 def _candidates(

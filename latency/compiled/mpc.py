@@ -278,7 +278,7 @@ def _mpc(st, valid, q_est, t_state, t, frame, mpc):
     at_lam_x, at_lam_g = 3 * nw + n_p + 2 * ng, 4 * nw + n_p + 2 * ng
     _mpc_parameters(s_in[at_p : at_p + n_p], mref[frame], x, N)
     _mpc_guess(s_in[:nw], s_in[at_lam_x : at_lam_g + ng], x, t0, mpar, mst, mix, miu, mis)
-    # ``_Problem.bounds``: the first state fixed to x0
+    # ``controller.mpc_problem.MPCProblem.bounds``: the first state fixed to x0
     s_in[at_lbx : at_lbg + 2 * ng] = mbounds
     s_in[at_lbx : at_lbx + 7] = x
     s_in[at_ubx : at_ubx + 7] = x

@@ -47,7 +47,8 @@ from latency.compiled.tables import (
     _frames_columns,
     _summary_rows,
 )
-from latency.loop import ClosedLoop, LoopResult, _StepLog
+from latency.loop import ClosedLoop, _StepLog
+from latency.loop_config import LoopResult
 from latency.metrics import frame_values, step_values, summarize, summarize_values
 from plant.torque import N_COILS, allocate
 

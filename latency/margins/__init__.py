@@ -50,8 +50,9 @@ Automatica 40(8), 1429-1434, 2004 (the jitter margin).
 K. J. Åström and B. Wittenmark, *Computer-Controlled Systems*, 3rd ed., Prentice Hall, 1997
 (sampling with a fractional delay; the sampled frequency response).
 
-Modules: :mod:`~latency.margins.model` (the loop), :mod:`~latency.margins.nyquist` (frequency grid
-and encirclement count), :mod:`~latency.margins.result` (the :class:`Margins` record and the
+Modules: :mod:`~latency.margins.model` (the loop), :mod:`~latency.margins.grid` (the frequency
+grid, refined where the response moves fast), :mod:`~latency.margins.nyquist` (the encirclement
+count), :mod:`~latency.margins.result` (the :class:`Margins` record and the
 crossover search), :mod:`~latency.margins.hybrid` (hybrid margins, the jitter margin and
 :func:`lti_margins` for any python-control plant and controller),
 :mod:`~latency.margins.sampled`, :mod:`~latency.margins.pade`, :mod:`~latency.margins.plots`

@@ -13,8 +13,9 @@ import scipy.linalg
 import scipy.optimize
 from numpy.typing import ArrayLike
 
+from latency.margins.grid import _grid
 from latency.margins.model import LoopModel, loop_model
-from latency.margins.nyquist import _grid, nyquist_count
+from latency.margins.nyquist import nyquist_count
 from latency.margins.result import Margins, _crossings, _scalar, margins_from_crossings
 
 
@@ -43,7 +44,8 @@ def jitter_margin(model: LoopModel, omega: ArrayLike | None = None) -> tuple[flo
     w_peak : float
         The frequency (rad/s) of the supremum.
     """
-    w = _grid(model) if omega is None else np.asarray(omega, dtype=float)
+    w = (_grid(model.response, model.features_rad_s) if omega is None
+         else np.asarray(omega, dtype=float))
     Lw = model.response(w)
     h = w * np.abs(Lw / (1.0 + Lw))
     best_h, best_w = -1.0, math.nan

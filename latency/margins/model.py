@@ -11,7 +11,7 @@ import control as ct
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from latency.margins.nyquist import _grid
+from latency.margins.grid import _grid
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,8 @@ class LoopModel:
 
     def frd(self, omega: ArrayLike | None = None) -> ct.FrequencyResponseData:
         """The loop as python-control FRD data on ``omega`` (rad/s; default: the analysis grid)."""
-        w = _grid(self) if omega is None else np.asarray(omega, dtype=float)
+        w = (_grid(self.response, self.features_rad_s) if omega is None
+             else np.asarray(omega, dtype=float))
         return ct.frd(self.response(w), w)
 
 
@@ -185,6 +186,34 @@ def _common_period(factors: Sequence[_Factor], sample_period_s: float | None) ->
     if T is not None and (not np.isfinite(T) or T <= 0.0):
         raise ValueError(f"sample_period_s must be > 0, got {T}")
     return T
+
+
+def _pole_counts(name: str, f: _Factor) -> tuple[int, int, int]:
+    """The poles of factor ``f`` (of the part ``name``) that the hybrid model counts: those in
+    the open right half-plane, those at the origin (``s = 0``, or ``z = 1`` for a discrete
+    factor), and its relative degree (continuous factors; a discrete factor's is 0).
+    ``ValueError`` for poles the model cannot count: continuous poles on the imaginary axis
+    away from the origin, a repeated pole at ``z = 1``, or discrete poles on or outside the
+    unit circle."""
+    poles = _roots(f.den)
+    if f.dt is None:
+        scale = max(1.0, float(np.max(np.abs(poles)))) if poles.size else 1.0
+        at0 = np.abs(poles) <= 1e-9 * scale
+        rest = poles[~at0]
+        on_axis = np.abs(rest.real) <= 1e-12 * np.maximum(1.0, np.abs(rest))
+        if np.any(on_axis):
+            raise ValueError(f"{name} has poles on the imaginary axis away from the origin")
+        return int(np.sum(rest.real > 0.0)), int(np.sum(at0)), f.den.size - f.num.size
+    at1 = np.abs(poles - 1.0) <= 1e-9
+    if int(np.sum(at1)) > 1:
+        raise ValueError(f"{name} has a repeated pole at z = 1; use sampled_margins")
+    others = poles[~at1]
+    if np.any(np.abs(others) >= 1.0 - 1e-12):
+        raise ValueError(
+            f"{name} has poles on or outside the unit circle (other than z = 1): the "
+            "hybrid model cannot count them; use sampled_margins"
+        )
+    return 0, int(np.sum(at1)), 0
 
 
 def loop_model(
@@ -234,32 +263,10 @@ def loop_model(
     factors = [_as_factor(sys, name) for name, sys in parts]
     T = _common_period(factors, sample_period_s)
 
-    rhp = 0
-    origin = 0
-    rel_deg = 0
+    rhp = origin = rel_deg = 0
     for (name, _), f in zip(parts, factors, strict=True):
-        poles = _roots(f.den)
-        if f.dt is None:
-            scale = max(1.0, float(np.max(np.abs(poles)))) if poles.size else 1.0
-            at0 = np.abs(poles) <= 1e-9 * scale
-            origin += int(np.sum(at0))
-            rest = poles[~at0]
-            on_axis = np.abs(rest.real) <= 1e-12 * np.maximum(1.0, np.abs(rest))
-            if np.any(on_axis):
-                raise ValueError(f"{name} has poles on the imaginary axis away from the origin")
-            rhp += int(np.sum(rest.real > 0.0))
-            rel_deg += f.den.size - f.num.size
-        else:
-            at1 = np.abs(poles - 1.0) <= 1e-9
-            if int(np.sum(at1)) > 1:
-                raise ValueError(f"{name} has a repeated pole at z = 1; use sampled_margins")
-            origin += int(np.sum(at1))
-            others = poles[~at1]
-            if np.any(np.abs(others) >= 1.0 - 1e-12):
-                raise ValueError(
-                    f"{name} has poles on or outside the unit circle (other than z = 1): the "
-                    "hybrid model cannot count them; use sampled_margins"
-                )
+        f_rhp, f_origin, f_rel_deg = _pole_counts(name, f)
+        rhp, origin, rel_deg = rhp + f_rhp, origin + f_origin, rel_deg + f_rel_deg
     if T is not None:
         rel_deg += 1
     if rel_deg < 1:

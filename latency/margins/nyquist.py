@@ -1,68 +1,12 @@
-"""Frequency grid refined where the loop moves fast, and the Nyquist encirclement count on the
-exact-delay response (see :mod:`latency.margins`)."""
+"""The Nyquist encirclement count on the exact-delay response (see :mod:`latency.margins`)."""
 
 from __future__ import annotations
-
-from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-if TYPE_CHECKING:
-    from latency.margins.model import LoopModel
-
-
-_SMALL_GAIN = 1e-3  # |L| below this cannot wind around -1 and sets gain margins > 60 dB
-_PHASE_STEP = np.pi / 8  # largest phase step between grid points where |L| >= _SMALL_GAIN
-_CLOSE_STEP = 0.25  # largest |dL| relative to the distance to -1
-
-def _base_grid(model: LoopModel, per_decade: int = 60) -> NDArray[np.float64]:
-    feats = model.features_rad_s
-    w_lo = 1e-3 * feats[0]
-    w_hi = 1e3 * feats[-1]
-    for _ in range(12):
-        tail = np.logspace(np.log10(w_hi / 10.0), np.log10(w_hi), 40)
-        if np.max(np.abs(model.response(tail))) < _SMALL_GAIN:
-            break
-        w_hi *= 10.0
-    else:
-        raise ValueError("|L(jw)| does not fall below 1e-3 at high frequency")
-    n = int(np.ceil(per_decade * np.log10(w_hi / w_lo))) + 1
-    return np.logspace(np.log10(w_lo), np.log10(w_hi), n)
-
-
-def _refine(
-    fun: Callable[[NDArray[np.float64]], NDArray[np.complex128]],
-    w: NDArray[np.float64],
-    max_rounds: int = 40,
-    geometric: bool = True,
-) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
-    """Insert midpoints (geometric for frequencies, arithmetic for angles) until the phase of
-    ``L`` moves less than pi/8 between points (where ``|L| >= 1e-3``) and ``L`` moves less than a
-    quarter of its distance to -1."""
-    Lw = fun(w)
-    for _ in range(max_rounds):
-        a, b = Lw[:-1], Lw[1:]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            dphi = np.abs(np.angle(b / a))
-        dphi = np.where(np.isfinite(dphi), dphi, np.pi)
-        big = np.maximum(np.abs(a), np.abs(b)) >= _SMALL_GAIN
-        dist = np.minimum(np.abs(1.0 + a), np.abs(1.0 + b))
-        bad = (big & (dphi > _PHASE_STEP)) | (np.abs(b - a) > _CLOSE_STEP * dist)
-        bad &= (w[1:] - w[:-1]) > 1e-12 * np.maximum(np.abs(w[1:]), 1e-300)
-        if not np.any(bad):
-            break
-        idx = np.nonzero(bad)[0]
-        mid = np.sqrt(w[idx] * w[idx + 1]) if geometric else 0.5 * (w[idx] + w[idx + 1])
-        w = np.insert(w, idx + 1, mid)
-        Lw = np.insert(Lw, idx + 1, fun(mid))
-    return w, Lw
-
-
-def _grid(model: LoopModel) -> NDArray[np.float64]:
-    w, _ = _refine(model.response, _base_grid(model))
-    return w
+from latency.margins.grid import _base_grid, _refine
+from latency.margins.model import LoopModel
 
 
 def nyquist_count(
@@ -99,7 +43,10 @@ def nyquist_count(
     L : ndarray
         ``L(j omega)`` on it.
     """
-    w0 = _base_grid(model) if omega is None else np.sort(np.asarray(omega, dtype=float))
+    if omega is None:
+        w0 = _base_grid(model.response, model.features_rad_s)
+    else:
+        w0 = np.sort(np.asarray(omega, dtype=float))
     eps = float(w0[0])
     w, Lw = _refine(model.response, w0)
     g = 1.0 + Lw

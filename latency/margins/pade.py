@@ -6,8 +6,8 @@ import control as ct
 import numpy as np
 from numpy.typing import NDArray
 
+from latency.margins.grid import _base_grid, _refine
 from latency.margins.model import LoopModel
-from latency.margins.nyquist import _base_grid, _refine
 from latency.margins.result import Margins, _crossings, margins_from_crossings
 
 
@@ -86,7 +86,7 @@ def pade_margins(model: LoopModel, order: int = 6) -> Margins:
         s = 1j * np.asarray(w, dtype=float)
         return np.polyval(num, s) / np.polyval(den, s)
 
-    w, Lw = _refine(fun, _base_grid(model))
+    w, Lw = _refine(fun, _base_grid(model.response, model.features_rad_s))
     cr = _crossings(fun, w, Lw)
     return margins_from_crossings(
         cr, stable=Z == 0, unstable_poles=Z, delay_s=model.delay_s, formulation=f"pade-{order}",

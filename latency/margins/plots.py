@@ -9,8 +9,9 @@ import numpy as np
 from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
+from latency.margins.grid import _grid
 from latency.margins.model import LoopModel
-from latency.margins.nyquist import _grid, nyquist_count
+from latency.margins.nyquist import nyquist_count
 from latency.margins.result import Margins
 
 
@@ -23,7 +24,8 @@ def bode_data(
     The linear phase ``-w (tau + T/2)`` of the delay and the hold is added analytically, so it
     stays right where the grid is too coarse to unwrap it; the remainder is unwrapped (it jumps
     by ±180° where the hold's ``sin(wT/2)`` changes sign, at multiples of the sampling rate)."""
-    w = _grid(model) if omega is None else np.asarray(omega, dtype=float)
+    w = (_grid(model.response, model.features_rad_s) if omega is None
+         else np.asarray(omega, dtype=float))
     Lw = model.response(w)
     lin = model.delay_s + (0.0 if model.sample_period_s is None else 0.5 * model.sample_period_s)
     ph = np.unwrap(np.angle(Lw * np.exp(1j * w * lin)))

@@ -11,7 +11,7 @@ import scipy.linalg
 import scipy.optimize
 from numpy.typing import NDArray
 
-from latency.margins.nyquist import _SMALL_GAIN
+from latency.margins.grid import _SMALL_GAIN
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,8 @@ import control as ct
 import numpy as np
 from numpy.typing import NDArray
 
+from latency.margins.grid import _refine
 from latency.margins.model import _check_delay
-from latency.margins.nyquist import _refine
 from latency.margins.result import Margins, _Crossings, _crossings, margins_from_crossings
 from latency.zoh import zoh_integrals
 

@@ -203,11 +203,6 @@ class GKResult:
         return np.vstack([self.red_px, self.yellow_px])
 
     @property
-    def virtual_pole_px(self) -> NDArray[np.float64]:
-        """Midpoint of the two centres, sensor px (seed 000 §3.2.3's (u_c, v_c))."""
-        return 0.5 * (self.red_px + self.yellow_px)
-
-    @property
     def valid(self) -> bool:
         """Both centres are finite and the track is not lost."""
         return (not self.lost) and bool(np.all(np.isfinite(self.marker_px)))
@@ -343,11 +338,9 @@ class GKAssist:
         GKResult
         """
         t0 = time.perf_counter()
-        reasons: list[str] = []
         bad_frame = check_frame(image, self.params, binning)
         b = 1 if bad_frame else int(binning)
-        if bad_frame:
-            reasons.append(bad_frame)
+        reasons: list[str] = [bad_frame] if bad_frame else []
         prior = self.kalman.predict()
         prior_cov = self.kalman.position_cov
 
@@ -357,34 +350,16 @@ class GKAssist:
         gate, confident = self._gate(image, b, bad_frame, judged, box, why, score_f, reasons)
 
         # 3. observe, or let the prediction stand in
-        red_fit: SubpixelResult | None = None
-        refined = False
-        if confident:
-            if judged is not None:
-                z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
-            else:
-                z, red_fit, refined = self._refine_red(image, b, box, centre)
-            red, red_cov = self._observe(z)
-            source: RedSource = "measurement"
-        else:
-            red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
-            if source == "prediction" and judged is not None \
-                    and judged.stand_in_sensor_px is not None:
-                red, red_cov, source = self._stand_in(judged, reasons)
+        red, red_cov, source, red_fit, refined = self._red_point(
+            image, b, confident, judged, box, centre, prior, prior_cov, reasons)
 
         # 4. the auxiliary point
-        aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
-        if aux.source == "fallback" and judged is not None \
-                and judged.yellow_stand_in_sensor_px is not None:
-            aux = AuxResult(np.asarray(judged.yellow_stand_in_sensor_px, dtype=float),
-                            "inferred", reason=f"{aux.reason}; position inferred")
-        if aux.source != "measurement" and source != "none":
-            reasons.append(f"yellow: {aux.reason}")
+        aux = self._yellow_point(image, b, bad_frame, red, source, tilt_prev_rad, judged,
+                                 reasons)
 
-        # 5. the pixel scale
-        updated = False
-        if source == "measurement" and aux.source == "measurement":
-            updated, _ = self.scale.update(aux.D_det_px, tilt_prev_rad)
+        # 5. the pixel scale, from a frame that measured both markers
+        both = source == "measurement" and aux.source == "measurement"
+        updated = both and self.scale.update(aux.D_det_px, tilt_prev_rad)[0]
 
         return GKResult(
             red_px=np.asarray(red, dtype=float),
@@ -406,6 +381,51 @@ class GKAssist:
             aux=aux,
             red_fit=red_fit,
         )
+
+    def _red_point(
+        self, image: NDArray[np.uint8], b: int, confident: bool,
+        judged: JudgedObservation | None, box: NDArray[np.float64] | None,
+        centre: NDArray[np.float64] | None, prior: NDArray[np.float64],
+        prior_cov: NDArray[np.float64], reasons: list[str],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], RedSource, SubpixelResult | None,
+               bool]:
+        """Step 3 of ``step``: a confident frame observes the red centre (the trust rule's, or
+        the tracker's refined by the circle fit) and updates the pixel Kalman filter; otherwise
+        the prediction stands in (or the trust rule's stand-in, when it gives one). Returns the
+        red centre (sensor px), its covariance (sensor px²), its source, the circle fit and
+        whether the centre is the fit's; appends the reasons of a frame not observed."""
+        red_fit: SubpixelResult | None = None
+        refined = False
+        if confident:
+            if judged is not None:
+                z, refined = np.asarray(judged.centre_sensor_px, dtype=float), judged.refined
+            else:
+                z, red_fit, refined = self._refine_red(image, b, box, centre)
+            red, red_cov = self._observe(z)
+            source: RedSource = "measurement"
+        else:
+            red, red_cov, source = self._coast_on(prior, prior_cov, reasons)
+            if source == "prediction" and judged is not None \
+                    and judged.stand_in_sensor_px is not None:
+                red, red_cov, source = self._stand_in(judged, reasons)
+        return red, red_cov, source, red_fit, refined
+
+    def _yellow_point(
+        self, image: NDArray[np.uint8], b: int, bad_frame: str, red: NDArray[np.float64],
+        source: RedSource, tilt_prev_rad: float | None, judged: JudgedObservation | None,
+        reasons: list[str],
+    ) -> AuxResult:
+        """Step 4 of ``step``: the auxiliary (yellow) point located from the red centre, or
+        the trust rule's stand-in where the locator falls back; appends why it was not
+        measured (when there is a red centre at all)."""
+        aux = self._auxiliary(image, b, bad_frame, red, source, tilt_prev_rad)
+        if aux.source == "fallback" and judged is not None \
+                and judged.yellow_stand_in_sensor_px is not None:
+            aux = AuxResult(np.asarray(judged.yellow_stand_in_sensor_px, dtype=float),
+                            "inferred", reason=f"{aux.reason}; position inferred")
+        if aux.source != "measurement" and source != "none":
+            reasons.append(f"yellow: {aux.reason}")
+        return aux
 
     def _gate(
         self, image: NDArray[np.uint8], b: int, bad_frame: str, judged: JudgedObservation | None,

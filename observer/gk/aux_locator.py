@@ -228,6 +228,57 @@ class AuxLocator:
             return AuxResult(np.full(2, np.nan), "none", reason=f"{reason}; {why}")
         return AuxResult(red + self.V_rel, "fallback", reason=reason)
 
+    def _search(
+        self, image_rgb: NDArray[np.uint8], b: int, red: NDArray[np.float64], D_exp: float,
+        r_search: float, r_marker: float,
+    ) -> tuple[tuple | None, tuple | None]:
+        """The yellow candidates around P_red ``red`` (sensor px) in a frame binned by ``b``:
+        first in the window of ``window_marker_radii`` marker radii about the last good
+        P_red + V_rel (kept only when a candidate there passes the distance check and lies
+        nearer than the window's half-width), else in the whole search radius ``r_search``
+        (image px). Returns the candidates (``_candidates``; None when the region is outside
+        the frame) and, for the window, their scores (``_score``), else None."""
+        cfg = self.config
+        red_img = sensor_to_image(red, b)
+        found, scored = None, None
+        if self.V_rel is not None and cfg.window_marker_radii > 0.0:
+            rho = cfg.window_marker_radii * r_marker
+            found = self._candidates(image_rgb, sensor_to_image(red + self.V_rel, b), rho,
+                                     red_img, r_search, r_marker, whole_only=True)
+            if found is not None and found[0]:
+                scored = self._score(found, b, red, D_exp)
+                ok, score = scored[2], scored[3]
+                # a nearer region outside the window would be farther than its half-width
+                if len(ok) == 0 or score.min() > rho * b:
+                    found = scored = None
+            else:
+                found = None
+        if found is None:
+            found = self._candidates(image_rgb, red_img, r_search, red_img, r_search, r_marker)
+        return found, scored
+
+    def _refine(
+        self, image_rgb: NDArray[np.uint8], b: int, yellow: NDArray[np.float64],
+        rect: NDArray, c0: int, r0: int, r_marker: float,
+    ) -> tuple[NDArray[np.float64], bool, SubpixelResult | None]:
+        """With ``config.refine``: the circle-fit centre (sensor px) of the chosen candidate,
+        whose bounding rectangle ``rect`` (x, y, w, h, image px of the search region at column
+        ``c0``, row ``r0``) grown by ``roi_margin_fraction`` is the fit's region, used when the
+        fit is valid and within a marker radius ``r_marker`` (image px) of the candidate's
+        centroid ``yellow``. Returns the centre, whether it is the fit's, and the fit."""
+        cfg = self.config
+        if not cfg.refine:
+            return yellow, False, None
+        x, y, w, h = (float(v) for v in rect)
+        m = cfg.roi_margin_fraction
+        roi = (x + c0 - m * w, y + r0 - m * h, w * (1 + 2 * m), h * (1 + 2 * m))
+        fit = refine_marker_centre(image_rgb, cfg.yellow, roi, cfg.subpixel)
+        if fit.valid:
+            fc = fit.centre_sensor_px(b)
+            if np.hypot(*(fc - yellow)) < r_marker * b:
+                return fc, True, fit
+        return yellow, False, fit
+
     def locate(
         self,
         image_rgb: NDArray[np.uint8],
@@ -269,23 +320,7 @@ class AuxLocator:
         D_exp = self.L_m * S_px_per_m * math.cos(beta)
         r_search = self.search_radius_px(S_px_per_m) / b
         r_marker = 0.5 * self.d_m * S_px_per_m / b
-        red_img = sensor_to_image(red, b)
-
-        found, scored = None, None
-        if self.V_rel is not None and cfg.window_marker_radii > 0.0:
-            rho = cfg.window_marker_radii * r_marker
-            found = self._candidates(image_rgb, sensor_to_image(red + self.V_rel, b), rho,
-                                     red_img, r_search, r_marker, whole_only=True)
-            if found is not None and found[0]:
-                scored = self._score(found, b, red, D_exp)
-                ok, score = scored[2], scored[3]
-                # a nearer region outside the window would be farther than its half-width
-                if len(ok) == 0 or score.min() > rho * b:
-                    found = scored = None
-            else:
-                found = None
-        if found is None:
-            found = self._candidates(image_rgb, red_img, r_search, red_img, r_search, r_marker)
+        found, scored = self._search(image_rgb, b, red, D_exp, r_search, r_marker)
         if found is None:
             return self.fallback(red, "search region outside the frame")
         cents, rects, c0, r0 = found
@@ -300,16 +335,7 @@ class AuxLocator:
             return replace(fb, n_candidates=len(cents), E=float(E.min()), D_exp_px=D_exp)
         i = int(ok[np.argmin(score)])
         yellow = c_sensor[i]
-        refined, fit = False, None
-        if cfg.refine:
-            x, y, w, h = (float(v) for v in rects[i])
-            m = cfg.roi_margin_fraction
-            roi = (x + c0 - m * w, y + r0 - m * h, w * (1 + 2 * m), h * (1 + 2 * m))
-            fit = refine_marker_centre(image_rgb, cfg.yellow, roi, cfg.subpixel)
-            if fit.valid:
-                fc = fit.centre_sensor_px(b)
-                if np.hypot(*(fc - yellow)) < r_marker * b:
-                    yellow, refined = fc, True
+        yellow, refined, fit = self._refine(image_rgb, b, yellow, rects[i], c0, r0, r_marker)
         D_det = float(np.hypot(*(yellow - red)))
         E_det = abs(D_det - D_exp) / D_exp
         if E_det >= cfg.E_max:

@@ -103,6 +103,8 @@ class HSVGateConfig(BaseModel):
     )
 
     def range_of(self, colour: Colour) -> HSVRange:
+        """The HSV range of the gate for ``colour`` (``"red"`` or ``"yellow"``); ``ValueError``
+        naming ``colour`` for any other value."""
         if colour == "red":
             return self.red
         if colour == "yellow":

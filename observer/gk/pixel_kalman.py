@@ -172,11 +172,6 @@ class PixelKalman:
         return self.x[:2]
 
     @property
-    def velocity(self) -> NDArray[np.float64]:
-        """Current velocity (u̇, v̇), sensor px/frame (NaN if uninitialised)."""
-        return self.x[2:]
-
-    @property
     def position_cov(self) -> NDArray[np.float64]:
         """Covariance (2, 2) of ``position``, sensor px² (NaN if uninitialised)."""
         return self.kf.P[:2, :2].copy() if self.initialised else np.full((2, 2), np.nan)

@@ -78,12 +78,9 @@ class PixelScaleEMA:
 
     @property
     def tilt_max_rad(self) -> float:
+        """The tilt β_max above which the scale stays locked, rad
+        (``ScaleEMAConfig.tilt_max_deg``)."""
         return math.radians(self.config.tilt_max_deg)
-
-    def expected_distance(self, beta_rad: float | None) -> float:
-        """D_exp = L·S·cos β, sensor px (seed 000 §3.2.2); β unknown (None/NaN) counts as 0."""
-        b = 0.0 if beta_rad is None or not math.isfinite(beta_rad) else float(beta_rad)
-        return self.L_m * self.S * math.cos(b)
 
     def update(self, D_det_px: float, beta_rad: float | None) -> tuple[bool, str]:
         """One EMA step with the detected distance D_det (sensor px) at tilt β (rad, from the

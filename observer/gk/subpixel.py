@@ -142,6 +142,8 @@ class SubpixelResult:
 
     @classmethod
     def invalid(cls, reason: str, n_points: int = 0) -> SubpixelResult:
+        """A failed fit: NaN centre, radius and residual, no points removed, ``valid`` False and
+        ``reason`` saying why, with ``n_points`` the edge points that were found."""
         return cls(np.full(2, np.nan), math.nan, math.nan, n_points, 0, 0, 0.0, False, reason)
 
     def centre_sensor_px(self, binning: int) -> NDArray[np.float64]:
@@ -433,8 +435,21 @@ def refine_marker_centre(
     edge = _subpixel_edge(region, alpha, cfg)
     if isinstance(edge, SubpixelResult):
         return edge
-    hh, ww = region.shape
+    start = _circle_start(edge, r_area, radius_px, cfg)
+    if isinstance(start, SubpixelResult):
+        return start
+    pts, n_burrs, c_alg, R_alg = start
+    c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
+    return _judged_fit(c, R, res, pts, n_burrs, n_out, offset, region.shape, cfg)
 
+
+def _circle_start(
+    edge: NDArray[np.float64], r_area: float, radius_px: float | None, cfg: SubpixelConfig,
+) -> tuple[NDArray[np.float64], int, NDArray[np.float64], float] | SubpixelResult:
+    """Steps 3-4 up to the geometric fit: the edge points (crop px) to fit, the number
+    removed, and the starting centre and radius. With a known ``radius_px``: the points on a
+    circle of that radius by consensus; otherwise burr removal (seed 004 eq. 25) and the
+    algebraic fit. An invalid result when too few points remain or they are collinear."""
     if radius_px is not None:
         # 3-4 with the known radius: consensus on the circle, then the geometric fit
         c_alg, on_circle = circle_of_radius(edge, radius_px,
@@ -443,17 +458,30 @@ def refine_marker_centre(
         if len(pts) < cfg.min_points:
             return SubpixelResult.invalid("too few edge points on a circle of the marker's "
                                           "radius", len(pts))
-    else:
-        # 3. burr removal (seed 004 eq. 25)
-        kept = _remove_burrs(edge, r_area, cfg)
-        if isinstance(kept, SubpixelResult):
-            return kept
-        pts, n_burrs = kept
-        # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
-        c_alg, R_alg = fit_circle_algebraic(pts)
-        if not np.all(np.isfinite(c_alg)):
-            return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
-    c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
+        return pts, n_burrs, c_alg, R_alg
+    # 3. burr removal (seed 004 eq. 25)
+    kept = _remove_burrs(edge, r_area, cfg)
+    if isinstance(kept, SubpixelResult):
+        return kept
+    pts, n_burrs = kept
+    # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
+    c_alg, R_alg = fit_circle_algebraic(pts)
+    if not np.all(np.isfinite(c_alg)):
+        return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
+    return pts, n_burrs, c_alg, R_alg
+
+
+def _judged_fit(
+    c: NDArray[np.float64], R: float, res: NDArray[np.float64], pts: NDArray[np.float64],
+    n_burrs: int, n_out: int, offset: NDArray[np.float64], shape: tuple[int, ...],
+    cfg: SubpixelConfig,
+) -> SubpixelResult:
+    """The fitted circle (centre ``c`` and radius ``R`` in crop px, residuals ``res`` of the
+    points ``pts``) as a result in image px (``offset`` is the crop's corner): valid unless
+    the fit diverged, its RMS residual exceeds ``max_rms_fraction`` of R, its points cover
+    less than ``min_arc_coverage`` of the circle, or the centre lies outside the crop of
+    ``shape`` (rows, columns)."""
+    hh, ww = shape
     rms = float(np.sqrt(np.mean(res * res)))
     cover = _arc_coverage(pts, c)
     centre = c + offset

@@ -109,6 +109,7 @@ class K2CF:
 
     @property
     def initialised(self) -> bool:
+        """Whether ``initialize`` has been called (the inner KCF has a model)."""
         return self.kcf.initialised
 
     def initialize(self, frame: NDArray[np.uint8], box_image_px: ArrayLike) -> None:

@@ -133,6 +133,7 @@ class NumpyKCF:
 
     @property
     def initialised(self) -> bool:
+        """Whether ``initialize`` has been called (the filter's dual coefficients exist)."""
         return self._alphaf is not None
 
     # --- features and kernels -------------------------------------------------------------------

@@ -1,12 +1,13 @@
 """TransT (Chen et al., "Transformer Tracking", CVPR 2021) in plain torch: the network, its
-loss, training on analytic renders, and the tracker (seed 000 §3.1 builds GK-TransT on it).
+shipped weights and the tracker (seed 000 §3.1 builds GK-TransT on it).
 
 * ``network``: ``TransTNet`` in two configurations, ``TRANST50`` (the published layout, loads the
   official checkpoint with ``load_official_state_dict``) and ``SMALL`` (trained here, shipped).
 * ``tracker``: ``TransTTracker``, an ``observer.tracking.SingleObjectTracker``
   (``initialize(frame, box)`` / ``track(frame, search_centre_image_px=None) -> TrackResult``);
   ``TransTTracker.small()`` loads the shipped weights.
-* ``losses``, ``data``, ``train``: TransT's loss, the cached crop pairs, the training script.
+* ``training``: TransT's loss, the cached crop pairs and the training command, a subpackage
+  that no runtime module imports (the tracker loads no training code).
 * ``weights``: SHA-256-checked weight files.
 
 See docs/transt.md.

@@ -65,6 +65,8 @@ class Bottleneck(nn.Module):
         self.downsample = downsample
 
     def forward(self, x: Tensor) -> Tensor:
+        """The residual block on ``x`` (B, C, H, W): 1x1, 3x3 (strided), 1x1 convolutions with batch
+        norm, plus the (downsampled) shortcut, then ReLU; (B, 4·planes, H/stride, W/stride)."""
         shortcut = x if self.downsample is None else self.downsample(x)
         y = self.relu(self.bn1(self.conv1(x)))
         y = self.relu(self.bn2(self.conv2(y)))
@@ -118,6 +120,8 @@ class ResNetBody(nn.Module):
         return nn.Sequential(*layers)
 
     def forward(self, x: Tensor) -> Tensor:
+        """Features of images ``x`` (B, 3, H, W), ImageNet-normalised: the stem and layers 1-3,
+        (B, num_channels, H/8, W/8) (layer 3 dilated instead of strided, as TransT's backbone)."""
         x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
         return self.layer3(self.layer2(self.layer1(x)))
 
@@ -177,6 +181,8 @@ class SinePositionEncoding(nn.Module):
         return self._cache[key]
 
     def forward(self, feature: Tensor) -> Tensor:
+        """The position encoding (1, 2·num_pos_feats, H, W) of a feature map ``feature``
+        (B, C, H, W), on its device."""
         return self.encode(feature.shape[-2], feature.shape[-1]).to(feature.device)
 
 
@@ -191,5 +197,6 @@ class Backbone(nn.Sequential):
         self.num_channels = body.num_channels
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:  # type: ignore[override]
+        """The ResNet features of ``x`` (B, 3, H, W) and their position encoding, as a pair."""
         feat = self[0](x)
         return feat, self[1](feat)

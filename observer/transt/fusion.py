@@ -92,6 +92,9 @@ class DecoderCFALayer(nn.Module):
         self.dropout2 = nn.Dropout(dropout)
 
     def forward(self, x: Tensor, z: Tensor, pos_x: Tensor, pos_z: Tensor) -> Tensor:
+        """Cross-attention of the search features ``x`` (Lx, B, d) to the template features ``z``
+        (Lz, B, d), with their position encodings added to queries and keys, then the feed-forward
+        block (both residual with layer norm); returns the new ``x`` (Lx, B, d)."""
         a = self.multihead_attn(x + pos_x, z + pos_z, z, need_weights=False)[0]
         x = self.norm1(x + self.dropout1(a))
         return self.norm2(x + self.dropout2(self.linear2(self.dropout(F.relu(self.linear1(x))))))
@@ -107,6 +110,8 @@ class Encoder(nn.Module):
         )
 
     def forward(self, z: Tensor, x: Tensor, pos_z: Tensor, pos_x: Tensor) -> tuple[Tensor, Tensor]:
+        """The template and search features (Lz, B, d) and (Lx, B, d) after every feature-fusion
+        layer (self- then cross-attention in both branches), as ``(z, x)``."""
         for layer in self.layers:
             z, x = layer(z, x, pos_z, pos_x)
         return z, x
@@ -121,6 +126,8 @@ class Decoder(nn.Module):
         self.norm = nn.LayerNorm(d_model)
 
     def forward(self, x: Tensor, z: Tensor, pos_x: Tensor, pos_z: Tensor) -> Tensor:
+        """The search features ``x`` (Lx, B, d) after the decoder's cross-attention layers to the
+        template features ``z``, layer-normalised."""
         for layer in self.layers:
             x = layer(x, z, pos_x, pos_z)
         return self.norm(x)

@@ -12,7 +12,7 @@ Seed 000 §3.1 (Figure 8) builds GK-TransT on this network. One code path, two s
   1.6 M parameters): bottleneck ResNet with stem width 16 and blocks (2, 2, 2) (256 channels,
   still output stride 8 with the dilated layer3), d = 128, 4 heads, FFN 512, 2 fusion layers,
   template 64 px and search 128 px (8 x 8 and 16 x 16 cells), same context factors. It is trained
-  here on analytic renders (``observer.transt.train``) and shipped in ``weights/``.
+  here on analytic renders (``observer.transt.training.train``) and shipped in ``weights/``.
 
 Outputs, per search-feature cell (row-major over the H x W map): ``logits`` (B, H W, 2) with
 class 0 = target and class 1 = background (TransT's convention), and ``boxes`` (B, H W, 4) =
@@ -124,6 +124,7 @@ class MLP(nn.Module):
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairs)
 
     def forward(self, x: Tensor) -> Tensor:
+        """``x`` (..., in_dim) through the linear layers with ReLU between them, (..., out_dim)."""
         for i, layer in enumerate(self.layers):
             x = layer(x)
             if i < len(self.layers) - 1:
@@ -173,6 +174,9 @@ class TransTNet(nn.Module):
         return self.class_embed(hs), self.bbox_embed(hs).sigmoid()
 
     def forward(self, template: Tensor, search: Tensor) -> tuple[Tensor, Tensor]:
+        """Class logits (B, H·W, 2) and boxes (B, H·W, 4) as (cx, cy, w, h) fractions of the search
+        crop, one per search-feature cell, for template crops ``template`` and search crops
+        ``search`` (B, 3, side, side), ImageNet-normalised."""
         z, pos_z = self.template_features(template)
         return self.track_features(search, z, pos_z)
 

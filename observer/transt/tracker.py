@@ -203,6 +203,7 @@ class TransTTracker:
     # --- the seam ---------------------------------------------------------------------------------
     @property
     def initialised(self) -> bool:
+        """Whether ``initialize`` has set a target to track."""
         return self.centre_image_px is not None
 
     def initialize(self, frame_rgb: NDArray[np.uint8], box_image_px: ArrayLike) -> None:

@@ -1,6 +1,6 @@
 """Shipped TransT weights: file layout, SHA-256 check at load, and the command that rebuilds them.
 
-The ``small`` network trained here (``observer.transt.train``) ships as
+The ``small`` network trained here (``observer.transt.training.train``) ships as
 ``observer/transt/weights/transt_small.pt``: a ``torch.save`` of a dict with the configuration
 (``'config'``, a ``TransTConfig`` as a dict), the state dict (``'net'``, the same key layout as
 the published TransT checkpoint's ``'net'`` entry) and metadata (``'meta'``). Its SHA-256 digest
@@ -9,9 +9,9 @@ file is deserialised: a missing or corrupt file raises ``WeightsError`` naming t
 the command that rebuilds it. Nothing is ever downloaded.
 
 **The model card** (``MODEL_CARD.md`` beside the weights, written at export by
-``observer.transt.train``) records the file's name and SHA-256, the configuration's name and
-the parameter count (``card_facts``). When a card beside a weights file names that file, the
-file must match it: the SHA-256, the configuration stored in the file (equal to the code's
+``observer.transt.training.train``) records the file's name and SHA-256, the configuration's
+name and the parameter count (``card_facts``). When a card beside a weights file names that
+file, the file must match it: the SHA-256, the configuration stored in the file (equal to the code's
 configuration of that name, ``network.CONFIGS``) and the parameter count; otherwise
 ``WeightsError`` names the mismatch and the rebuild command. The shipped weights must have
 their card.
@@ -47,9 +47,9 @@ _CARD_PARAMETERS = re.compile(r"^- Parameters: ([\d,]+)", re.MULTILINE)
 #: export ``transt_small.pt`` with its ``.sha256`` and model card; see
 #: ``weights/MODEL_CARD.md`` for what they produced here.
 REBUILD_COMMAND = (
-    "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.train --steps 1000 "
+    "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.training.train --steps 1000 "
     "--export runs/transt_train/transt_small_red.pt && "
-    "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.train "
+    "OMP_WAIT_POLICY=PASSIVE python -m observer.transt.training.train "
     "--init-from runs/transt_train/transt_small_red.pt --yellow-fraction 0.5 --train-seed 3 "
     "--train-pairs 6000 --steps 300 --lr 2e-4 --warmup 20 --out runs/transt_train_mixed "
     "--export observer/transt/weights/transt_small.pt && "

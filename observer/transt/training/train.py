@@ -2,15 +2,16 @@
 
 Recipe (a 1.9 M-parameter TransT-shaped model with TransT's loss weights, AdamW 5e-4 and batch
 32 reached 0.1 marker diameters median error in 300 steps in a first trial here, docs/transt.md):
-TransT's loss (``observer.transt.losses``: 8.334 CE + 5 L1 + 2 GIoU, background weight 0.0625),
-AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32, a 30-step linear
-warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1 (our choice),
-dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched here).
+TransT's loss (``observer.transt.training.losses``: 8.334 CE + 5 L1 + 2 GIoU, background
+weight 0.0625), AdamW with learning rate 5e-4 and weight decay 1e-4 (TransT's decay), batch 32,
+a 30-step linear warm-up and a cosine decay to 10 % (our choice), gradient-norm clipping at 1
+(our choice), dropout 0.1 (TransT), trained from scratch (no ImageNet weights can be fetched
+here).
 
-Data: ``observer.transt.data``, a training cache (seed 1) and a validation cache (seed 2) that is
-never trained on; both are rendered first if missing. Every ``--eval-every`` steps the script
-measures the validation centre error; at the end it also tracks three rendered validation
-sequences (seeds 1001-1003) with ``TransTTracker``.
+Data: ``observer.transt.training.data``, a training cache (seed 1) and a validation cache
+(seed 2) that is never trained on; both are rendered first if missing. Every ``--eval-every``
+steps the script measures the validation centre error; at the end it also tracks three rendered
+validation sequences (seeds 1001-1003) with ``TransTTracker``.
 
 Checkpoints (``--out``, default ``runs/transt_train/``): ``last.pt`` every ``--ckpt-every`` steps
 (model, optimiser, step, wall time, RNG state); rerunning the same command resumes from it
@@ -39,22 +40,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from observer.transt.data import (
-    HELD_OUT_LIGHTING,
-    HELD_OUT_OCCLUDER,
-    HELD_OUT_PATTERN,
-    N_RANDOM_RENDERERS,
-    TRAIN_LIGHTINGS,
-    TRAIN_OCCLUDERS,
-    TRAIN_PATTERNS,
-    CropPairs,
-    PairSpec,
-    generate_cache,
-    heldout_options,
-    marker_box_image,
-    validation_sequence,
-)
-from observer.transt.losses import TransTLoss, cxcywh_to_xyxy, giou
 from observer.transt.network import (
     CONFIGS,
     TransTConfig,
@@ -63,11 +48,24 @@ from observer.transt.network import (
     count_parameters,
 )
 from observer.transt.tracker import TransTTracker, hanning_window
-from observer.transt.weights import CARD_NAME, card_file_line, load_weights, save_weights
+from observer.transt.training.data import (
+    CropPairs,
+    PairSpec,
+    generate_cache,
+)
+from observer.transt.training.losses import TransTLoss, cxcywh_to_xyxy, giou
+from observer.transt.training.model_card import write_model_card
+from observer.transt.training.validation import (
+    VALIDATION_SEQUENCE_FRAMES,
+    VALIDATION_SEQUENCE_SEEDS,
+    marker_box_image,
+    validation_sequence,
+)
+from observer.transt.weights import CARD_NAME, load_weights, save_weights
+from plant.appearance import (
+    heldout_options,
+)
 
-#: Seeds of the validation tracking sequences (never used for training data).
-VALIDATION_SEQUENCE_SEEDS = (1001, 1002, 1003)
-VALIDATION_SEQUENCE_FRAMES = 150
 #: Seed of the target removal in the validation pairs' absent copies.
 VALIDATION_ABSENT_SEED = 1004
 
@@ -90,7 +88,7 @@ def evaluate_pairs(
     (``Frame.marker_px[0]``) in full-sensor px, also in marker diameters. ``*_nowin`` decodes
     without the window (plain argmax of the target probability). ``val_*_score_*`` are the
     highest target probability of each search (the tracker's confidence), on the pairs as they
-    are and with the target removed from every search (``data.hide_target``, fixed seeds).
+    are and with the target removed from every search (``augment.hide_target``, fixed seeds).
     """
     net.eval()
     fs = net.config.search_feature_size
@@ -140,8 +138,8 @@ def evaluate_sequences(
     """Track rendered validation sequences from the true first box of marker 0 (red; keys
     ``seq_*``) or 1 (yellow; keys ``seq_yellow_*``); centre error (sensor px) of the box centre
     against ``Frame.marker_px[marker]`` and the per-frame track time. ``heldout`` ("pattern" or
-    "lighting") renders them in that held-out appearance family (``data.heldout_options``;
-    keys ``heldout_<family>_*``)."""
+    "lighting") renders them in that held-out appearance family
+    (``plant.appearance.heldout_options``; keys ``heldout_<family>_*``)."""
     errs, times = [], []
     for seed in seeds:
         frames = validation_sequence(seed, n_frames, *(heldout_options(seed, heldout)
@@ -188,168 +186,8 @@ def _save_ckpt(path: Path, net, opt, step: int, wall: float, rng: np.random.Gene
     tmp.replace(path)
 
 
-def _randomisation_lines() -> list[str]:
-    """Model-card lines on the domain randomisation and the held-out appearance families."""
-    return [
-        "Domain randomisation (`PairSpec.randomise`, the last stage): each scene comes from one "
-        f"of {N_RANDOM_RENDERERS} renderers of random appearance (`plant.appearance`): rotor "
-        "colour and pattern, plate colour, marker shades (hue ±8°, saturation and value "
-        "±15 %) and diameters (6.5-9.5 mm), uneven lighting, white balance, highlights, red "
-        "or yellow distractor stickers of other shades and sizes; occluders of the colour "
-        "families " + ", ".join(TRAIN_OCCLUDERS) + " over 20-60 % of the target in 35 % of "
-        "the searches; highlights on the target and red, yellow or red-brown discs beside it; "
-        "per crop white balance ±10 %, read noise 0-8 DN, Gaussian blur (25 %) and JPEG "
-        "compression at quality 25-90 (25 %).",
-        "",
-        "**Held-out appearance families** (chosen before training, never in the training "
-        f"data; for evaluation only): the rotor pattern `{HELD_OUT_PATTERN}`, the lighting "
-        f"`{HELD_OUT_LIGHTING}` (an off-axis light up to 2.5x brighter), and `{HELD_OUT_OCCLUDER}` "
-        "occluders. Training used the patterns " + ", ".join(TRAIN_PATTERNS) + " and the "
-        "lightings " + ", ".join(TRAIN_LIGHTINGS) + ". The `heldout_pattern_*` and "
-        "`heldout_lighting_*` metrics below track sequences rendered in those families "
-        "(`data.heldout_options`); the tracking benchmark has the held-out cases too.",
-        "",
-    ]
-
-
-def _same_caches(a: dict, b: dict) -> bool:
-    """Two runs read the same pair caches (a later stage reusing its predecessor's)."""
-    keys = ("train_seed", "train_pairs", "val_seed", "yellow_fraction", "randomise",
-            "tracking_fraction")
-    return all(a.get(k) == b.get(k) for k in keys)
-
-
-def _stage_lines(meta: dict, reused_caches: bool = False) -> list[str]:
-    """Model-card lines describing one training run (``reused_caches``: its caches were
-    rendered for the stage before, so their time is not counted again)."""
-    y = float(meta.get("yellow_fraction", 0.0) or 0.0)
-    target = "the red marker" if y == 0 else f"the red marker, the yellow one in {y:.0%} of scenes"
-    tf = float(meta.get("tracking_fraction", 0.0) or 0.0)
-    near, wide = (PairSpec.model_fields[k].default for k in ("tracking_jitter", "centre_jitter"))
-    jitter = ("" if tf == 0 else
-              f"; {tf:.0%} of the searches in the regime of tracking, the target within "
-              f"±{near / 2:g} box sizes of the crop centre (search-centre jitter factor {near:g} "
-              f"instead of {wide:g})")
-    return [
-        f"- Data: {meta['train_pairs']} crop pairs (seed {meta['train_seed']}, target {target}"
-        f"{jitter})"
-        + (f"; the target removed from {meta['absent_prob']:.0%} of the searches "
-           "(`data.hide_target`: inpainted, covered or replaced by another part of the crop), "
-           "labelled all background." if meta.get("absent_prob") else "."),
-        f"- {meta['steps']} steps of batch {meta['batch']} (AdamW, lr {meta['lr']}, weight decay "
-        f"{meta['weight_decay']}, warm-up + cosine to 10 %), TransT's loss weights "
-        "(8.334, 5, 2); final training loss (mean of the last 50 steps) "
-        f"{meta['final_loss']:.3f}.",
-        f"- Wall time: {meta['wall_s'] / 60:.1f} min of training on {meta['threads']} CPU "
-        f"threads ({meta['machine']}, shared with other jobs)"
-        + ("; the previous stage's caches." if reused_caches else
-           f", plus {meta['cache_s'] / 60:.1f} min rendering its caches."),
-        f"- Command: `{meta['command']}`",
-    ]
-
-
-def write_model_card(path: Path, meta: dict, weights: Path, digest: str) -> None:
-    """MODEL_CARD.md beside the exported weights, from the run's metadata (and, for a run
-    started with ``--init-from``, the metadata of the run it continued); it records the
-    weights file ``weights`` and its SHA-256 ``digest`` (``weights.card_file_line``)."""
-    m = meta["metrics"]
-    cfg = meta["config"]
-    stages = [meta]
-    while stages[0].get("init_meta"):
-        stages.insert(0, stages[0]["init_meta"])
-    init = meta.get("init_meta") or {}
-    lines = [
-        "# Model card: TransT `small` (observer/transt/weights/transt_small.pt)",
-        "",
-        "Written by `observer.transt.train` at export; numbers are from the runs below.",
-        "",
-        "## Model",
-        "",
-        f"- Architecture: TransT (Chen et al., CVPR 2021) as in `observer/transt/network.py`, "
-        f"configuration `{cfg['name']}`: bottleneck ResNet (stem width "
-        f"{cfg['backbone_inplanes']}, blocks {tuple(cfg['backbone_blocks'])}, layer3 dilation "
-        f"{cfg['layer3_dilation']}, output stride 8), d = {cfg['d_model']}, {cfg['nhead']} heads, "
-        f"FFN {cfg['dim_feedforward']}, {cfg['num_fusion_layers']} fusion layers, template "
-        f"{cfg['template_size']} px, search {cfg['search_size']} px, context factors "
-        f"{cfg['template_factor']:g} / {cfg['search_factor']:g}, window influence "
-        f"{cfg['window_influence']}. Trained from scratch (no ImageNet weights).",
-        f"- Parameters: {meta['parameters']:,}.",
-        "- Input: RGB uint8 frames (ImageNet-normalised crops inside the tracker). Target: the "
-        "marker in the template box, trained on the red main marker (seed 000 §3.2)"
-        + (" and the yellow auxiliary marker." if init or meta.get("yellow_fraction") else "."),
-        card_file_line(weights, digest),
-        "",
-        "## Training data",
-        "",
-        "Crop pairs rendered by `plant.render_analytic` (generator version "
-        f"{meta['generator_version']}, `observer/transt/data.py`): random workspace attitudes "
-        "(tilt 0-15°, free spin and yaw), a short motion between template and search frame, "
-        "motion blur up to about 1.2 marker diameters, partial occlusion (25 %), highlights and "
-        "colour stickers as distractors, illumination 0.5-1.6x, read noise 0-5 DN, TransT's "
-        "centre jitter (factor 3) and scale jitter (0.25), joint dihedral flips at load time.",
-        "",
-        *(_randomisation_lines() if meta.get("randomise") else []),
-        f"Validation (never trained on): {meta['val_pairs']} red-target pairs from seed "
-        f"{meta['val_seed']}, and {len(VALIDATION_SEQUENCE_SEEDS)} tracking sequences of "
-        f"{VALIDATION_SEQUENCE_FRAMES} frames (seeds {VALIDATION_SEQUENCE_SEEDS}, "
-        "`data.validation_sequence`), tracked from the true first box.",
-        "",
-        "## Training",
-        "",
-    ]
-    reused = [i > 0 and _same_caches(st, stages[i - 1]) for i, st in enumerate(stages)]
-    for i, st in enumerate(stages, start=1):
-        if len(stages) > 1:
-            lines += [f"Stage {i}{f' (continued from stage {i - 1})' if i > 1 else ''}:", ""]
-        lines += _stage_lines(st, reused[i - 1]) + [""]
-    total_min = sum(st["wall_s"] + (0.0 if r else st["cache_s"])
-                    for st, r in zip(stages, reused, strict=True)) / 60
-    lines += [f"Total: {sum(st['steps'] for st in stages)} steps, {total_min:.1f} min "
-              "including cache rendering.", ""]
-    lines += [
-        "## Validation metrics",
-        "",
-        "Centre errors are in full-sensor pixels (2448 x 2048 sensor; frames are 4x binned) "
-        "against the true marker centre `Frame.marker_px`; a marker diameter is about 190 "
-        "sensor px. `val_*`: crop pairs decoded as the tracker does (`_nowin`: without the "
-        "Hanning window); `seq_*`: the red marker tracked through the sequences, "
-        "`seq_yellow_*`: the yellow one.",
-        "",
-        "| metric | value |" + (" before this stage |" if init else ""),
-        "|---|---|" + ("---|" if init else ""),
-    ]
-    for k, v in m.items():
-        extra = ""
-        if init:
-            v1 = init.get("metrics", {}).get(k)
-            extra = f" {v1:.4g} |" if v1 is not None else " - |"
-        lines.append(f"| {k} | {v:.4g} |{extra}")
-    lines += [
-        "",
-        "## Reproduce",
-        "",
-        "```",
-        *[f"OMP_WAIT_POLICY=PASSIVE {st['command']}" for st in stages],
-        "```",
-        "",
-        "(renders the caches into `runs/transt_cache/` if missing, trains into `--out` "
-        "(default `runs/transt_train/`), resumable, and exports the weights with their SHA-256 "
-        "and this card. Each stage's `--init-from` is the file the stage before exported: "
-        "stage 1's export was kept as `runs/transt_train/transt_small_red.pt` for stage 2; "
-        "stage 3 read stage 2's export from the weights folder and exported to "
-        "`runs/transt_train_dr/transt_small_dr.pt` for stage 4; stage 4's export, shipped "
-        "until stage 5, was kept as `runs/transt_train_absent/transt_small_absent.pt` for "
-        "stage 5 (`benchmarks/transt_dr.sh` runs stages 3, 4 and 5 in this order, exporting "
-        "each to the file the next reads). The number of render workers changes only the "
-        "rendering time, not the pairs. CPU timings vary with the machine's load; the numbers "
-        "depend on the thread count only through floating-point summation order.)",
-        "",
-    ]
-    path.write_text("\n".join(lines))
-
-
 def _parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m observer.transt.train``."""
+    """The command line of ``python -m observer.transt.training.train``."""
     ap = argparse.ArgumentParser(description="Train the small TransT on analytic renders.")
     ap.add_argument("--config", default="small", choices=sorted(CONFIGS))
     ap.add_argument("--cache", default="runs/transt_cache", help="folder of the pair caches")
@@ -384,13 +222,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--absent-prob", type=float, default=0.0,
-        help="fraction of training searches with the target removed (data.hide_target), "
+        help="fraction of training searches with the target removed (augment.hide_target), "
         "labelled all background",
     )
     ap.add_argument(
         "--appearance-prob", type=float, default=0.0,
         help="fraction of training pairs given a new look at load time "
-        "(data.appearance_jitter: textures, lighting, colour, a Bayer sensor, gamma, "
+        "(augment.appearance_jitter: textures, lighting, colour, a Bayer sensor, gamma, "
         "distractors, blur and JPEG)",
     )
     ap.add_argument(
@@ -567,6 +405,9 @@ def _final_metrics(net: TransTNet, val: CropPairs, config: TransTConfig) -> dict
 
 
 def main(argv: list[str] | None = None) -> None:
+    """The command ``python -m observer.transt.training.train``: render the caches if missing,
+    train (resuming from ``--out/last.pt``), evaluate, and with ``--export`` write the weights,
+    their SHA-256 and the model card (options in ``argv``, default: the command line)."""
     a = _parser().parse_args(argv)
     torch.set_num_threads(a.threads)
     out = Path(a.out)
@@ -611,7 +452,8 @@ def main(argv: list[str] | None = None) -> None:
             "absent_prob": a.absent_prob,
             "appearance_prob": a.appearance_prob,
             "tracking_fraction": a.tracking_fraction,
-            "command": "python -m observer.transt.train " + " ".join(_training_args(sys.argv[1:])),
+            "command": ("python -m observer.transt.training.train "
+                        + " ".join(_training_args(sys.argv[1:]))),
         }
         export = Path(a.export)
         digest = save_weights(net, export, meta)

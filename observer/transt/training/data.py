@@ -38,7 +38,8 @@ colour red.
 ``CropPairs`` adds joint dihedral flips (horizontal, vertical, transpose) of both crops at load
 time in training (the disc and the square plate are symmetric under them).
 
-Run ``python -m observer.transt.data --out runs/transt_cache/train --pairs 8000 --seed 1``.
+Run ``python -m observer.transt.training.data --out runs/transt_cache/train --pairs 8000
+--seed 1``.
 """
 
 from __future__ import annotations
@@ -57,11 +58,18 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from observer.transt.crop import box_to_crop, context_side, crop_square, normalise
 from observer.transt.network import SMALL, TransTConfig
+from observer.transt.training.augment import (
+    appearance_jitter,
+    dihedral_box,
+    dihedral_image,
+    hide_target,
+)
+from observer.transt.training.validation import marker_box_image
 from plant import attitude
 from plant.appearance import (
-    LIGHTINGS,
-    OCCLUDER_FAMILIES,
-    PATTERNS,
+    TRAIN_LIGHTINGS,
+    TRAIN_OCCLUDERS,
+    TRAIN_PATTERNS,
     occluder_rgb,
     random_options,
     random_params,
@@ -76,14 +84,6 @@ GENERATOR_VERSION = 1
 N_RENDERERS = 12
 #: Renderers of the randomised pool (``PairSpec.randomise``), each its own appearance.
 N_RANDOM_RENDERERS = 48
-#: Appearance families never used for training, kept for evaluation (chosen before training):
-#: a checkerboard rotor pattern, an off-axis light spot, purple occluders.
-HELD_OUT_PATTERN = "checker"
-HELD_OUT_LIGHTING = "spot"
-HELD_OUT_OCCLUDER = "purple"
-TRAIN_PATTERNS = tuple(p for p in PATTERNS if p != HELD_OUT_PATTERN)
-TRAIN_LIGHTINGS = tuple(x for x in LIGHTINGS if x != HELD_OUT_LIGHTING)
-TRAIN_OCCLUDERS = tuple(f for f in OCCLUDER_FAMILIES if f != HELD_OUT_OCCLUDER)
 #: Search frames rendered per template frame (our choice: reuses the template render).
 SEARCHES_PER_SCENE = 2
 #: Image pixels a marker moves per radian of rotation about a horizontal axis at the default
@@ -136,6 +136,8 @@ class PairSpec(BaseModel):
         cls, config: TransTConfig, yellow_fraction: float = 0.0, randomise: bool = False,
         tracking_fraction: float = 0.0,
     ) -> PairSpec:
+        """The default spec for a network ``config`` (its template and search crop sides), with the
+        given yellow-target fraction, randomised renderers and tracking-regime fraction."""
         return cls(
             template_size=config.template_size,
             search_size=config.search_size,
@@ -175,14 +177,6 @@ def _make_renderers(params: PlantParams, randomise: bool = False) -> list[Analyt
         )
         out.append(AnalyticRenderer(params, options=opts, seed=int(rng.integers(1 << 31))))
     return out
-
-
-def _marker_box_image(frame, binning: int, marker: int = 0) -> NDArray[np.float64]:
-    """Ground-truth box (x, y, w, h) in image px of a binned frame of the red (``marker`` 0)
-    or yellow (1) disc."""
-    b = np.asarray(frame.boxes_px[marker], dtype=float)
-    lo = sensor_to_image(b[:2], binning)
-    return np.r_[lo, b[2:] / binning]
 
 
 def _photometric(
@@ -308,7 +302,7 @@ def render_scene(
     # the target: red, or yellow in a fraction of the scenes (no draw when the fraction is 0,
     # so red-only caches are unchanged by this option)
     m = int(spec.yellow_fraction > 0 and rng.uniform() < spec.yellow_fraction)
-    box0 = _marker_box_image(f0, b, m)
+    box0 = marker_box_image(f0, m)
     illum0 = float(np.exp(rng.uniform(np.log(0.5), np.log(1.6))))
     tc = box0[:2] + box0[2:] / 2 + rng.normal(0.0, spec.template_jitter, 2) * box0[2:]
     tsize = box0[2:] * np.exp(rng.normal(0.0, 0.05, 2))
@@ -325,7 +319,7 @@ def render_scene(
         omega, exposure = _smear_motion(rng)
         f1 = r.render(q1, exposure_s=exposure, omega=omega)
         img = f1.image.copy()
-        box1 = _marker_box_image(f1, b, m)
+        box1 = marker_box_image(f1, m)
         if rng.uniform() < spec.occlusion_prob:
             colour = None
             if spec.randomise:
@@ -452,287 +446,6 @@ def generate_cache(
     return out
 
 
-def heldout_options(seed: int, family: str) -> tuple[PlantParams, AnalyticRenderOptions]:
-    """Plant parameters and renderer options of a scene from a held-out appearance family
-    (``"pattern"``: the held-out rotor pattern under training lighting; ``"lighting"``: the
-    held-out lighting on a training pattern), drawn from ``seed``."""
-    rng = np.random.default_rng([seed, 4243])
-    if family == "pattern":
-        pats, lights = (HELD_OUT_PATTERN,), TRAIN_LIGHTINGS
-    elif family == "lighting":
-        pats, lights = TRAIN_PATTERNS, (HELD_OUT_LIGHTING,)
-    else:
-        raise ValueError(f"family must be 'pattern' or 'lighting', got {family!r}")
-    return random_params(rng), random_options(rng, pats, lights, noise_sigma_dn=2.0)
-
-
-def validation_sequence(
-    seed: int,
-    n_frames: int = 120,
-    params: PlantParams | None = None,
-    options: AnalyticRenderOptions | None = None,
-) -> list:
-    """A rendered tracking sequence (list of ``plant.scene.Frame``) for validation.
-
-    Smooth motion drawn from ``seed`` (our choice): tilt β(τ) = β0 + A sin(2π τ/T1 + φ1) within
-    0-15°, yaw turning at a random rate (up to 2π per 90 frames), spin wandering by up to
-    ±0.4 rad, τ in frames at the camera's 36 frames/s; the markers move up to about 10 sensor px
-    a frame. Read noise 2 DN, the frame's motion blur from the body rate, random highlights and
-    colour distractor; ``options`` replaces these renderer options (e.g. ``heldout_options``).
-    Seeds used for reported numbers are never used to generate training data (training scenes
-    come from ``render_scene`` with its own seed streams).
-    """
-    p = params or PlantParams()
-    rng = np.random.default_rng([seed, 7919])
-    opts = AnalyticRenderOptions(
-        noise_sigma_dn=2.0,
-        n_highlights=int(rng.integers(0, 4)),
-        colour_distractor=("none", "red", "yellow")[int(rng.integers(3))],
-    )
-    opts = options or opts
-    r = AnalyticRenderer(p, options=opts, seed=int(rng.integers(1 << 31)))
-    fps = p.camera.frame_rate_hz
-    b0 = rng.uniform(3.0, 11.0)
-    amp = rng.uniform(1.0, min(b0, 15.0 - b0))
-    t1, ph1 = rng.uniform(40, 150), rng.uniform(0, 2 * np.pi)
-    yaw_rate = rng.uniform(-1.0, 1.0) * 2 * np.pi / 90.0
-    spin_amp, t2 = rng.uniform(0.0, 0.4), rng.uniform(80, 300)
-
-    def q_of(tau: float) -> NDArray[np.float64]:
-        beta = math.radians(b0 + amp * math.sin(2 * math.pi * tau / t1 + ph1))
-        yaw = yaw_rate * tau
-        spin = spin_amp * math.sin(2 * math.pi * tau / t2)
-        return attitude.from_zyz(spin - yaw, beta, yaw)
-
-    frames = []
-    for k in range(n_frames):
-        q, q_next = q_of(k), q_of(k + 0.01)
-        omega = attitude.to_rotvec(attitude.multiply(attitude.conjugate(q), q_next)) * fps / 0.01
-        frames.append(r.render(q, k / fps, omega=omega))
-    return frames
-
-
-def red_box_image(frame) -> NDArray[np.float64]:
-    """The red disc's ground-truth box (x, y, w, h) in image px of ``frame`` (its binning)."""
-    return _marker_box_image(frame, frame.binning, 0)
-
-
-def marker_box_image(frame, marker: int) -> NDArray[np.float64]:
-    """Ground-truth box (x, y, w, h) in image px of ``frame`` of marker 0 (red) or 1 (yellow)."""
-    return _marker_box_image(frame, frame.binning, marker)
-
-
-def _dihedral(img: NDArray, k: int) -> NDArray:
-    """Apply dihedral transform k (bit 0: flip x, bit 1: flip y, bit 2: transpose) to
-    (..., H, W, C) images."""
-    if k & 1:
-        img = img[..., :, ::-1, :]
-    if k & 2:
-        img = img[..., ::-1, :, :]
-    if k & 4:
-        img = np.swapaxes(img, -3, -2)
-    return img
-
-
-def _dihedral_box(box: NDArray[np.float32], k: int) -> NDArray[np.float32]:
-    """The same transform on (..., 4) boxes (cx, cy, w, h) or (..., 2) points in fractions."""
-    b = box.copy()
-    if k & 1:
-        b[..., 0] = 1.0 - b[..., 0]
-    if k & 2:
-        b[..., 1] = 1.0 - b[..., 1]
-    if k & 4:
-        b[..., [0, 1]] = b[..., [1, 0]]
-        if b.shape[-1] == 4:
-            b[..., [2, 3]] = b[..., [3, 2]]
-    return b
-
-
-def hide_target(
-    search: NDArray[np.uint8], box: NDArray[np.float32], rng: np.random.Generator
-) -> None:
-    """In place: remove the target from a uint8 search crop (H, W, 3) whose target box is
-    ``box`` (cx, cy, w, h crop fractions), so that the crop is a target-absent example.
-
-    The region removed is the box grown 1.4-2.2 times (the disc's blur smear and its
-    anti-aliased rim included). It is filled, with probabilities 0.4 / 0.4 / 0.2, by inpainting
-    from its surroundings (the rotor seen without the marker), by an occluder of a training
-    colour family or black (a hand, a tool, a shadow over the whole marker), or by a patch of the
-    same crop taken away from the target (another part of the rotor)."""
-    side = search.shape[0]
-    cx, cy, w, h = (np.asarray(box, float) * side).tolist()
-    grow = rng.uniform(1.4, 2.2)
-    hw, hh = max(w, 2.0) * grow / 2, max(h, 2.0) * grow / 2
-    c0, r0 = max(int(cx - hw), 0), max(int(cy - hh), 0)
-    c1, r1 = min(int(math.ceil(cx + hw)), side), min(int(math.ceil(cy + hh)), side)
-    if c1 <= c0 or r1 <= r0:
-        return
-    u = rng.uniform()
-    if u < 0.4:
-        mask = np.zeros(search.shape[:2], np.uint8)
-        mask[r0:r1, c0:c1] = 255
-        search[...] = cv2.inpaint(search, mask, 5, cv2.INPAINT_TELEA)
-    elif u < 0.8:
-        family = ("black", *TRAIN_OCCLUDERS)[int(rng.integers(len(TRAIN_OCCLUDERS) + 1))]
-        colour = (0, 0, 0) if family == "black" else occluder_rgb(rng, family)
-        search[r0:r1, c0:c1] = colour
-    else:
-        ph, pw = r1 - r0, c1 - c0
-        for _ in range(20):  # a source patch that does not overlap the removed region
-            sr, sc = int(rng.integers(0, side - ph + 1)), int(rng.integers(0, side - pw + 1))
-            if sr + ph <= r0 or sr >= r1 or sc + pw <= c0 or sc >= c1:
-                search[r0:r1, c0:c1] = search[sr:sr + ph, sc:sc + pw]
-                return
-        search[r0:r1, c0:c1] = np.median(search.reshape(-1, 3), axis=0).astype(np.uint8)
-
-
-#: Template target box (cx, cy, w, h crop fractions): centred, half the crop's side (context
-#: factor 2, ``crop.context_side``).
-_TEMPLATE_BOX = np.array([0.5, 0.5, 0.5, 0.5], np.float32)
-#: OpenCV demosaicing codes, per Bayer layout, for bilinear, VNG and edge-aware interpolation
-#: (OpenCV names a layout by its second row, so ``BayerBG2BGR`` gives RGB order for an RGGB
-#: sensor: the codes below map the layout of the top-left 2 x 2 cell to RGB output).
-_DEMOSAIC_CODES = tuple(
-    {cell: getattr(cv2, f"COLOR_Bayer{cell[:2]}2BGR{suffix}") for cell in ("RG", "BG", "GR", "GB")}
-    for suffix in ("", "_VNG", "_EA"))
-_BAYER_CELLS = {"RG": "RGGB", "BG": "BGGR", "GR": "GRBG", "GB": "GBRG"}
-
-
-def _procedural_texture(rng: np.random.Generator, side: int) -> NDArray[np.float32]:
-    """A (side, side) texture in about [-1, 1]: value noise, stripes, a checkerboard, thin grid
-    lines or speckle, at a random scale and angle (none of the rotor's held-out families is
-    drawn exactly: the checkerboard here is rotated and at crop scale)."""
-    kind = int(rng.integers(5))
-    yy, xx = np.mgrid[0:side, 0:side].astype(np.float32)
-    ang = rng.uniform(0.0, np.pi)
-    u = xx * np.cos(ang) + yy * np.sin(ang)
-    v = -xx * np.sin(ang) + yy * np.cos(ang)
-    period = float(np.exp(rng.uniform(np.log(3.0), np.log(40.0))))
-    if kind == 0:
-        n = max(2, int(side / period) + 2)
-        small = rng.uniform(-1.0, 1.0, (n, n)).astype(np.float32)
-        return cv2.resize(small, (side, side), interpolation=cv2.INTER_CUBIC)
-    if kind == 1:
-        return np.sin(2 * np.pi * u / period).astype(np.float32)
-    if kind == 2:
-        return np.sign(np.sin(np.pi * u / period) * np.sin(np.pi * v / period)).astype(np.float32)
-    if kind == 3:
-        d = np.minimum(np.abs((u % period) - period / 2), np.abs((v % period) - period / 2))
-        return np.where(d > period / 2 - 1.0, -1.0, 0.0).astype(np.float32)
-    return np.where(rng.uniform(size=(side, side)) < rng.uniform(0.02, 0.2), -1.0,
-                    0.0).astype(np.float32)
-
-
-def _ellipse_mask(side: int, box: NDArray[np.float32], grow: float) -> NDArray[np.float32]:
-    """1 inside the ellipse inscribed in ``box`` (crop fractions) grown ``grow`` times, else 0."""
-    yy, xx = (np.mgrid[0:side, 0:side].astype(np.float32) + 0.5) / side
-    cx, cy, w, h = (float(v) for v in box)
-    r = ((xx - cx) / max(w * grow / 2, 1e-3)) ** 2 + ((yy - cy) / max(h * grow / 2, 1e-3)) ** 2
-    return (r <= 1.0).astype(np.float32)
-
-
-def _mosaic_demosaic(lin: NDArray[np.float32], layout: str, algo: int, full_well: float,
-                     read_dn: float, rng: np.random.Generator) -> NDArray[np.float32]:
-    """Linear light (H, W, 3) in [0, 1] through a Bayer sensor (``layout``: top-left 2 x 2 cell),
-    with shot noise (``full_well`` electrons per unit) and read noise (``read_dn`` DN at 8
-    bits), 8-bit raw, OpenCV demosaicing; returns linear light again."""
-    h, w = lin.shape[:2]
-    cell = _BAYER_CELLS[layout]
-    raw = np.empty((h, w), np.float32)
-    for k, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
-        raw[dy::2, dx::2] = lin[dy::2, dx::2, "RGB".index(cell[k])]
-    raw = np.clip(raw, 0.0, None)
-    raw = raw + rng.normal(size=raw.shape).astype(np.float32) * np.sqrt(raw / full_well)
-    enc = np.clip(raw, 0.0, None) ** (1 / 2.2) * 255.0
-    enc += rng.normal(0.0, read_dn, enc.shape).astype(np.float32)
-    bayer = np.clip(np.rint(enc), 0, 255).astype(np.uint8)
-    rgb = cv2.cvtColor(bayer, _DEMOSAIC_CODES[algo][layout]).astype(np.float32) / 255.0
-    return rgb**2.2
-
-
-def appearance_jitter(
-    template: NDArray[np.uint8], search: NDArray[np.uint8], box: NDArray[np.float32],
-    rng: np.random.Generator,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-    """A new look for a crop pair (uint8 RGB crops; ``box`` the search target, cx, cy, w, h
-    crop fractions): the camera and scene changes that a renderer of another kind brings,
-    drawn once per pair and shared by template and search, noise and compression per crop.
-
-    Our choices, wide on purpose: a texture (``_procedural_texture``, contrast 0.1-0.5)
-    multiplied onto everything but the targets (50 %); a glossy highlight on the target
-    (15 %); a disc of random colour and size, or a few thin lines, beside the target (25 %);
-    the crops taken as linear light (value ^ 2.2) with a colour matrix (crosstalk ±10 %),
-    white balance ±15 %, gain 0.5-1.6, saturation 0.6-1.4 and a smooth illumination field
-    (a ramp and a falloff about a random centre losing up to 50 %); in 60 % a Bayer sensor
-    (``_mosaic_demosaic``: random layout, bilinear, VNG or edge-aware demosaicing, full well
-    200-2000, read noise 0.5-4 DN); an output gamma 1.6-2.8; Gaussian blur (sigma 0.3-1.2 px,
-    25 %) and JPEG at quality 30-95 (50 %)."""
-    u = rng.uniform
-    crops = [template.astype(np.float32), search.astype(np.float32)]
-    boxes = [_TEMPLATE_BOX, np.asarray(box, np.float32)]
-    if u() < 0.5:
-        contrast = u(0.1, 0.5)
-        for i, (c, b) in enumerate(zip(crops, boxes, strict=True)):
-            side = c.shape[0]
-            tex = _procedural_texture(np.random.default_rng(rng.integers(1 << 31)), side)
-            keep = _ellipse_mask(side, b, 1.2)
-            crops[i] = c * (1.0 + contrast * tex * (1.0 - keep))[..., None]
-    if u() < 0.15:
-        for i, (c, b) in enumerate(zip(crops, boxes, strict=True)):
-            side = c.shape[0]
-            yy, xx = np.mgrid[0:side, 0:side].astype(np.float32)
-            cx, cy = (b[:2] + u(-0.3, 0.3, 2) * b[2:]) * side
-            sig = max(float(np.mean(b[2:])) * side * u(0.08, 0.25), 0.7)
-            blob = np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * sig * sig))
-            crops[i] = c + 255.0 * u(0.3, 1.0) * blob[..., None]
-    if u() < 0.25:
-        c, b = crops[1], boxes[1]
-        side = c.shape[0]
-        size = float(np.mean(b[2:])) * side
-        ang = u(0.0, 2 * np.pi)
-        centre = b[:2] * side + u(1.2, 3.0) * size * np.array([np.cos(ang), np.sin(ang)])
-        colour = tuple(float(x) for x in u(0, 255, 3))
-        if u() < 0.5:
-            cv2.circle(c, tuple(int(round(x * 16)) for x in centre),
-                       int(round(0.5 * size * u(0.5, 1.5) * 16)), colour, -1, cv2.LINE_AA, 4)
-        else:
-            for _ in range(int(rng.integers(1, 4))):
-                p0, p1 = u(0, side, 2), u(0, side, 2)
-                cv2.line(c, tuple(int(round(x * 16)) for x in p0),
-                         tuple(int(round(x * 16)) for x in p1), colour, 1, cv2.LINE_AA, 4)
-    cross = rng.normal(0.0, 0.05, (3, 3)).astype(np.float32)
-    np.fill_diagonal(cross, 0.0)
-    cm = np.eye(3, dtype=np.float32) + cross - np.diag(cross.sum(axis=1))
-    wb = u(0.85, 1.15, 3).astype(np.float32) * np.float32(u(0.5, 1.6))
-    sat = np.float32(u(0.6, 1.4))
-    bayer = u() < 0.6
-    layout = ("RG", "BG", "GR", "GB")[int(rng.integers(4))]
-    algo, full_well = int(rng.integers(3)), float(np.exp(u(np.log(200.0), np.log(2000.0))))
-    read_dn, gamma = u(0.5, 4.0), u(1.6, 2.8)
-    ramp, falloff = u(-0.3, 0.3, 2), u(0.0, 0.5)
-    centre = u(0.2, 0.8, 2)
-    out = []
-    for c in crops:
-        side = c.shape[0]
-        lin = (np.clip(c, 0.0, 255.0) / 255.0) ** 2.2 @ cm.T * wb
-        grey = lin.mean(axis=2, keepdims=True)
-        lin = grey + sat * (lin - grey)
-        yy, xx = (np.mgrid[0:side, 0:side].astype(np.float32) + 0.5) / side
-        field = (1.0 + ramp[0] * (xx - 0.5) + ramp[1] * (yy - 0.5)) * (
-            1.0 - falloff * np.clip(((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2) * 2.0, 0, 1))
-        lin = np.clip(lin * field[..., None], 0.0, None)
-        if bayer:
-            lin = _mosaic_demosaic(lin, layout, algo, full_well, read_dn, rng)
-        else:
-            lin = lin + rng.normal(0.0, read_dn / 255.0, lin.shape).astype(np.float32)
-        enc = np.clip(lin, 0.0, 1.0) ** (1.0 / gamma) * 255.0
-        if u() < 0.25:
-            enc = cv2.GaussianBlur(enc, (0, 0), u(0.3, 1.2))
-        img = np.clip(np.rint(enc), 0, 255).astype(np.uint8)
-        out.append(jpeg_roundtrip(img, int(rng.integers(30, 96)) if u() < 0.5 else None))
-    return out[0], out[1]
-
-
 class CropPairs:
     """A cache written by ``generate_cache``, read memory-mapped.
 
@@ -747,7 +460,7 @@ class CropPairs:
         if not meta_path.is_file() or not json.loads(meta_path.read_text()).get("complete"):
             raise FileNotFoundError(
                 f"no complete crop-pair cache in {self.folder}; generate it with "
-                f"python -m observer.transt.data --out {self.folder}"
+                f"python -m observer.transt.training.data --out {self.folder}"
             )
         self.meta = json.loads(meta_path.read_text())
         self.template = np.load(self.folder / "template.npy", mmap_mode="r")
@@ -781,10 +494,10 @@ class CropPairs:
         if rng is not None:
             ks = rng.integers(0, 8, size=len(idx))
             for i, k in enumerate(ks):
-                t[i] = _dihedral(t[i], int(k))
-                s[i] = _dihedral(s[i], int(k))
-                box[i] = _dihedral_box(box[i], int(k))
-                centre[i] = _dihedral_box(centre[i], int(k))
+                t[i] = dihedral_image(t[i], int(k))
+                s[i] = dihedral_image(s[i], int(k))
+                box[i] = dihedral_box(box[i], int(k))
+                centre[i] = dihedral_box(centre[i], int(k))
             if appearance_prob > 0:
                 for i in np.flatnonzero(rng.uniform(size=len(idx)) < appearance_prob):
                     t[i], s[i] = appearance_jitter(t[i], s[i], box[i], rng)
@@ -820,6 +533,8 @@ def preview(folder: str | Path, path: str | Path, n: int = 8) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """The command ``python -m observer.transt.training.data``: render a crop-pair cache (and
+    optionally a PNG preview) from the options in ``argv`` (default: the command line)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/transt_cache/train", help="cache folder")
     ap.add_argument("--pairs", type=int, default=8000, help="number of crop pairs")
