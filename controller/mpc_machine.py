@@ -4,16 +4,17 @@
 from Python, with only the derivatives compiled (``controller.codegen``). Here the whole
 solver is written out as C by CasADi (``CodeGenerator`` of the ``nlpsol``: the SQP loop, the
 line search, the Gauss-Newton Hessian, HPIPM's interface) together with the prediction's RK4
-chunk (``_Problem.rk4_chunk``), compiled once into a shared library (cached on disk by
+chunk (``MPCProblem.rk4_chunk``), compiled once into a shared library (cached on disk by
 ``controller.codegen.compiled_library``, linked to the HPIPM and BLASFEO libraries that ship
 with CasADi) and called without Python: ``call_casadi`` is a numba intrinsic that calls a
 generated function through its address, with CasADi's calling convention
 ``f(const double** arg, double** res, casadi_int* iw, double* w, int mem)``.
 
-The NLP is the one of ``_Problem`` with its shooting steps as calls of one function (the form
-of its compiled Jacobian, ``_Problem._compile``), with the same solver options, so a solve is
+The NLP is the one of ``controller.mpc_problem.MPCProblem``, its shooting steps as calls of one
+function (the form of its compiled Jacobian, ``MPCProblem._compile``), with the same solver
+options, so a solve is
 the event loop's solve to rounding (tests/test_compiled_mpc.py: the same iterate to 1e-9 on
-cold and warm starts). Its cost's weights (``_Problem.weights``: the bandwidth rule's q_θ, q_ω,
+cold and warm starts). Its cost's weights (``MPCProblem.weights``: the bandwidth rule's q_θ, q_ω,
 r, the terminal P_i, the tilt slack's ρ1, ρ2) are parameters appended to the NLP's, and the
 torque limit and the tilt limit enter through the bounds, which are inputs already: one machine
 code serves every MPC that differs only in ``WEIGHT_FIELDS`` (a co-design varies the bandwidth
@@ -121,14 +122,14 @@ class MachineMPC:
 
 
 def weight_values(problem) -> NDArray[np.float64]:
-    """The weights of ``problem`` (``_Problem.weights``) as the machine code's extra parameters:
+    """The weights of ``problem`` (``MPCProblem.weights``) as the machine code's extra parameters:
     q_θ (3), q_ω (3), r, P_1..P_3 (each 2 x 2 column by column), ρ1, ρ2."""
     Qth, Qw, r, P, rho1, rho2 = problem.weights()
     return np.concatenate([Qth, Qw, [r], *(np.ravel(Pi, order="F") for Pi in P), [rho1, rho2]])
 
 
 def machine_mpc(problem) -> MachineMPC | None:
-    """The machine code of ``problem`` (a ``controller.mpc._Problem`` with the SQP + HPIPM
+    """The machine code of ``problem`` (a ``MPCProblem`` with the SQP + HPIPM
     solver and the Gauss-Newton Hessian), built once per process for all problems that differ
     only in ``WEIGHT_FIELDS`` (their weights are parameters: ``weight_values``); None without
     a C compiler or when compiling fails (a warning says why)."""
