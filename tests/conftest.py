@@ -22,6 +22,8 @@ In parallel (pytest-xdist, ``make test``: ``-n 2``):
   for the compiled run loop); numba's cache index is also not safe against two processes
   saving different signatures of one function at the same time. With a warm cache the two
   processes only load it.
+- torch runs one thread in each worker (``OMP_NUM_THREADS``, and after collection): with two
+  workers on two cores, more threads only wait for each other.
 """
 
 import os
@@ -37,6 +39,8 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when OpenBLAS loads (and by workers)
+if os.environ.get("PYTEST_XDIST_WORKER"):  # two workers already keep both cores busy
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch's threads, here and in subprocesses
 
 from hypothesis import settings  # noqa: E402
 
@@ -88,9 +92,14 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """In an xdist worker, after collecting: wait for the warm-up to finish."""
+    """In an xdist worker, after collecting: torch on one thread (a test module may have set
+    more when it was imported), then wait for the warm-up to finish."""
+    if not hasattr(session.config, "workerinput"):
+        return
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
     folder = os.environ.get(_WARM_UP_ENV)
-    if not folder or not hasattr(session.config, "workerinput"):
+    if not folder:
         return
     deadline = time.monotonic() + _WARM_UP_WAIT_S
     while not (Path(folder) / "done").exists() and time.monotonic() < deadline:
