@@ -26,9 +26,11 @@ In parallel (pytest-xdist, ``make test``: ``-n 2``):
   workers on two cores, more threads only wait for each other.
 """
 
+import contextlib
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -81,13 +83,13 @@ def _is_xdist_controller(config: pytest.Config) -> bool:
 def pytest_sessionstart(session: pytest.Session) -> None:
     """In the xdist controller, before the workers start: start the warm-up."""
     config = session.config
-    if not _is_xdist_controller(config):
+    if not _is_xdist_controller(config) or config.option.collectonly:
         return
     folder = Path(tempfile.mkdtemp(prefix="pmspm-warm-up-"))
     (folder / "scenario.yaml").write_text(_WARM_UP_SCENARIO)
     config.stash[_warm_up_key] = (folder, subprocess.Popen(
         [sys.executable, "-c", _WARM_UP, str(folder)], cwd=config.rootpath,
-        stdin=subprocess.DEVNULL))
+        stdin=subprocess.DEVNULL, start_new_session=True))  # its own group: see sessionfinish
     os.environ[_WARM_UP_ENV] = str(folder)  # the workers inherit it
 
 
@@ -107,13 +109,15 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
-    """In the xdist controller: end the warm-up if it still runs, remove its folder."""
+    """In the xdist controller: end the warm-up if it still runs (its process group: the
+    runs it started too), remove its folder."""
     started = session.config.stash.get(_warm_up_key, None)
     if started is None:
         return
     folder, process = started
     if process.poll() is None:
-        process.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     shutil.rmtree(folder, ignore_errors=True)
 
