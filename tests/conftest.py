@@ -22,8 +22,9 @@ In parallel (pytest-xdist, ``make test``: ``-n 2``):
   for the compiled run loop); numba's cache index is also not safe against two processes
   saving different signatures of one function at the same time. With a warm cache the two
   processes only load it.
-- torch runs one thread in each worker (``OMP_NUM_THREADS``, and after collection): with two
-  workers on two cores, more threads only wait for each other.
+- torch, OpenCV and Mesa's software renderer run one thread in each worker (set before they
+  load, or after collection): with two workers on two cores, more threads only wait for each
+  other.
 """
 
 import contextlib
@@ -43,6 +44,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read when OpenBLAS loads (and by workers)
 if os.environ.get("PYTEST_XDIST_WORKER"):  # two workers already keep both cores busy
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch's threads, here and in subprocesses
+    os.environ.setdefault("LP_NUM_THREADS", "1")  # Mesa llvmpipe's (MuJoCo's EGL rendering)
 
 from hypothesis import settings  # noqa: E402
 
@@ -100,6 +102,8 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         return
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
+    if "cv2" in sys.modules:
+        sys.modules["cv2"].setNumThreads(1)
     folder = os.environ.get(_WARM_UP_ENV)
     if not folder:
         return
