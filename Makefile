@@ -18,9 +18,11 @@ $(STAMP): pyproject.toml
 study: $(STAMP)
 	$(BIN)/pmspm study
 
+# Two workers (pytest-xdist; tests/conftest.py keeps a module's shared fixtures in one worker
+# and compiles the numba kernels once before the workers start).
 test: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2
 
 # Every test marked slow (pyproject deselects them from `make test`): the claims that take
 # minutes (pruning safety, the search against the seed's design, the image-mode runs).

@@ -42,7 +42,6 @@ from tqdm import tqdm
 from latency.frontends import ImageFrontEnd
 from latency.loop import ClosedLoop
 from latency.loop_config import LoopResult
-from observer.transt.service import shared_services
 
 Spec = TypeVar("Spec")
 
@@ -79,6 +78,10 @@ def run_batch(loops: Sequence[ClosedLoop], max_network_batch: int = MAX_NETWORK_
     a run is raised here after the others have finished."""
     for lp in loops:
         check_image_loop(lp)
+    # imported here: the network services bring in torch, which only image runs need (and
+    # every sweep worker would otherwise import, about 2 s a process)
+    from observer.transt.service import shared_services
+
     results: list[LoopResult | BaseException | None] = [None] * len(loops)
     services = shared_services()
 

@@ -273,15 +273,20 @@ def _step_pass(t, q, q_ref, torque, stop, settle_band_deg, steady_window_s, step
     return out
 
 
+def _own(x: NDArray, dtype: type) -> NDArray:
+    """A writable C-contiguous copy of ``x`` as ``dtype``: the compiled passes then see one
+    array type (numba compiles, and caches, one machine code per layout and read-only flag)."""
+    return np.array(x, dtype=dtype, order="C")
+
+
 def step_values(t: NDArray, q: NDArray, q_ref: NDArray, torque_delivered: NDArray,
                 tilt_stop: NDArray, step_metrics: bool = True) -> dict[str, float]:
     """The per-step metrics of a run (``_STEP_VALUES``) from its steps as arrays: times (n,),
     s, attitudes and references (n, 4), delivered torques (n, 3), N·m, tilt-stop flags (n,).
     ``step_metrics``: the reference is piecewise constant (steps), so the step metrics are
     defined; False gives them as NaN."""
-    values = _step_pass(np.asarray(t, dtype=float), np.asarray(q, dtype=float),
-                        np.asarray(q_ref, dtype=float), np.asarray(torque_delivered, dtype=float),
-                        np.asarray(tilt_stop, dtype=bool), SETTLE_BAND_DEG,
+    values = _step_pass(_own(t, float), _own(q, float), _own(q_ref, float),
+                        _own(torque_delivered, float), _own(tilt_stop, bool), SETTLE_BAND_DEG,
                         STEADY_STATE_WINDOW_S, bool(step_metrics), LOC_LATE_FRACTION)
     return dict(zip(_STEP_VALUES, values.tolist(), strict=True))
 
@@ -411,9 +416,8 @@ def frame_values(t_exposure: NDArray, dropped: NDArray, lost: NDArray, latency: 
     ``_frame_pass``; the last step's time ``t_end``, s); None for a run without frames."""
     if not len(t_exposure):
         return None
-    values = _frame_pass(np.asarray(t_exposure, dtype=float), np.asarray(dropped, dtype=bool),
-                         np.asarray(lost, dtype=bool), np.asarray(latency, dtype=float),
-                         float(t_end))
+    values = _frame_pass(_own(t_exposure, float), _own(dropped, bool), _own(lost, bool),
+                         _own(latency, float), float(t_end))
     return dict(zip(_FRAME_VALUES, values, strict=True))
 
 

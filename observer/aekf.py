@@ -30,6 +30,7 @@ the others; then λ stays at 1 and the AEKF behaves as the EKF.
 from __future__ import annotations
 
 import bisect
+import functools
 from collections import deque
 from dataclasses import dataclass
 
@@ -111,6 +112,28 @@ class UpdateResult:
     n_points: int = 0  # observations used by ``update_points`` (0 for ``update``)
 
 
+@functools.lru_cache(maxsize=16)
+def _model_functions(p: PlantParams) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """The filter's CasADi functions on the plant ``p`` (``_rk4_symbolic``,
+    ``_pixels_symbolic``, ``_point_symbolic``): built once per process and plant (building
+    them takes about a third of a second) and shared by its filters (they hold no state)."""
+    return _rk4_symbolic(p), _pixels_symbolic(p), _point_symbolic(p)
+
+
+def _rk4_symbolic(p: PlantParams) -> ca.Function:
+    """(x (7), T (3), h) -> (x after one RK4 step of h s with the stator-frame torque T (N·m)
+    held, the quaternion renormalised; its Jacobian d x1 / d x)."""
+    twin = CasadiTwin(p)
+    x, T, h = ca.SX.sym("x", 7), ca.SX.sym("T", 3), ca.SX.sym("h")
+    k1 = twin.f_torque(x, T)
+    k2 = twin.f_torque(x + h / 2 * k1, T)
+    k3 = twin.f_torque(x + h / 2 * k2, T)
+    k4 = twin.f_torque(x + h * k3, T)
+    x1 = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x1 = ca.vertcat(x1[:4] / ca.norm_2(x1[:4]), x1[4:])
+    return ca.Function("rk4", [x, T, h], [x1, ca.jacobian(x1, x)])
+
+
 def _pixels_symbolic(p: PlantParams) -> ca.Function:
     """q (4) -> marker pixels (2N,) in sensor px, pinhole + OpenCV distortion (k1 k2 p1 p2 k3)."""
     cam = Camera.from_plant(p)
@@ -187,17 +210,7 @@ class QuaternionAEKF:
     ) -> None:
         self.params = params or PlantParams()
         self.config = config or AEKFConfig()
-        twin = CasadiTwin(self.params)
-        x, T, h = ca.SX.sym("x", 7), ca.SX.sym("T", 3), ca.SX.sym("h")
-        k1 = twin.f_torque(x, T)
-        k2 = twin.f_torque(x + h / 2 * k1, T)
-        k3 = twin.f_torque(x + h / 2 * k2, T)
-        k4 = twin.f_torque(x + h * k3, T)
-        x1 = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        x1 = ca.vertcat(x1[:4] / ca.norm_2(x1[:4]), x1[4:])
-        self._rk4 = ca.Function("rk4", [x, T, h], [x1, ca.jacobian(x1, x)])
-        self._h = _pixels_symbolic(self.params)
-        self._h_point = _point_symbolic(self.params)
+        self._rk4, self._h, self._h_point = _model_functions(self.params)
         self._h_point_maps: dict[int, ca.Function] = {}
         #: (sum of squared innovations, number of components) of the last N point updates.
         self._point_window: deque[tuple[float, int]] = deque(maxlen=self.config.window_N)

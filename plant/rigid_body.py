@@ -561,8 +561,9 @@ class RigidBody:
         omega = np.ascontiguousarray(omega, dtype=float)
         currents = np.ascontiguousarray(currents, dtype=float)
         B = q.shape[0]
+        # writable in both branches (a broadcast view is read-only): one compiled signature
         hb = (np.full(B, h, dtype=float) if np.ndim(h) == 0
-              else np.ascontiguousarray(np.broadcast_to(np.asarray(h, dtype=float), (B,))))
+              else np.array(np.broadcast_to(np.asarray(h, dtype=float), (B,))))
         d = np.zeros((B, 3)) if disturbance is None else np.array(  # a writable copy: one
             np.broadcast_to(disturbance, omega.shape), dtype=float)  # compiled signature
         q_new, w_new, self.evaluations = _step_rows_counted(

@@ -11,6 +11,7 @@ analysis has none).
 
 import control as ct
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from controller.pid import PIDConfig, PIDController
@@ -33,6 +34,7 @@ Q_DIST = 1e-6  # (N·m)^2 s
 PROCESSING_S = (4e-3, 9e-3, 14e-3)
 
 
+@pytest.mark.slow  # 20 runs of 14 s on the lockstep engine (the disturbance): 20 s of CPU
 def test_stationary_cost_matches_the_simulated_loop():
     pid = PIDController(PIDConfig(crossover_rad_s=10.0), P)
     J, b = float(pid.J[1]), P.rotor.viscous_Nms_per_rad

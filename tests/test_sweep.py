@@ -228,7 +228,7 @@ if os.environ.get("SWEEP_TEST_GATE"):
 @pytest.mark.parametrize("backend", [["--scheduler", "local"], []], ids=["dask", "pool"])
 def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     spec = tmp_path / "spec.yaml"
-    spec.write_text("base: {duration_s: 1.0, observer: {kind: solver}}\n"
+    spec.write_text("base: {duration_s: 0.3, observer: {kind: solver}}\n"
                     "grid: {seed: [0, 1, 2, 3, 4, 5, 6, 7]}\n")
     out, gate, site = tmp_path / "out", tmp_path / "gate", tmp_path / "site"
     gate.mkdir()

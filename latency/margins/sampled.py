@@ -45,14 +45,31 @@ def sampled_plant(plant: ct.LTI, period_s: float, delay_s: float = 0.0) -> ct.St
     _check_delay(delay_s)
     if period_s <= 0.0 or not np.isfinite(period_s):
         raise ValueError(f"period_s must be > 0, got {period_s}")
+    A, B, C = _continuous_matrices(plant)
+    return ct.ss(*_sampled_matrices(A, B, C, float(period_s), delay_s), float(period_s))
+
+
+def _continuous_matrices(
+    plant: ct.LTI,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """(A, B, C) of a continuous, strictly proper plant (ValueError otherwise)."""
     if plant.isdtime(strict=True):
         raise ValueError("plant must be continuous")
     sys = ct.ss(plant)
     A, B, C, D = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (sys.A, sys.B, sys.C, sys.D))
     if np.any(D != 0.0):
         raise ValueError("plant must be strictly proper (D = 0)")
+    return A, B, C
+
+
+def _sampled_matrices(
+    A: NDArray[np.float64], B: NDArray[np.float64], C: NDArray[np.float64], T: float,
+    delay_s: float,
+) -> tuple[NDArray[np.float64], ...]:
+    """(Ad, Bd, Cd, Dd) of :func:`sampled_plant` for the continuous (A, B, C), period T (s)
+    and delay (s)."""
+    _check_delay(delay_s)
     n, nu = B.shape
-    T = float(period_s)
     m = int(math.floor(delay_s / T + 1e-12))
     frac = delay_s - m * T
     if frac < 1e-12 * T:
@@ -80,7 +97,7 @@ def sampled_plant(plant: ct.LTI, period_s: float, delay_s: float = 0.0) -> ct.St
     for i in range(1, d):
         Ad[slot(i + 1), slot(i)] = np.eye(nu)
     Cd = np.hstack([C, np.zeros((C.shape[0], d * nu))])
-    return ct.ss(Ad, Bd, Cd, np.zeros((C.shape[0], nu)), T)
+    return Ad, Bd, Cd, np.zeros((C.shape[0], nu))
 
 
 def sampled_loop(
@@ -95,30 +112,51 @@ def sampled_loop(
     ``P_d`` is :func:`sampled_plant` at the controller's sample time. A continuous ``observer``
     is placed in series with the plant before sampling; a discrete one must share ``dt``.
     """
-    if not isinstance(controller, ct.LTI) or not controller.isdtime(strict=True):
-        raise ValueError("controller must be discrete (python-control LTI with dt > 0)")
-    if controller.dt is True:
-        raise ValueError("controller has an unspecified sample time (dt=True)")
-    T = float(controller.dt)
-    cont_plant = plant
-    parts = [ct.ss(controller)]
-    if observer is not None:
-        if observer.isdtime(strict=True):
-            if not math.isclose(float(observer.dt), T, rel_tol=1e-9):
-                raise ValueError("observer and controller sample times differ")
-            parts.append(ct.ss(observer))
-        else:
-            cont_plant = ct.series(plant, observer)
-    Pd = sampled_plant(cont_plant, T, delay_s)
-    L = Pd
-    for p in parts:
-        L = ct.series(L, p)
-    return L
+    loop = _SampledLoop(plant, controller, observer)
+    return ct.ss(*loop.matrices(delay_s), loop.T)
 
 
-def _spectral_radius_closed(L: ct.StateSpace) -> float:
-    cl = ct.feedback(L, 1)
-    return float(np.max(np.abs(np.linalg.eigvals(np.atleast_2d(cl.A)))))
+class _SampledLoop:
+    """The loop of :func:`sampled_loop` as matrices at any delay: the plant (with a continuous
+    observer in series) and the discrete parts (the controller, then a discrete observer) are
+    converted to state space once, so a scan over the delay only samples the plant again and
+    chains the parts (series: ``A = [[A1, 0], [B2 C1, A2]]``, ``B = [B1; B2 D1]``,
+    ``C = [D2 C1, C2]``, ``D = D2 D1``)."""
+
+    def __init__(self, plant: ct.LTI, controller: ct.LTI, observer: ct.LTI | None) -> None:
+        if not isinstance(controller, ct.LTI) or not controller.isdtime(strict=True):
+            raise ValueError("controller must be discrete (python-control LTI with dt > 0)")
+        if controller.dt is True:
+            raise ValueError("controller has an unspecified sample time (dt=True)")
+        #: The sample time, s (the controller's).
+        self.T = float(controller.dt)
+        cont_plant = plant
+        parts = [controller]
+        if observer is not None:
+            if observer.isdtime(strict=True):
+                if not math.isclose(float(observer.dt), self.T, rel_tol=1e-9):
+                    raise ValueError("observer and controller sample times differ")
+                parts.append(observer)
+            else:
+                cont_plant = ct.series(plant, observer)
+        self.plant = _continuous_matrices(cont_plant)
+        self.parts = [tuple(np.atleast_2d(np.asarray(M, dtype=float))
+                            for M in (s.A, s.B, s.C, s.D)) for s in map(ct.ss, parts)]
+
+    def matrices(self, delay_s: float) -> tuple[NDArray[np.float64], ...]:
+        """(A, B, C, D) of ``L_d`` at the delay ``delay_s`` (s)."""
+        A, B, C, D = _sampled_matrices(*self.plant, self.T, delay_s)
+        for A2, B2, C2, D2 in self.parts:
+            A = np.block([[A, np.zeros((A.shape[0], A2.shape[0]))], [B2 @ C, A2]])
+            B, C, D = np.vstack([B, B2 @ D]), np.hstack([D2 @ C, C2]), D2 @ D
+        return A, B, C, D
+
+    def radius(self, delay_s: float) -> float:
+        """Spectral radius of the closed loop (unit negative feedback, ``A - B (I + D)^-1 C``)
+        at the delay ``delay_s`` (s)."""
+        A, B, C, D = self.matrices(delay_s)
+        A_cl = A - B @ np.linalg.solve(np.eye(D.shape[0]) + D, C)
+        return float(np.max(np.abs(np.linalg.eigvals(A_cl))))
 
 
 def sampled_spectral_radius(
@@ -127,8 +165,7 @@ def sampled_spectral_radius(
     """Spectral radius of the closed loop of :func:`sampled_loop` (the largest closed-loop
     eigenvalue magnitude): below 1 the loop is stable; its slowest mode (the fastest growing
     one, above 1) scales by this factor per sample."""
-    L = sampled_loop(plant, controller, delay_s=delay_s, observer=observer)
-    return _spectral_radius_closed(L)
+    return _SampledLoop(plant, controller, observer).radius(delay_s)
 
 
 def sampled_stable(
@@ -162,8 +199,9 @@ def sampled_margins(
         Scan limit for the delay margin (s); default ``max(20 T, 4 x the phase estimate)``.
         ``inf`` is reported if the loop is still stable there.
     """
-    L = sampled_loop(plant, controller, delay_s=delay_s, observer=observer)
-    T = float(L.dt)
+    loop = _SampledLoop(plant, controller, observer)
+    L = ct.ss(*loop.matrices(delay_s), loop.T)
+    T = loop.T
     cl_poles = np.linalg.eigvals(np.atleast_2d(ct.feedback(L, 1).A))
     rho = float(np.max(np.abs(cl_poles)))
     Z = int(np.sum(np.abs(cl_poles) >= 1.0 - 1e-10))
@@ -183,7 +221,7 @@ def sampled_margins(
     conf = f"closed-loop eigenvalues of the sampled loop: spectral radius {rho:.6f}"
     dm = None
     if stable:
-        dm = _delay_margin(plant, controller, delay_s, observer, cr, T, max_extra_delay_s)
+        dm = _delay_margin(loop, delay_s, cr, max_extra_delay_s)
     return margins_from_crossings(
         cr, stable=stable, unstable_poles=Z, delay_s=float(delay_s), formulation="sampled",
         confirmation=conf, delay_margin_s=dm,
@@ -191,12 +229,12 @@ def sampled_margins(
 
 
 def _delay_margin(
-    plant: ct.LTI, controller: ct.LTI, delay_s: float, observer: ct.LTI | None, cr: _Crossings,
-    T: float, max_extra_delay_s: float | None,
+    loop: _SampledLoop, delay_s: float, cr: _Crossings, max_extra_delay_s: float | None
 ) -> float:
     """Extra delay (s) at which the sampled loop's spectral radius first reaches 1: a scan in
     steps of ``T/16`` up to ``max_extra_delay_s`` (default ``max(20 T, 4 x`` the phase
     estimate of the crossings``)``), then bisection to 1e-9 T; ``inf`` if none."""
+    T = loop.T
     est = min(
         ((p % (2 * np.pi)) / x for p, x in zip(cr.pm, cr.wc, strict=True)), default=math.inf
     )
@@ -205,8 +243,7 @@ def _delay_margin(
         limit = max(20 * T, 4 * est) if np.isfinite(est) else 20 * T
 
     def rho_at(extra: float) -> float:
-        Lx = sampled_loop(plant, controller, delay_s=delay_s + extra, observer=observer)
-        return _spectral_radius_closed(Lx)
+        return loop.radius(delay_s + extra)
 
     step = T / 16
     prev = 0.0
