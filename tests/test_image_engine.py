@@ -49,7 +49,7 @@ def test_batched_image_runs_equal_the_event_loop_run_by_run() -> None:
 
 def test_engine_refuses_measured_latencies_and_measurement_runs() -> None:
     with pytest.raises(ValueError, match="model latencies"):
-        run_images(build_loop, [_scenario("kcf", 0, observer_latency="measured")], workers=1)
+        run_images(build_loop, [_scenario("kcf_gk", 0, observer_latency="measured")], workers=1)
     meas = Scenario.model_validate({"duration_s": 0.3})
     with pytest.raises(ValueError, match="image-mode"):
         run_images(build_loop, [meas], workers=1)
