@@ -36,7 +36,7 @@ from latency.loss_model import (
     prediction_offset_px,
 )
 from observer.orb import OrbConfig, OrbMeasurement, OrbReference
-from observer.trackers import TRACKERS, make_pair_tracker
+from observer.trackers import make_pair_tracker
 from observer.tracking import PairTracker, attitude_input
 from plant.camera import marker_pixels, sensor_to_image
 from plant.camera_mode import RegionOfInterest
@@ -516,7 +516,7 @@ def _measurement(s: Any, renderer: Any, observer: Any, clock: Callable[[], float
 def _image(s: Any, renderer: Any, observer: Any, clock: Callable[[], float]) -> FrontEnd:
     """``ImageFrontEnd`` with the scenario's tracker (``observer.trackers.TRACKERS``) timed by
     ``clock``, reading the region of interest ``measurement.roi``."""
-    tracker = TRACKERS.get(s.tracker).build(s.plant, clock=clock)
+    tracker = make_pair_tracker(s.tracker, s.plant, clock=clock)
     return ImageFrontEnd(s.plant, renderer, tracker, roi=s.measurement.roi)
 
 

@@ -306,7 +306,8 @@ def make_pair_tracker(
     clock: Callable[[], float] | None = None,
     **kwargs: Any,
 ) -> MarkerPairTracker:
-    """Build a pair tracker by name (one of ``PAIR_TRACKERS``).
+    """Build a pair tracker by name (one of ``PAIR_TRACKERS``; the builders are those of
+    ``observer.trackers.registry.TRACKERS``).
 
     ``refine`` defaults to True for the GK trackers (the GK assistance refines its centres) and
     False for the others (the seed's baselines report the tracker's box centre).
@@ -316,50 +317,10 @@ def make_pair_tracker(
     the Kalman prediction when it stands in. ``clock`` (default ``time.perf_counter``) times
     each ``step``. Extra keyword arguments go to the tracker's constructor.
     """
-    tracker = _build_pair_tracker(name, params, refine, transt_factory, **kwargs)
+    tracker = TRACKERS.get(name).build(params, refine, transt_factory, **kwargs)
     if clock is not None:
         tracker.clock = clock
     return tracker
-
-
-def _build_pair_tracker(
-    name: str,
-    params: PlantParams | None,
-    refine: bool | None,
-    transt_factory: Any,
-    **kwargs: Any,
-) -> MarkerPairTracker:
-    """The pair tracker ``name`` (see ``make_pair_tracker``), with the default clock."""
-    from observer.opencv_trackers import OpenCVTracker
-    from observer.trackers.dual import IndependentPairTracker
-    from observer.trackers.gk_transt import GKTransTPairTracker
-
-    name = TRACKERS.canonical(name)
-    if name in ("gk_transt", "dual_transt") and transt_factory is None:
-        from observer.transt.tracker import TransTTracker
-
-        transt_factory = TransTTracker.small
-    gk_refine = True if refine is None else refine
-    if name == "gk_transt":
-        return GKTransTPairTracker(transt_factory(), params, refine=gk_refine, **kwargs)
-    if name in ("kcf_gk", "csrt_gk"):
-        return GKTransTPairTracker(OpenCVTracker(name[:-3]), params,  # type: ignore[arg-type]
-                                   refine=gk_refine, guide_search=False,
-                                   restart_on_prediction=True, name=name, **kwargs)
-    r = False if refine is None else refine
-    if name == "dual_transt":
-        return IndependentPairTracker(transt_factory, params, refine=r, name=name, **kwargs)
-    if name in ("kcf", "csrt"):
-        return IndependentPairTracker(lambda: OpenCVTracker(name), params, refine=r, name=name,
-                                      **kwargs)
-    if name == "kcf_numpy":
-        from observer.trackers.kcf_numpy import NumpyKCF
-
-        return IndependentPairTracker(NumpyKCF, params, refine=r, name=name, **kwargs)
-    from observer.trackers.k2cf import K2CF
-
-    kwargs.setdefault("coast_on_bad_frames", True)
-    return IndependentPairTracker(K2CF, params, refine=r, name=name, **kwargs)
 
 
 def __getattr__(attr: str) -> Any:
