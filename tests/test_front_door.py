@@ -29,8 +29,8 @@ def test_the_readme_example_runs_through_the_front_door():
     assert len(blocks) == 1 and "from latency import Scenario, simulate" in blocks[0]
     namespace: dict = {}
     exec(compile(blocks[0], "README.md", "exec"), namespace)  # noqa: S102 - our own README
-    assert len(namespace["runs"]) == 8
-    assert namespace["runs"][0].summary["duration_s"] == 3.0
+    assert len(namespace["runs"]) == 4
+    assert namespace["runs"][0].summary["duration_s"] == 2.0
 
 
 def test_the_readme_and_notebooks_use_only_the_front_door():
