@@ -173,7 +173,10 @@ def _alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("scheduler", [None, "local"], ids=["pool", "dask"])
+# The Dask variants start a LocalCluster (about 15 s each on two cores): they run in the slow
+# lane; the process pool's variants, and the Dask tables check above, stay in the fast suite.
+@pytest.mark.parametrize("scheduler", [None, pytest.param("local", marks=pytest.mark.slow)],
+                         ids=["pool", "dask"])
 def test_sigkill_of_the_sweep_process_leaves_no_workers(tmp_path, scheduler):
     code = (
         "from experiments.sweep import run_sweep; "
@@ -225,7 +228,9 @@ if os.environ.get("SWEEP_TEST_GATE"):
 """
 
 
-@pytest.mark.parametrize("backend", [["--scheduler", "local"], []], ids=["dask", "pool"])
+@pytest.mark.parametrize("backend", [pytest.param(["--scheduler", "local"],
+                                                  marks=pytest.mark.slow), []],
+                         ids=["dask", "pool"])
 def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     spec = tmp_path / "spec.yaml"
     spec.write_text("base: {duration_s: 0.3, observer: {kind: solver}}\n"
