@@ -53,8 +53,8 @@ def parts_markdown(families: tuple[Registry, ...] = FAMILIES) -> str:
         lines += [f"## {r.family}", "", f"{r.description[0].upper()}{r.description[1:]}. "
                   f"A scenario selects one with `{r.selected_by}`; builders: "
                   f"`{r.build_signature}`.", ""]
-        if r.as_dict()["renamed"]:
-            renamed = ", ".join(f"`{a}` → `{b}`" for a, b in r.as_dict()["renamed"].items())
+        if r.renamed():
+            renamed = ", ".join(f"`{a}` → `{b}`" for a, b in r.renamed().items())
             lines += [f"Former names, accepted with a warning: {renamed}.", ""]
         lines += ["| name | what it is | options |", "|---|---|---|"]
         lines += [f"| `{p.name}` | {_cell(p.summary)} | {len(p.options())} |" for p in r]

@@ -85,6 +85,11 @@ def event_only_reason(s: Scenario) -> str | None:
     return None
 
 
+def _batchable_image_runs(scenarios: Sequence[Scenario]) -> int:
+    """How many of ``scenarios`` are image runs the batched image engine can take."""
+    return sum(s.mode == "image" and event_only_reason(s) is None for s in scenarios)
+
+
 def choose_engine(s: Scenario, engine: Engine = "auto", n_image_runs: int = 1
                   ) -> tuple[Literal["batched", "event"], str]:
     """The engine that runs ``s`` and why, for ``engine`` and a call with ``n_image_runs``
@@ -102,10 +107,11 @@ def choose_engine(s: Scenario, engine: Engine = "auto", n_image_runs: int = 1
                        else "image runs advance together, their network calls batched")
 
 
-def describe_path(s: Scenario, engine: Engine = "auto") -> str:
-    """Which engine and, on the batched engine, which path computes ``s``, with the reason
-    when it is not the compiled run loop (``latency.compiled.coverage``), in words."""
-    e, why = choose_engine(s, engine)
+def describe_path(s: Scenario, engine: Engine = "auto", n_image_runs: int = 1) -> str:
+    """Which engine and, on the batched engine, which path computes ``s`` in a call with
+    ``n_image_runs`` image runs, with the reason when it is not the compiled run loop
+    (``latency.compiled.coverage``), in words."""
+    e, why = choose_engine(s, engine, n_image_runs)
     if e == "event":
         return f"engine: event loop ({why})"
     if s.mode == "image":
@@ -114,6 +120,21 @@ def describe_path(s: Scenario, engine: Engine = "auto") -> str:
     if cov.path == "compiled":
         return "engine: batched, compiled run loop"
     return f"engine: batched, not the compiled run loop ({cov.reason})"
+
+
+def describe_paths(scenarios: Sequence[Scenario], engine: Engine = "auto") -> dict[str, int]:
+    """``describe_path`` of every scenario, with its number of runs. The path does not depend
+    on a run's seed, name, reference or duration, so one loop is built per group of scenarios
+    that differ only there (building an MPC costs about 0.3 s; a sweep has thousands of runs)."""
+    n_image = _batchable_image_runs(scenarios)
+    paths: dict[str, int] = {}
+    described: dict[str, str] = {}
+    for s in scenarios:
+        key = s.model_dump_json(exclude={"seed", "name", "reference", "duration_s"})
+        if key not in described:
+            described[key] = describe_path(s, engine, n_image)
+        paths[described[key]] = paths.get(described[key], 0) + 1
+    return paths
 
 
 def simulate(scenario: Scenario, engine: Engine = "auto", progress: bool = False) -> LoopResult:
@@ -136,7 +157,7 @@ def simulate_many(scenarios: Sequence[Scenario], engine: Engine = "auto",
     tables : False returns results without their steps, frames and events tables where the
         batched engine can skip them (only the summaries are wanted).
     """
-    n_image = sum(s.mode == "image" and event_only_reason(s) is None for s in scenarios)
+    n_image = _batchable_image_runs(scenarios)
     choices = [choose_engine(s, engine, n_image) for s in scenarios]
     for reason in sorted({why for e, why in choices if e == "event" and engine == "auto"}):
         _log.info("event loop: %s", reason)

@@ -139,6 +139,10 @@ class Registry:
             raise ValueError(f"{self.family} {new!r} is not registered")
         self._renamed[old] = new
 
+    def renamed(self) -> dict[str, str]:
+        """Former names and the current names they stand for."""
+        return dict(self._renamed)
+
     def names(self) -> tuple[str, ...]:
         """The registered names, in registration order."""
         return tuple(self._parts)
@@ -177,7 +181,7 @@ class Registry:
             "description": self.description,
             "build_signature": self.build_signature,
             "selected_by": self.selected_by,
-            "renamed": dict(self._renamed),
+            "renamed": self.renamed(),
             "parts": [
                 {"name": p.name, "summary": p.summary,
                  "settings": p.settings.__name__ if p.settings else None,

@@ -69,3 +69,20 @@ def test_simulate_is_simulate_many_of_one_and_equals_the_event_loop():
     assert auto.summary["rms_error_deg"] == pytest.approx(event.summary["rms_error_deg"],
                                                           rel=1e-9)
     assert auto.summary["rms_error_deg"] > 0.0
+
+
+def test_describe_paths_counts_runs_and_builds_one_loop_per_group(monkeypatch):
+    """A sweep's paths: every run counted, one loop built per group of runs that differ only
+    in seed, name, reference or duration; several image runs go to the batched image engine."""
+    import latency.simulation as sim
+
+    built = []
+    real = sim.describe_path
+    monkeypatch.setattr(sim, "describe_path", lambda *a: built.append(a[0]) or real(*a))
+    solver = {"kind": "solver"}
+    runs = [Scenario(seed=k, duration_s=0.3 + k, observer=solver) for k in range(3)]
+    runs += [Scenario(seed=k, controller={"kind": "mpc"}, observer=solver) for k in range(2)]
+    runs += [Scenario(seed=k, mode="image") for k in range(2)]
+    paths = sim.describe_paths(runs)
+    assert len(built) == 3
+    assert paths == {"engine: batched, compiled run loop": 5, "engine: batched image engine": 2}

@@ -6,7 +6,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-from collections import Counter
 from pathlib import Path
 from typing import Annotated
 
@@ -295,7 +294,7 @@ def sweep(
     """
     from experiments.sweep import SchedulerUnreachable, run_sweep, sweep_id
     from latency import Scenario
-    from latency.simulation import choose_engine, describe_path
+    from latency.simulation import choose_engine, describe_paths
 
     _check_workers_and_scheduler(workers, scheduler)
     data = _load_yaml(spec)
@@ -316,8 +315,7 @@ def sweep(
             _config_error(exc, f"{spec} (run {i + 1} of {len(configs)})")
     for reason in dict.fromkeys(r for s in scenarios for r in s.reach_warnings()):
         _warn(reason)
-    paths = Counter(describe_path(s, engine.value) for s in scenarios)
-    for path, n in paths.items():
+    for path, n in describe_paths(scenarios, engine.value).items():
         typer.echo(f"{path}: {n} run{'s' if n > 1 else ''}")
     _writable_folder(out)
     try:
