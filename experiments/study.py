@@ -90,9 +90,11 @@ from plant.params import PlantParams
 OBSERVER_MODES: tuple[PipelineMode, ...] = ("sequential", "pipelined")
 
 
-def _vision_delays_ms() -> list[float]:
-    """The margin tables' vision delays: 0-60 ms by 1 ms and the seed's two latencies."""
-    return np.linspace(0.0, 60.0, 61).tolist() + [GK_MS, DUAL_MS]
+def _vision_delays_ms(step_ms: float = 1.0) -> list[float]:
+    """The margin tables' vision delays, ms: 0-60 ms by ``step_ms`` (the last step shorter
+    where 60 is not a multiple) and the seed's two latencies."""
+    grid = np.arange(0.0, 60.0, step_ms).tolist() + [60.0]
+    return grid + [GK_MS, DUAL_MS]
 
 
 def loop_timing_for(
@@ -169,7 +171,7 @@ def margins_table(
     pipeline (the update period of a sequential observer grows with the delay)."""
     rows = []
     for mode in modes:
-        delays = _vision_delays_ms()
+        delays = _vision_delays_ms(cfg.margin_step_ms)
         stable_at = _pid_stable_at(params, cfg.crossover_rad_s, mode)
         head = _headroom_column([d / 1e3 for d in delays], stable_at)
         for d_ms, h in zip(delays, head, strict=True):
@@ -246,7 +248,7 @@ def mpc_margins_table(
     rows = []
     for mode in OBSERVER_MODES:
         for aware in (True, False):
-            delays = _vision_delays_ms()
+            delays = _vision_delays_ms(cfg.margin_step_ms)
             head = _headroom_column([d / 1e3 for d in delays], loop.stable_at(mode, aware))
             for d_ms, h in zip(delays, head, strict=True):
                 t = loop_timing_for(params, d_ms / 1e3, mode, loop.compute_s)

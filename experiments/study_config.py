@@ -128,6 +128,12 @@ class StudyConfig(BaseModel):
     latency_frames: int = Field(
         30, ge=5, description="Frames per tracker for the latencies measured here."
     )
+    margin_step_ms: float = Field(
+        1.0, gt=0.0, le=30.0,
+        description="Step of the margin tables' vision-delay grid from 0 to 60 ms, ms (the "
+        "seed's two latencies are always in it). Our choice: 1 ms, fine enough for the curves "
+        "to show each crossover's jumps.",
+    )
     workers: int | None = None
     scheduler: str | None = None
     engine: Engine = Field(

@@ -14,14 +14,19 @@ In parallel (pytest-xdist, ``make test``: ``-n 2``):
 - The tests of a module with a module- or class-scoped fixture run in one worker
   (``pytest_xdist_make_scheduler``), so such a fixture (the quick study, the engines' grid) is
   computed once, not once per worker; the other tests are shared out one by one.
-- Before the workers run a test, the numba kernels of both engines are compiled into the disk
-  cache by one process each (``_WARM_UP``: a short run of each engine through the command
-  line), started when the session starts, so that they compile while the workers start and
-  collect. Without it, on a fresh clone every worker, and every sweep worker or notebook
-  kernel a test starts meanwhile, would compile the same kernels at once (a minute of CPU each
-  for the compiled run loop); numba's cache index is also not safe against two processes
-  saving different signatures of one function at the same time. With a warm cache the two
-  processes only load it.
+- The numba kernels of both engines are compiled into the disk cache by one process each
+  (``_WARM_UP``: a short run of each engine through the command line), started when the session
+  starts. Without it, on a fresh clone every worker, and every sweep worker or notebook kernel a
+  test starts meanwhile, would compile the same kernels at once (a minute and a half of CPU for
+  the batched engine's run loop alone); numba's cache index is also not safe against two
+  processes saving different signatures of one function at the same time.
+- The workers do not wait for the warm-up before they start; they wait only where they would
+  otherwise compile what it is compiling. A worker about to compile (or load) a numba function
+  first waits for the warm-up process that compiles its module (``_wait_before_compiling``:
+  ``latency.compiled``'s for the batched one, any other for the event loop's), then loads it
+  from the cache. Tests marked ``engine`` (they run the compiled engines, in process or in
+  processes they start) go after all the others and wait for the whole warm-up before they
+  begin, so the workers run the other tests while the engines compile.
 - torch, OpenCV and Mesa's software renderer run one thread in each worker (set before they
   load, or after collection): with two workers on two cores, more threads only wait for each
   other.
@@ -55,31 +60,44 @@ settings.load_profile("no_deadline")
 _WARM_UP_ENV = "PMSPM_TEST_WARM_UP"
 #: A short run of the measurement model (long enough to pass the scenario's checks).
 _WARM_UP_SCENARIO = "duration_s: 0.3\nobserver: {kind: solver}\n"
+#: The warm-up's engines; ``<engine>.done`` appears in the warm-up's folder when its run ends.
+_ENGINES = ("batched", "event")
 #: Run in a process of its own with the warm-up folder as argument: one short run per engine
-#: through the command line, side by side, then the file ``done``.
+#: through the command line, side by side; each writes ``<engine>.done`` when it ends.
 _WARM_UP = """
-import subprocess, sys
+import subprocess, sys, time
 from pathlib import Path
 folder = Path(sys.argv[1])
-runs = [subprocess.Popen([sys.executable, "-m", "experiments.cli", "simulate",
-                          str(folder / "scenario.yaml"), "--engine", engine,
-                          "--out", str(folder / engine)],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        for engine in ("batched", "event")]
-for run in runs:
-    run.wait()
-(folder / "done").touch()
+runs = {engine: subprocess.Popen([sys.executable, "-m", "experiments.cli", "simulate",
+                                  str(folder / "scenario.yaml"), "--engine", engine,
+                                  "--out", str(folder / engine)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for engine in sys.argv[2:]}
+while runs:
+    for engine, run in list(runs.items()):
+        if run.poll() is not None:
+            (folder / f"{engine}.done").touch()
+            del runs[engine]
+    time.sleep(0.1)
 """
 #: How long a worker waits for the warm-up at most, s: a guard against a hung warm-up (the
 #: tests then compile what they need themselves).
 _WARM_UP_WAIT_S = 900.0
 #: The controller's warm-up: its folder and process.
 _warm_up_key = pytest.StashKey[tuple[Path, subprocess.Popen]]()
+#: The warm-up's engines known to be done in this process.
+_done: set[str] = set()
 
 
 def _is_xdist_controller(config: pytest.Config) -> bool:
     return bool(getattr(config.option, "numprocesses", None)) and not hasattr(
         config, "workerinput")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "engine: runs the compiled engines (in process or in processes it starts); "
+        "scheduled after the other tests, it waits for the engines' warm-up")
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
@@ -90,26 +108,60 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     folder = Path(tempfile.mkdtemp(prefix="pmspm-warm-up-"))
     (folder / "scenario.yaml").write_text(_WARM_UP_SCENARIO)
     config.stash[_warm_up_key] = (folder, subprocess.Popen(
-        [sys.executable, "-c", _WARM_UP, str(folder)], cwd=config.rootpath,
+        [sys.executable, "-c", _WARM_UP, str(folder), *_ENGINES], cwd=config.rootpath,
         stdin=subprocess.DEVNULL, start_new_session=True))  # its own group: see sessionfinish
     os.environ[_WARM_UP_ENV] = str(folder)  # the workers inherit it
 
 
+def _wait_for_warm_up(*engines: str) -> None:
+    """Return once the warm-up's runs of ``engines`` have ended (at once without a warm-up,
+    e.g. without xdist; at most ``_WARM_UP_WAIT_S``)."""
+    folder = os.environ.get(_WARM_UP_ENV)
+    waiting = [e for e in engines if e not in _done]
+    if not folder or not waiting:
+        return
+    deadline = time.monotonic() + _WARM_UP_WAIT_S
+    while not all((Path(folder) / f"{e}.done").exists() for e in waiting):
+        if time.monotonic() > deadline:
+            return
+        time.sleep(0.1)
+    _done.update(waiting)
+
+
+def _wait_before_compiling() -> None:
+    """Make numba's dispatchers wait for the warm-up that compiles their module before they
+    compile or load a signature (``Dispatcher.compile``: the first call of a signature in a
+    process), so that a worker loads what the warm-up compiles instead of compiling it too."""
+    from numba.core.dispatcher import Dispatcher
+
+    compile_now = Dispatcher.compile
+
+    def compile_after_warm_up(self: Dispatcher, sig: object) -> object:
+        module = getattr(self.py_func, "__module__", "") or ""
+        _wait_for_warm_up("batched" if module.startswith("latency.compiled") else "event")
+        return compile_now(self, sig)
+
+    Dispatcher.compile = compile_after_warm_up
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """In an xdist worker, after collecting: torch on one thread (a test module may have set
-    more when it was imported), then wait for the warm-up to finish."""
+    """In an xdist worker, after collecting: torch and OpenCV on one thread (a test module may
+    have set more when it was imported), numba's compilations after the warm-up's."""
     if not hasattr(session.config, "workerinput"):
         return
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     if "cv2" in sys.modules:
         sys.modules["cv2"].setNumThreads(1)
-    folder = os.environ.get(_WARM_UP_ENV)
-    if not folder:
-        return
-    deadline = time.monotonic() + _WARM_UP_WAIT_S
-    while not (Path(folder) / "done").exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
+    if os.environ.get(_WARM_UP_ENV):
+        _wait_before_compiling()
+
+
+@pytest.fixture(autouse=True)
+def _engines_compiled(request: pytest.FixtureRequest) -> None:
+    """A test marked ``engine`` starts once both engines are in numba's cache."""
+    if request.node.get_closest_marker("engine") is not None:
+        _wait_for_warm_up(*_ENGINES)
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
@@ -130,18 +182,43 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 _SHARED_FIXTURE = re.compile(r"""scope\s*=\s*["'](module|class|package)["']""")
 
 
+def _shared_modules(root: Path) -> set[str]:
+    """The test modules (paths relative to ``root``) with a shared fixture in their source."""
+    return {path.relative_to(root).as_posix() for path in (root / "tests").rglob("test_*.py")
+            if _SHARED_FIXTURE.search(path.read_text())}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The order in which the workers take the tests: those not marked ``engine`` first, and
+    in each part the modules with a shared fixture first, those with the most tests first
+    (xdist's ``loadscope`` order, kept in one piece), then the other tests as collected."""
+    shared = _shared_modules(config.rootpath)
+    module_of = {id(it): it.nodeid.split("::", 1)[0] for it in items}
+    size: dict[str, int] = {}
+    for it in items:
+        size[module_of[id(it)]] = size.get(module_of[id(it)], 0) + 1
+    first = {it.nodeid: k for k, it in enumerate(items)}
+
+    def order(it: pytest.Item) -> tuple:
+        module = module_of[id(it)]
+        in_one_piece = module in shared
+        return (it.get_closest_marker("engine") is not None, not in_one_piece,
+                -size[module] if in_one_piece else 0, module if in_one_piece else "",
+                first[it.nodeid])
+
+    items.sort(key=order)
+
+
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     """The workers' schedule: a test module with a shared fixture (module, class or package
-    scope, found in its source) is one unit of work, every other test is a unit of its own;
-    the modules go first, those with the most tests first (xdist's ``loadscope`` order).
+    scope, found in its source) is one unit of work, every other test is a unit of its own,
+    taken in the order of ``pytest_collection_modifyitems``.
     (xdist's ``loadgroup`` would do this with markers, but it names the groups in the test ids,
     which pytest 9 no longer lets a plugin change.)"""
     from xdist.scheduler import LoadScopeScheduling
 
-    root = config.rootpath
-    shared = {path.relative_to(root).as_posix()
-              for path in (root / "tests").rglob("test_*.py")
-              if _SHARED_FIXTURE.search(path.read_text())}
+    shared = _shared_modules(config.rootpath)
+    config.option.loadscopereorder = False  # the collection's order, not xdist's
 
     class ModulesWithSharedFixtures(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:

@@ -12,6 +12,8 @@ from latency.batched import run_batched
 from latency.metrics import SETTLE_BAND_DEG
 from plant import attitude as A
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 QUAT = ["qw", "qx", "qy", "qz"]
 
 

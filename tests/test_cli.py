@@ -11,6 +11,8 @@ from typer.testing import CliRunner
 
 from experiments.cli import _expand, app
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 RUNNER = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def quick_study(tmp_path_factory):
     out = tmp_path_factory.mktemp("study")
-    result = RUNNER.invoke(app, ["study", "--quick", "--out", str(out), "--workers", "2"])
+    result = RUNNER.invoke(app, ["study", "--quick", "--out", str(out), "--workers", "1"])
     assert result.exit_code == 0, result.output
     (folder,) = out.iterdir()
     return folder
@@ -96,7 +98,9 @@ def test_report_numbers_match_the_parquet_tables(quick_study):
 def test_jitter_margin_never_exceeds_the_delay_margin_on_the_study_grid(quick_study):
     margins = pd.read_parquet(quick_study / "margins.parquet")
     stable = margins[margins.stable]
-    assert len(stable) > 100 and stable.jitter_margin_s.notna().all()
+    # the quick study's grid: 0-60 ms by 5 ms and the seed's two latencies, both observers;
+    # all but the sequential observer's 60 ms are stable
+    assert len(stable) >= 25 and stable.jitter_margin_s.notna().all()
     assert (stable.jitter_margin_s <= stable.delay_margin_s).all()
 
 

@@ -16,6 +16,8 @@ from typer.testing import CliRunner
 
 from experiments.cli import app
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 RUNNER = CliRunner()
 
 

@@ -27,6 +27,8 @@ from plant.camera import marker_pixels
 from plant.camera_mode import CameraMode, RegionOfInterest, SensorTiming
 from plant.params import PlantParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 # --------------------------------------------------------------------------------------------
 # The camera mode
 # --------------------------------------------------------------------------------------------

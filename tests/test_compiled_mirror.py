@@ -66,6 +66,8 @@ from plant.params import PlantParams
 from plant.rigid_body import PAIR_REUSE_RAD, _pair_lists, tilt_stop_contact
 from plant.torque import N_COILS, TorqueMap, allocate
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 ROOT = Path(__file__).resolve().parents[1]
 EPS = np.finfo(float).eps
 PARAMS = PlantParams()

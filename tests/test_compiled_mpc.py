@@ -16,7 +16,8 @@ from latency.mpc_law import _Hold
 from plant import attitude as A
 from plant.params import PlantParams
 
-pytestmark = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler")
+pytestmark = [pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler"),
+              pytest.mark.engine]  # runs the compiled engines
 
 QUAT = ["qw", "qx", "qy", "qz"]
 

@@ -13,6 +13,8 @@ import pytest
 from latency import Scenario, simulate, simulate_many
 from latency.simulation import choose_engine
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Ways to run a loop other than the front door.
 BACK_DOORS = re.compile(r"build_loop|ClosedLoop|run_batched|run_images|experiments\.scenario")

@@ -93,7 +93,7 @@ def test_the_studys_table_and_summary_match_the_derivation(derived, monkeypatch)
     and 0 ms, and the summary's first finding written from it, against the derivation: the
     table to 1e-3, the summary's printed figures equal to the derived ones at the printed
     precision. The table is restricted to those rows (the study's 0-60 ms grid only adds rows)."""
-    monkeypatch.setattr(study, "_vision_delays_ms", lambda: [0.0, GK_MS, DUAL_MS])
+    monkeypatch.setattr(study, "_vision_delays_ms", lambda _step_ms: [0.0, GK_MS, DUAL_MS])
     table = study.margins_table(P, study_config.StudyConfig())
     n = 0
     for (mode, d_ms), want in derived.items():

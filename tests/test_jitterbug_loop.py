@@ -28,6 +28,8 @@ from observer.cor_solver import CorSolver
 from observer.pixel_observer import SolverObserver
 from plant.params import PlantParams, RotorParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 P = PlantParams(rotor=RotorParams(coulomb_Nm=0.0), camera={"frame_rate_hz": 40.0})
 T = 1.0 / 40.0
 Q_DIST = 1e-6  # (N·m)^2 s

@@ -22,6 +22,8 @@ from latency.loss_model import (
 )
 from plant.params import PlantParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 
 def _file(tracker: str = "kcf_gk", hazard=(-3.0, 0.8, 0.3), persistence=(1.0, -0.2, 0.1, -0.4),
           **kw) -> LossModelFile:

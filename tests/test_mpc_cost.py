@@ -18,6 +18,8 @@ from latency import Scenario, simulate
 from plant import attitude as A
 from plant.params import PlantParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 PARAMS = PlantParams()
 needs_cc = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler")
 

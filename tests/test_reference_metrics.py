@@ -13,6 +13,8 @@ from latency import Scenario, simulate
 from latency.metrics import summarize
 from tests.test_loss_of_control import H, _frames, _steps
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 STEP_KEYS = ("overshoot_pct", "settling_time_s", "step_size_deg", "steady_state_error_deg")
 
 

@@ -13,6 +13,8 @@ from experiments.study_config import GK_MS
 from latency import Scenario, simulate
 from plant import attitude
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 T_STEP_S = 0.1
 STEP_DEG = 5.0
 

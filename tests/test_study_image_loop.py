@@ -22,6 +22,8 @@ from experiments.study_sweep import (
 from latency import Scenario
 from plant.params import PlantParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 
 @pytest.fixture()
 def models(tmp_path, monkeypatch):

@@ -17,6 +17,8 @@ from experiments.study_sweep import FIXED_REFERENCE_SEED, sweep_configs, tidy_sw
 from experiments.sweep import _flatten
 from latency import Scenario
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 CFG = dict(n_seeds=4, delays_ms=(16.33,), max_rates_rad_s=(3.0,), duration_s=1.0)
 
 

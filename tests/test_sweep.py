@@ -17,6 +17,8 @@ import pytest
 from experiments.sweep import run_id, run_sweep, sweep_id, table
 from latency.simulation import run_summary
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 TARGET = "latency.simulation:run_summary"
 
 

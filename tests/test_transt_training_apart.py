@@ -1,28 +1,39 @@
-"""The TransT training code stays out of the runtime: importing the tracker or the trackers'
-package loads no module of ``observer.transt.training``."""
+"""The TransT training code stays apart: importing the tracker or the trackers' package loads no
+module of ``observer.transt.training``, and the training entry points never load the
+evaluation-only image source ``plant.render_unseen``."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: Run in a fresh interpreter: the runtime imports, then the training entry points; prints what
+#: each step has loaded.
+PROBE = """
+import json, sys
+import observer.transt.tracker, observer.transt.service, observer.transt.export
+import observer.trackers
+runtime = sorted(k for k in sys.modules if k.startswith("observer.transt.training"))
+import observer.transt.training.data, observer.transt.training.train
+print(json.dumps({"runtime": runtime,
+                  "training": sorted(k for k in sys.modules
+                                     if k.startswith("observer.transt.training")),
+                  "unseen": "plant.render_unseen" in sys.modules}))
+"""
 
-def test_runtime_imports_no_training_module():
+
+def test_runtime_imports_no_training_module_and_training_no_unseen_source():
     """A fresh interpreter that imports ``observer.transt.tracker`` and ``observer.trackers``
     (and so the network, service, export, backbone, fusion, crop and weights modules) has no
-    ``observer.transt.training`` module in ``sys.modules``; the control run, which imports the
-    training package itself, shows that the check would see one."""
-    probe = ("import sys, {m}; "
-             "print(sorted(k for k in sys.modules if k.startswith('observer.transt.training')))")
-    env = {"PYTHONPATH": str(ROOT), "PATH": ""}
-
-    def loaded(modules: str) -> str:
-        return subprocess.run([sys.executable, "-c", probe.format(m=modules)], cwd=ROOT,
-                              capture_output=True, text=True, check=True, env=env).stdout.strip()
-
-    runtime = loaded("observer.transt.tracker, observer.transt.service, observer.transt.export, "
-                     "observer.trackers")
-    control = loaded("observer.transt.training.losses")
-    assert runtime == "[]", f"runtime imports load training modules: {runtime}"
-    assert "observer.transt.training.losses" in control, control
+    ``observer.transt.training`` module in ``sys.modules``; once it imports the training entry
+    points it has them (the control: the check would see one), and still not
+    ``plant.render_unseen`` (directly or through another module)."""
+    out = subprocess.run([sys.executable, "-c", PROBE], cwd=ROOT, capture_output=True,
+                         text=True, check=True, env={"PYTHONPATH": str(ROOT), "PATH": ""})
+    loaded = json.loads(out.stdout)
+    assert loaded["runtime"] == [], f"runtime imports load training modules: {loaded['runtime']}"
+    assert {"observer.transt.training.data", "observer.transt.training.train"} <= set(
+        loaded["training"]), loaded["training"]
+    assert loaded["unseen"] is False

@@ -20,6 +20,8 @@ from latency.pipeline import PipelineConfig
 from observer.gk.pixel_kalman import PixelKalman, PixelKalmanConfig
 from plant.params import PlantParams
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 TINY = tuning.TuningObjective(
     duration_s=0.3,
     seeds=(0,),

@@ -28,6 +28,8 @@ from experiments.tuning import objective as objective_module
 from experiments.tuning.objective import SEED_Q_SCALE, SEED_R_SCALE, TuningObjective
 from experiments.tuning.report import _candidates
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 #: The true noises: q/r = 0.01, a decade below the seed's 0.01 / 0.1, where the cost rises
 #: on both sides (1.7 times the least a decade away either way).
 Q_TRUE, R_TRUE = 1e-3, 0.1

@@ -15,6 +15,8 @@ from latency import Scenario
 from plant.params import PlantParams
 from plant.user_files import load_setup
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 

@@ -18,6 +18,8 @@ from experiments.study_plots import plot_sweep
 from experiments.study_sweep import controller_spec
 from latency import Scenario, simulate_many
 
+pytestmark = pytest.mark.engine  # runs the compiled engines
+
 #: Runs per controller and side of the boundary, and their length (s): the length the
 #: benchmark found needed (docs/closed_loop.md).
 N_RUNS, LENGTH_S = 6, 12.0

@@ -35,7 +35,8 @@ from latency.models import seed_latency_ms
 def study(
     out: OutOption = Path("runs"),
     quick: Annotated[bool, typer.Option(
-        help="A small study (a minute) for a smoke test: 2 delays, 2 seeds, 1.5 s runs.")] = False,
+        help="A small study (a minute) for a smoke test: 2 delays, 2 seeds, 1.5 s runs, "
+        "margins every 5 ms.")] = False,
     workers: Annotated[int | None, typer.Option(help="Local worker processes.")] = None,
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
@@ -91,7 +92,7 @@ def study(
             update={"delays_ms": (GK_MS, DUAL_MS), "max_rates_rad_s": (3.0,), "duration_s": 1.5,
                     "latency_frames": 10, "n_seeds": n_seeds or 2,
                     "image_loop_rates_rad_s": (3.0,), "image_loop_n_seeds": 1,
-                    "image_loop_duration_s": 1.5}
+                    "image_loop_duration_s": 1.5, "margin_step_ms": 5.0}
         )
     try:
         folder = run_study(out, cfg)
