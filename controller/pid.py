@@ -71,9 +71,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import control
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -83,6 +82,9 @@ from plant import attitude
 from plant.estimate import Estimate
 from plant.params import PlantParams
 from plant.torque import worst_case_capacity
+
+if TYPE_CHECKING:  # python-control (and the scipy.signal it loads, about 1.5 s) only where used
+    import control
 
 
 def limit_vector(T: NDArray[np.float64], limit: float) -> tuple[NDArray[np.float64], bool]:
@@ -145,6 +147,8 @@ class PIDGains(BaseModel):
 
     def transfer_function(self) -> control.TransferFunction:
         """C(s) as a python-control TransferFunction (continuous, filter included)."""
+        import control
+
         num = [self.Kp * self.tau_f + self.Kd, self.Kp + self.Ki * self.tau_f, self.Ki]
         return control.tf(num, [self.tau_f, 1.0, 0.0])
 
@@ -320,6 +324,8 @@ class PIDController(Controller):
         error, for the exact sampled-loop margins of ``latency.margins.sampled_margins``."""
         if not period_s > 0:
             raise ValueError(f"period_s must be positive, got {period_s}")
+        import control
+
         g, T = self.gains[axis], float(period_s)
         beta = float(np.exp(-T / g.tau_f))
         integral = control.tf([g.Ki * T], [1.0, -1.0], T)
