@@ -27,7 +27,7 @@ from observer.transt import (
     load_official_state_dict,
 )
 from observer.transt.backbone import SinePositionEncoding
-from observer.transt.crop import box_to_crop, context_side, crop_square, crop_to_box
+from observer.transt.crop import box_to_crop, context_side, crop_square, crop_to_box, normalise
 from observer.transt.tracker import hanning_window
 from observer.transt.training.losses import TransTLoss, giou, positive_cells
 from observer.transt.training.validation import (
@@ -338,6 +338,23 @@ def test_context_side_is_transt_formula() -> None:
     p = (4 - 1) * (w + h) / 2
     assert context_side((w, h), 4.0) == pytest.approx(math.sqrt((w + p) * (h + p)))
     assert context_side((20.0, 20.0), 2.0) == pytest.approx(40.0)
+
+
+def test_normalise_is_imagenet_normalisation() -> None:
+    """ImageNet normalisation ((v/255 - mean)/std per channel, channels first) written out
+    here: the lookup gives the float32 elementwise formula's bits and the float64 values to
+    float32 rounding, for a batch and for a single crop."""
+    rng = np.random.default_rng(5)
+    crops = rng.integers(0, 256, (2, 16, 24, 3)).astype(np.uint8)
+    mean, std = (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)
+    out = normalise(crops)
+    assert out.shape == (2, 3, 16, 24) and out.dtype == np.float32 and out.flags.c_contiguous
+    f32 = crops.astype(np.float32) * np.float32(1.0 / 255.0)
+    f32 = (f32 - np.float32(mean)) / np.float32(std)
+    assert np.array_equal(out, np.moveaxis(f32, -1, 1))
+    f64 = np.stack([(crops[..., c] / 255.0 - mean[c]) / std[c] for c in range(3)], axis=1)
+    np.testing.assert_allclose(out, f64, rtol=0.0, atol=1e-6)
+    assert np.array_equal(normalise(crops[1]), out[1])
 
 
 def test_crop_geometry_against_a_drawn_square() -> None:
