@@ -680,6 +680,38 @@ def test_onnx_backend_matches_eager(clean_frame) -> None:
     assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
 
 
+def test_a_smaller_search_crop_is_the_centre_of_the_trained_one(clean_frame) -> None:
+    """``search_size`` 96 of the trained 128: the search region is its centre 3/4 at the same
+    image scale, the network sees the centre 12 x 12 cells of the trained 16 x 16 position
+    encoding and window, and the boxes keep the trained region's scale (the box head's
+    fractions are of the trained-size crop). ONNX Runtime runs it like eager PyTorch."""
+    net, _ = load_weights()
+    n, m = SMALL.search_feature_size, 96 // SMALL.stride
+    full = SinePositionEncoding(SMALL.d_model // 2).encode(n, n)[0]  # (d, 16, 16)
+    want = full[:, 2:14, 2:14].reshape(SMALL.d_model, m * m).T
+    assert torch.equal(net.search_position(m, m)[0], want)
+    assert torch.equal(net.search_position(n, n)[0], full.reshape(SMALL.d_model, n * n).T)
+    out = []
+    for backend in ("eager", "onnx"):
+        trk = TransTTracker(net, backend=backend, search_size=96)
+        box = np.asarray(red_box_image(clean_frame), dtype=float)
+        trk.initialize(clean_frame.image, box)
+        res = trk.track(clean_frame.image)
+        assert trk.last.search_side_px == pytest.approx(
+            0.75 * context_side(box[2:], SMALL.search_factor))
+        out.append((res.box_image_px, res.score))
+        np.testing.assert_allclose(trk._window.reshape(m, m),
+                                   np.outer(np.hanning(n), np.hanning(n))[2:14, 2:14], atol=1e-7)
+    assert np.allclose(out[0][0], out[1][0], atol=1e-2)
+    assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
+    # the same marker, found at the trained scale: the box size within 20 % of the truth's
+    assert np.all(np.abs(out[0][0][2:] / box[2:] - 1.0) < 0.2)
+    assert np.hypot(*(out[0][0][:2] + out[0][0][2:] / 2 - box[:2] - box[2:] / 2)) < 6.0
+    for bad in (104, 136, 8, 96.0, 0):
+        with pytest.raises(ValueError, match="search_size"):
+            TransTTracker(net, search_size=bad)
+
+
 def test_small_default_backend_and_fallback(monkeypatch) -> None:
     import observer.transt.tracker as tracker_mod
 

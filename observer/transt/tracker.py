@@ -8,6 +8,12 @@ frame's mean colour outside it), ImageNet-normalises it and caches its backbone 
 1. crops the search region (context factor 4 of the current box size) around the previous box
    centre, or around ``search_centre_image_px`` when given (GK-TransT places it at the pixel
    Kalman prediction, seed 000 §3.2.1);
+
+   with ``search_size`` smaller than the configuration's (our addition, for a caller whose
+   search centre is a good prediction), only the centre of that region is cropped, at the same
+   image scale: ``search_size`` of the configuration's ``search_size`` pixels. The network then
+   sees the centre of a trained-size crop (``TransTNet.search_position``): its boxes are
+   fractions of the trained-size region, and the window is the centre of the trained one;
 2. runs the network: a target probability and a box for each of the H x W search-feature cells;
 3. adds a Hanning window to the probabilities, ``p' = (1 - w) p + w hann``, with TransT's window
    influence w = 0.49, and takes the box of the cell with the largest p';
@@ -120,12 +126,17 @@ class TransTTracker:
     window_influence : weight of the Hanning window (default: the configuration's, 0.49 as in
         TransT).
     min_box_px : smallest box side kept, image px (our choice, ``MIN_BOX_PX``).
+    search_size : side of the search crop fed to the network, px (default: the configuration's
+        ``search_size``); smaller, the centre of the usual search region at the same scale
+        (module docstring). It must differ from the configuration's by a multiple of 16 px
+        (a centred block of feature cells); ``ValueError`` otherwise.
 
     Attributes
     ----------
     compute_time_s : wall-clock time of the last ``init`` or ``track`` call, s.
     last : the ``TransTStep`` of the last ``track`` call (None before).
     centre_image_px, size_image_px : the current state (box centre and size), image px.
+    search_size : the search crop's side, px of the network input (see the module docstring).
     """
 
     def __init__(
@@ -135,6 +146,7 @@ class TransTTracker:
         window_influence: float | None = None,
         min_box_px: float = MIN_BOX_PX,
         service: NetworkService | None = None,
+        search_size: int | None = None,
     ) -> None:
         self.net = net.eval()
         self.config: TransTConfig = net.config
@@ -147,8 +159,21 @@ class TransTTracker:
         self.min_box_px = float(min_box_px)
         if service is not None and (service.net is not net or service.backend != backend):
             raise ValueError("service must run the same network in the same backend")
+        full = self.config.search_size
+        self.search_size = full if search_size is None else search_size
+        if not (isinstance(self.search_size, int) and 2 * self.config.stride <= self.search_size
+                <= full and (full - self.search_size) % (2 * self.config.stride) == 0):
+            raise ValueError(
+                f"search_size must be an int of at most {full} px whose difference from {full} "
+                f"is a multiple of {2 * self.config.stride} (a centred block of feature cells), "
+                f"got {search_size!r}")
         self._runner = _Runner(service or NetworkService(self.net, backend))
-        self._window = hanning_window(self.config.search_feature_size)
+        self._runner.service.prepare(self.search_size)
+        n, m = self.config.search_feature_size, self.search_size // self.config.stride
+        o = (n - m) // 2
+        # the centre of the trained-size window, flattened row-major like the score map
+        self._window = np.ascontiguousarray(
+            hanning_window(n).reshape(n, n)[o:o + m, o:o + m]).reshape(-1)
         self.centre_image_px: NDArray[np.float64] | None = None
         self._frame_shape: tuple[int, ...] | None = None
         self.size_image_px: NDArray[np.float64] | None = None
@@ -163,11 +188,14 @@ class TransTTracker:
         weights: str | Path = SMALL_WEIGHTS,
         backend: Backend | None = None,
         expected_sha256: str | None = None,
+        search_size: int | None = None,
     ) -> TransTTracker:
-        """The shipped ``small`` network (``weights/transt_small.pt``), SHA-256 checked.
+        """The shipped ``small`` network (``weights/transt_small.pt``), SHA-256 checked, with
+        search crops of ``search_size`` px (default: the configuration's, 128).
 
         ``backend=None`` takes ``DEFAULT_BACKEND`` (ONNX Runtime) and falls back to eager
-        PyTorch when that is unavailable; ``tracker.backend`` says which one runs.
+        PyTorch, with one warning, when that is unavailable or its session for
+        ``search_size`` cannot be built; ``tracker.backend`` says which one runs.
 
         The network is loaded and exported once per process and shared by every tracker built
         here (``observer.transt.service.shared_service``); an ``expected_sha256`` other than
@@ -178,19 +206,22 @@ class TransTTracker:
         """
         if expected_sha256 is not None:
             net, _ = load_weights(weights, expected_sha256)
-            return cls(net, backend=backend or "eager")
+            return cls(net, backend=backend or "eager", search_size=search_size)
         if backend is not None:
             service = shared_service(weights, backend)
-            return cls(service.net, backend=backend, service=service)
+            return cls(service.net, backend=backend, service=service, search_size=search_size)
         try:
             service = shared_service(weights, DEFAULT_BACKEND)
+            service.prepare(service.net.config.search_size if search_size is None
+                            else search_size)
         except WeightsError:
             raise
         except Exception as exc:  # optional ONNX packages missing or export failed
             warnings.warn(f"ONNX Runtime backend unavailable ({exc}); running eager PyTorch, "
                           "which gives the same results more slowly", stacklevel=2)
             service = shared_service(weights, "eager")
-        return cls(service.net, backend=service.backend, service=service)
+        return cls(service.net, backend=service.backend, service=service,
+                   search_size=search_size)
 
     @classmethod
     def from_config(
@@ -276,7 +307,9 @@ class TransTTracker:
         nan_box = np.full(4, np.nan)
         if self.centre_image_px is None or self.size_image_px is None:
             return nan_box, 0.0, "not initialised: call initialize first", np.full(2, np.nan), 0.0
-        side = context_side(self.size_image_px, self.config.search_factor)
+        # the trained-size search region (the boxes' unit) and the part of it cropped
+        full_side = context_side(self.size_image_px, self.config.search_factor)
+        side = full_side * self.search_size / self.config.search_size
         centre = self.centre_image_px
         # The init frame's shape is required: in a frame of another size the box and search
         # centre would be read in the wrong pixels.
@@ -302,7 +335,7 @@ class TransTTracker:
         region = frame[y0:y1, x0:x1]
         if int(region.max()) - int(region.min()) <= UNIFORM_PTP_DN:
             return nan_box, 0.0, "uniform search region (blank frame)", centre.copy(), side
-        crop = crop_square(frame, centre, side, self.config.search_size, self._pad)
+        crop = crop_square(frame, centre, side, self.search_size, self._pad)
         logits, boxes = self._runner(normalise(crop[None]))
         if not (np.all(np.isfinite(logits)) and np.all(np.isfinite(boxes))):
             return nan_box, 0.0, "network output not finite", centre.copy(), side
@@ -311,7 +344,7 @@ class TransTTracker:
         prob = e[:, 0] / e.sum(axis=1)
         w = self.window_influence
         best = int(np.argmax(prob * (1.0 - w) + self._window * w))
-        box = crop_to_box(boxes[best], centre, side)
+        box = crop_to_box(boxes[best], centre, full_side)
         c = box[:2] + box[2:] / 2.0
         c = np.clip(c, [-0.5, -0.5], [w_img - 0.5, h_img - 0.5])
         size = np.clip(box[2:], self.min_box_px, [w_img, h_img])
