@@ -26,6 +26,7 @@ from observer.gk.hsv_gate import (
     HSVRange,
     box_image_to_sensor,
     box_sensor_to_image,
+    check_frame,
 )
 from observer.gk.pixel_kalman import F_CV, H_CV, PixelKalman, PixelKalmanConfig
 from observer.gk.scale import PixelScaleEMA, ScaleEMAConfig, scale_from_camera
@@ -722,3 +723,22 @@ def test_median_rgb_is_the_lower_median_of_the_masked_pixels():
         assert got.dtype == np.float32 and got.tolist() == want.tolist(), trial
         n_checked += 1
     assert n_checked >= 50
+
+
+def test_check_frame_refuses_only_featureless_frames():
+    """A frame is featureless when all its values lie within 2 DN: black, white, grey with
+    ±1 DN of noise. One bright pixel anywhere (here in the first and the last row, away from
+    the middle row) or a dark band makes it usable."""
+    rng = np.random.default_rng(2)
+    grey = (128 + rng.integers(-1, 2, (60, 80, 3))).astype(np.uint8)
+    refused = [np.zeros((60, 80, 3), np.uint8), np.full((60, 80, 3), 255, np.uint8), grey]
+    assert all("uniform" in check_frame(f) for f in refused)
+    usable = []
+    for row, col in ((0, 5), (59, 79)):
+        f = np.zeros((60, 80, 3), np.uint8)
+        f[row, col, 1] = 3
+        usable.append(f)
+    band = np.full((60, 80, 3), 200, np.uint8)
+    band[10:12] = 20
+    usable.append(band)
+    assert [check_frame(f) for f in usable] == ["", "", ""]

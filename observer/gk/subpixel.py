@@ -299,7 +299,9 @@ def _coverage(
     inner = cv2.erode(region, _ELLIPSE3, iterations=2)
     if cv2.countNonZero(inner) < 3:
         inner = region
-    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
+    # the ring between 2 and 5 dilations (the 5 as 3 more of the 2: binary dilations compose)
+    near = cv2.dilate(region, _ELLIPSE3, iterations=2)
+    ring = cv2.dilate(near, _ELLIPSE3, iterations=3) - near
     if cv2.countNonZero(ring) < 3:
         return SubpixelResult.invalid("no background visible around the marker in the roi")
     fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
