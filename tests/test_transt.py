@@ -700,7 +700,7 @@ def test_a_smaller_search_crop_is_the_centre_of_the_trained_one(clean_frame) -> 
         assert trk.last.search_side_px == pytest.approx(
             0.75 * context_side(box[2:], SMALL.search_factor))
         out.append((res.box_image_px, res.score))
-        np.testing.assert_allclose(trk._window.reshape(m, m),
+        np.testing.assert_allclose(trk._windows[96].reshape(m, m),
                                    np.outer(np.hanning(n), np.hanning(n))[2:14, 2:14], atol=1e-7)
     assert np.allclose(out[0][0], out[1][0], atol=1e-2)
     assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
@@ -710,6 +710,16 @@ def test_a_smaller_search_crop_is_the_centre_of_the_trained_one(clean_frame) -> 
     for bad in (104, 136, 8, 96.0, 0):
         with pytest.raises(ValueError, match="search_size"):
             TransTTracker(net, search_size=bad)
+    # per frame: a usable size searches that crop, a bad one fails the frame, keeping the track
+    trk = TransTTracker(net)
+    trk.initialize(clean_frame.image, box)
+    res = trk.track(clean_frame.image, search_size=96)
+    assert res.valid and trk.last.search_side_px == pytest.approx(
+        0.75 * context_side(trk.size_image_px, SMALL.search_factor), rel=0.2)
+    before = trk.centre_image_px.copy()
+    res = trk.track(clean_frame.image, search_size=100)
+    assert not res.valid and "search_size" in res.reason
+    assert np.array_equal(trk.centre_image_px, before)
 
 
 def test_small_default_backend_and_fallback(monkeypatch) -> None:

@@ -159,21 +159,11 @@ class TransTTracker:
         self.min_box_px = float(min_box_px)
         if service is not None and (service.net is not net or service.backend != backend):
             raise ValueError("service must run the same network in the same backend")
-        full = self.config.search_size
-        self.search_size = full if search_size is None else search_size
-        if not (isinstance(self.search_size, int) and 2 * self.config.stride <= self.search_size
-                <= full and (full - self.search_size) % (2 * self.config.stride) == 0):
-            raise ValueError(
-                f"search_size must be an int of at most {full} px whose difference from {full} "
-                f"is a multiple of {2 * self.config.stride} (a centred block of feature cells), "
-                f"got {search_size!r}")
         self._runner = _Runner(service or NetworkService(self.net, backend))
-        self._runner.service.prepare(self.search_size)
-        n, m = self.config.search_feature_size, self.search_size // self.config.stride
-        o = (n - m) // 2
-        # the centre of the trained-size window, flattened row-major like the score map
-        self._window = np.ascontiguousarray(
-            hanning_window(n).reshape(n, n)[o:o + m, o:o + m]).reshape(-1)
+        #: Hanning windows by search-crop side (those ``prepare`` has made ready).
+        self._windows: dict[int, NDArray[np.float32]] = {}
+        self.search_size = self.config.search_size if search_size is None else search_size
+        self.prepare(self.search_size)
         self.centre_image_px: NDArray[np.float64] | None = None
         self._frame_shape: tuple[int, ...] | None = None
         self.size_image_px: NDArray[np.float64] | None = None
@@ -231,6 +221,32 @@ class TransTTracker:
         torch.manual_seed(seed)
         return cls(build_transt(config), backend=backend)
 
+    def _search_size_error(self, search_size: object) -> str:
+        """"" if ``search_size`` is a usable search-crop side, else why not."""
+        full, cell = self.config.search_size, self.config.stride
+        if isinstance(search_size, int) and 2 * cell <= search_size <= full \
+                and (full - search_size) % (2 * cell) == 0:
+            return ""
+        return (f"search_size must be an int of at most {full} px whose difference from {full} "
+                f"is a multiple of {2 * cell} (a centred block of feature cells), got "
+                f"{search_size!r}")
+
+    def prepare(self, search_size: int) -> None:
+        """Make search crops of ``search_size`` px ready (the backend's session of that size
+        and the window: the centre of the trained-size one), so that the first ``track`` with
+        it does not pay for them; ``ValueError`` naming ``search_size`` if it is not usable
+        (see ``__init__``)."""
+        why = self._search_size_error(search_size)
+        if why:
+            raise ValueError(why)
+        if search_size not in self._windows:
+            self._runner.service.prepare(search_size)
+            n, m = self.config.search_feature_size, search_size // self.config.stride
+            o = (n - m) // 2
+            # the centre of the trained-size window, flattened row-major like the score map
+            self._windows[search_size] = np.ascontiguousarray(
+                hanning_window(n).reshape(n, n)[o:o + m, o:o + m]).reshape(-1)
+
     # --- the seam ---------------------------------------------------------------------------------
     @property
     def initialised(self) -> bool:
@@ -282,17 +298,26 @@ class TransTTracker:
         self,
         frame_rgb: NDArray[np.uint8],
         search_centre_image_px: ArrayLike | None = None,
+        search_size: int | None = None,
     ) -> TrackResult:
         """Box (x, y, w, h), image px, and score of the target in the next frame.
 
         ``search_centre_image_px`` (2,), image px, places the search crop there instead of at
-        the previous box centre. A failure (bad frame or centre, a frame shape other than the
-        init frame's, a featureless frame or search region, non-finite network output, not
-        initialised) returns a NaN box and score 0.0 and leaves the state unchanged;
-        ``last.status`` says why.
+        the previous box centre; ``search_size`` (px, default ``self.search_size``) crops only
+        the centre of the search region for this frame (module docstring; made ready by
+        ``prepare`` on first use). A failure (bad frame, centre or search size, a frame shape
+        other than the init frame's, a featureless frame or search region, non-finite network
+        output, not initialised) returns a NaN box and score 0.0 and leaves the state
+        unchanged; ``last.status`` says why.
         """
         t0 = time.perf_counter()
-        res = self._track(frame_rgb, search_centre_image_px, t0)
+        size = self.search_size if search_size is None else search_size
+        why = self._search_size_error(size)
+        if why:
+            res = (np.full(4, np.nan), 0.0, why, np.full(2, np.nan), 0.0)
+        else:
+            self.prepare(size)
+            res = self._track(frame_rgb, search_centre_image_px, size)
         self.compute_time_s = time.perf_counter() - t0
         self.last = TransTStep(
             res[0], res[1], self.compute_time_s, res[2] == "ok", res[2], res[3], res[4]
@@ -302,14 +327,14 @@ class TransTTracker:
                            "" if ok else self.last.status, self.compute_time_s, ok)
 
     def _track(
-        self, frame: object, search_centre: ArrayLike | None, t0: float
+        self, frame: object, search_centre: ArrayLike | None, search_size: int
     ) -> tuple[NDArray[np.float64], float, str, NDArray[np.float64], float]:
         nan_box = np.full(4, np.nan)
         if self.centre_image_px is None or self.size_image_px is None:
             return nan_box, 0.0, "not initialised: call initialize first", np.full(2, np.nan), 0.0
         # the trained-size search region (the boxes' unit) and the part of it cropped
         full_side = context_side(self.size_image_px, self.config.search_factor)
-        side = full_side * self.search_size / self.config.search_size
+        side = full_side * search_size / self.config.search_size
         centre = self.centre_image_px
         # The init frame's shape is required: in a frame of another size the box and search
         # centre would be read in the wrong pixels.
@@ -335,7 +360,7 @@ class TransTTracker:
         region = frame[y0:y1, x0:x1]
         if int(region.max()) - int(region.min()) <= UNIFORM_PTP_DN:
             return nan_box, 0.0, "uniform search region (blank frame)", centre.copy(), side
-        crop = crop_square(frame, centre, side, self.search_size, self._pad)
+        crop = crop_square(frame, centre, side, search_size, self._pad)
         logits, boxes = self._runner(normalise(crop[None]))
         if not (np.all(np.isfinite(logits)) and np.all(np.isfinite(boxes))):
             return nan_box, 0.0, "network output not finite", centre.copy(), side
@@ -343,7 +368,7 @@ class TransTTracker:
         e = np.exp(z)
         prob = e[:, 0] / e.sum(axis=1)
         w = self.window_influence
-        best = int(np.argmax(prob * (1.0 - w) + self._window * w))
+        best = int(np.argmax(prob * (1.0 - w) + self._windows[search_size] * w))
         box = crop_to_box(boxes[best], centre, full_side)
         c = box[:2] + box[2:] / 2.0
         c = np.clip(c, [-0.5, -0.5], [w_img - 0.5, h_img - 0.5])
