@@ -734,3 +734,28 @@ def test_small_default_backend_and_fallback(monkeypatch) -> None:
     assert TransTTracker.small().backend == expected
     monkeypatch.setattr(tracker_mod, "DEFAULT_BACKEND", "unavailable")
     assert TransTTracker.small().backend == "eager"
+
+
+def test_a_crop_size_onnx_cannot_build_falls_back_to_eager_with_one_warning(
+        monkeypatch, clean_frame) -> None:
+    """When ONNX Runtime cannot build the session of a smaller search crop, ``small()`` runs
+    eager PyTorch and says so once; the tracker then tracks like eager PyTorch (same box to
+    float32 rounding), not silently otherwise."""
+    pytest.importorskip("onnxruntime")
+    from observer.transt.service import NetworkService
+
+    def refuse(self, search_size):
+        if self.backend == "onnx" and search_size != self.net.config.search_size:
+            raise RuntimeError("no session for this size")
+
+    monkeypatch.setattr(NetworkService, "prepare", refuse)
+    with pytest.warns(UserWarning, match="running eager PyTorch") as caught:
+        trk = TransTTracker.small(search_size=96)
+    assert len(caught) == 1 and trk.backend == "eager"
+    box = red_box_image(clean_frame)
+    trk.initialize(clean_frame.image, box)
+    got = trk.track(clean_frame.image)
+    ref = TransTTracker(load_weights()[0], backend="eager", search_size=96)
+    ref.initialize(clean_frame.image, box)
+    want = ref.track(clean_frame.image)
+    assert got.valid and np.allclose(got.box_image_px, want.box_image_px, atol=1e-4)
