@@ -37,6 +37,15 @@ training); ``--no-unseen`` leaves them out.
 Run: python benchmarks/bench_tracking.py            (about 5-10 min on two shared cores)
      python benchmarks/bench_tracking.py --seeds 1 --cases clean     (quick look)
      python benchmarks/bench_tracking.py --stand-in --no-record      (plumbing without weights)
+     python benchmarks/bench_tracking.py --profile --frames 150      (where a step's time goes)
+
+``--ort-threads N`` runs the shipped network with N ONNX Runtime intra-op threads (default 1,
+``observer.transt.export.onnx_session``); every TransT tracker of the run shares the one
+network, so GK-TransT and dual TransT stay like for like. ``--profile`` records nothing: it runs
+GK-TransT and dual TransT (box centres, and with the circle fit) over the first validation
+sequence, clean, under ``cProfile`` and prints each stage's time per frame and share of the
+step (``STAGES``; the profiler's own cost inflates the many small Python calls of the GK stage
+more than the network's one call, so read the shares, not the milliseconds).
 
 Without the TransT weights (``observer/transt/weights/transt_small.pt``) the TransT rows are
 skipped with a message; ``--stand-in`` runs GK-TransT and dual TransT with the numpy KCF in the
@@ -64,6 +73,66 @@ from experiments.sequences import ALL_CASES, CASES, HARD_CASES, HELDOUT_CASES  #
 #: Shorthands for ``--cases``.
 CASE_GROUPS = {"seed": CASES, "hard": HARD_CASES, "heldout": HELDOUT_CASES, "all": ALL_CASES}
 
+#: ``--profile``: the stages of a tracking step, each the cumulative time of the functions
+#: (path suffix, name) that do it. Nested: the circle fits run inside the trust rule and the
+#: GK step, the network inside the TransT step.
+STAGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "whole step": (("observer/trackers/__init__.py", "step"),),
+    "TransT step (crop, network, decoding)": (("observer/transt/tracker.py", "track"),),
+    "  search crop": (("observer/transt/crop.py", "crop_square"),),
+    "  normalisation": (("observer/transt/crop.py", "normalise"),),
+    "  network (backbone, fusion, heads)": (("observer/transt/service.py", "_run"),),
+    "GK trust rule (and re-detection)": (("observer/gk/trust.py", "judge"),
+                                         ("observer/gk/trust.py", "redetect")),
+    "GK step (Kalman filter, yellow marker)": (("observer/gk/assist.py", "step"),),
+    "  circle fits (trust rule, yellow, refinement)": (
+        ("observer/gk/subpixel.py", "refine_marker_centre"),),
+    "plate": (("observer/trackers/gk_transt.py", "_plate_markers"),
+              ("observer/trackers/gk_transt.py", "_plate_after")),
+    "drift check": (("observer/gk/drift.py", "check"),),
+    "frame checks": (("observer/gk/hsv_gate.py", "check_frame"),),
+}
+
+
+def stage_profile(frames: int) -> str:
+    """GK-TransT and dual TransT (box centres, and with the circle fit) over the first
+    validation sequence, clean, each profiled alone after ten warm-up frames: a markdown table
+    of each ``STAGES`` entry's time per frame (ms) and share of the whole step."""
+    import cProfile
+    import pstats
+
+    import pandas as pd
+
+    from experiments.sequences import SequenceSpec, render_sequence, validation_seeds
+    from experiments.tracking_runs import markdown_table
+    from observer.trackers import make_pair_tracker
+
+    seq = render_sequence(SequenceSpec(seed=validation_seeds(1)[0], n_frames=frames))
+    rows = {}
+    for label, (name, refine) in {"gk_transt": ("gk_transt", True),
+                                  "gk_transt_norefine": ("gk_transt", False),
+                                  "dual_transt": ("dual_transt", False),
+                                  "dual_transt_refine": ("dual_transt", True)}.items():
+        tracker = make_pair_tracker(name, refine=refine)
+        tracker.start(seq.images[0], seq.boxes_px[0], seq.binning)
+        for k in range(1, 11):
+            tracker.step(seq.images[k])
+        prof = cProfile.Profile()
+        prof.enable()
+        for k in range(11, seq.n_frames):
+            tracker.step(seq.images[k])
+        prof.disable()
+        stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+        n = seq.n_frames - 11
+        ms = {stage: 1e3 / n * sum(ct for (path, _, func), (_, _, _, ct, _) in stats.items()
+                                   if any(path.endswith(p) and func == f for p, f in keys))
+              for stage, keys in STAGES.items()}
+        rows[label] = [f"{v:.2f} ({v / ms['whole step']:.0%})" for v in ms.values()]
+    t = pd.DataFrame({"stage": list(STAGES), **rows})
+    return (f"Per-stage time per frame, ms (share of the step), {seq.n_frames - 11} frames of "
+            f"{seq.name}, under cProfile:\n\n" + markdown_table(t))
+
+
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -87,13 +156,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--torch-threads", type=int, default=1,
                     help="torch intra-op threads (default 1: on this shared 2-core machine the "
                     "small network was as fast with 1 thread and far steadier)")
+    ap.add_argument("--ort-threads", type=int, default=None,
+                    help="ONNX Runtime intra-op threads of the shipped network (default: "
+                    "PMSPM_ORT_THREADS, else 1); shared by every TransT tracker of the run")
+    ap.add_argument("--profile", action="store_true",
+                    help="print where a step's time goes, per stage (see STAGES), and exit "
+                    "without recording")
     a = ap.parse_args(argv)
+    if a.ort_threads is not None:
+        if a.ort_threads < 1:
+            ap.error(f"--ort-threads must be >= 1, got {a.ort_threads}")
+        os.environ["PMSPM_ORT_THREADS"] = str(a.ort_threads)
     try:
         import torch
 
         torch.set_num_threads(a.torch_threads)
     except ImportError:
         pass
+    if a.profile:
+        print(stage_profile(a.frames))
+        return 0
 
     cases = list(dict.fromkeys(c for name in a.cases for c in CASE_GROUPS.get(name, (name,))))
     t0 = time.perf_counter()

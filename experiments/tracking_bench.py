@@ -232,14 +232,16 @@ def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
 
 
 def _torch_note() -> str:
-    """The torch thread settings, if torch was loaded (by a TransT tracker)."""
+    """The torch and ONNX Runtime thread settings, if torch was loaded (by a TransT
+    tracker)."""
     import os
     import sys
 
     if "torch" not in sys.modules:
         return "torch not loaded"
     torch = sys.modules["torch"]
-    return (f"torch threads {torch.get_num_threads()}, OMP_WAIT_POLICY="
+    return (f"torch threads {torch.get_num_threads()}, ONNX Runtime intra-op threads "
+            f"{os.environ.get('PMSPM_ORT_THREADS', '1')} (PMSPM_ORT_THREADS), OMP_WAIT_POLICY="
             f"{os.environ.get('OMP_WAIT_POLICY')}")
 
 

@@ -26,10 +26,12 @@ from observer.gk.hsv_gate import (
     HSVRange,
     box_image_to_sensor,
     box_sensor_to_image,
+    check_frame,
 )
 from observer.gk.pixel_kalman import F_CV, H_CV, PixelKalman, PixelKalmanConfig
 from observer.gk.scale import PixelScaleEMA, ScaleEMAConfig, scale_from_camera
 from observer.gk.subpixel import (
+    _median_rgb,
     fit_circle_algebraic,
     fit_circle_geometric,
     refine_marker_centre,
@@ -703,3 +705,40 @@ def test_predicted_window_gives_the_full_search_result(
         np.testing.assert_array_equal(a.yellow_px, b.yellow_px)
         assert a.yellow_source == b.yellow_source
     assert np.mean(used) > 0.5
+
+
+def test_median_rgb_is_the_lower_median_of_the_masked_pixels():
+    """The lower median (rank ceil(n/2) of n, 1-based) of each channel over the masked
+    pixels, against a full sort, on random crops and masks (odd and even counts, ties)."""
+    rng = np.random.default_rng(3)
+    n_checked = 0
+    for trial in range(60):
+        img = rng.integers(0, 256 if trial % 2 else 4, (20, 30, 3)).astype(np.uint8)
+        mask = (rng.random((20, 30)) < rng.uniform(0.01, 1.0)).astype(np.uint8)
+        px = img[mask > 0]
+        if len(px) == 0:
+            continue
+        want = np.sort(px, axis=0)[(len(px) + 1) // 2 - 1]
+        got = _median_rgb(img, mask)
+        assert got.dtype == np.float32 and got.tolist() == want.tolist(), trial
+        n_checked += 1
+    assert n_checked >= 50
+
+
+def test_check_frame_refuses_only_featureless_frames():
+    """A frame is featureless when all its values lie within 2 DN: black, white, grey with
+    ±1 DN of noise. One bright pixel anywhere (here in the first and the last row, away from
+    the middle row) or a dark band makes it usable."""
+    rng = np.random.default_rng(2)
+    grey = (128 + rng.integers(-1, 2, (60, 80, 3))).astype(np.uint8)
+    refused = [np.zeros((60, 80, 3), np.uint8), np.full((60, 80, 3), 255, np.uint8), grey]
+    assert all("uniform" in check_frame(f) for f in refused)
+    usable = []
+    for row, col in ((0, 5), (59, 79)):
+        f = np.zeros((60, 80, 3), np.uint8)
+        f[row, col, 1] = 3
+        usable.append(f)
+    band = np.full((60, 80, 3), 200, np.uint8)
+    band[10:12] = 20
+    usable.append(band)
+    assert [check_frame(f) for f in usable] == ["", "", ""]

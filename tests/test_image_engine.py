@@ -56,21 +56,26 @@ def test_engine_refuses_measured_latencies_and_measurement_runs() -> None:
 
 
 def test_network_batching_gives_each_caller_its_own_rows() -> None:
+    """Five callers, of two search-crop sizes (the configuration's and 32 px less, as a
+    tracker with a smaller ``search_size`` sends), waiting together: each gets what it would
+    alone."""
     torch.manual_seed(0)
     service = NetworkService(build_transt("small"), "eager")
     c = service.net.config
     rng = np.random.default_rng(0)
     n = 5
-    searches = [rng.normal(size=(1, 3, c.search_size, c.search_size)).astype(np.float32)
-                for _ in range(n)]
+    sides = [c.search_size - 32 * (i % 2) for i in range(n)]
+    searches = [rng.normal(size=(1, 3, s, s)).astype(np.float32) for s in sides]
     templates = [rng.normal(size=(1, 3, c.template_size, c.template_size)).astype(np.float32)
                  for _ in range(n)]
     zs = [service.template_tokens(t) for t in templates]
     alone = [service.evaluate(s, z) for s, z in zip(searches, zs, strict=True)]
     got: list = [None] * n
+    registered = threading.Barrier(n)  # every caller registered before any calls: one batch
 
     def client(i: int) -> None:
         with service.client():
+            registered.wait()
             got[i] = service.evaluate(searches[i], zs[i])
 
     with service.batching(max_batch=8):
@@ -80,11 +85,40 @@ def test_network_batching_gives_each_caller_its_own_rows() -> None:
         for th in threads:
             th.join()
     assert max(service.batch_sizes) > 1  # at least one call took several crops
-    for (la, ba), (lb, bb) in zip(alone, got, strict=True):
+    for (la, ba), (lb, bb), side in zip(alone, got, sides, strict=True):
+        assert lb.shape == ((side // c.stride) ** 2, 2)
         np.testing.assert_allclose(lb, la, atol=1e-4)
         np.testing.assert_allclose(bb, ba, atol=1e-5)
     # different templates give different outputs: the rows were not mixed up
-    assert not np.allclose(got[0][0], got[1][0], atol=1e-3)
+    assert not np.allclose(got[0][0], got[2][0], atol=1e-3)
+
+
+def test_onnx_single_crop_and_batched_calls_agree_with_eager() -> None:
+    """ONNX Runtime, one crop a call or three in one call, gives eager PyTorch's outputs (to
+    float32 rounding through different kernels), each crop its own, for both search-crop sizes
+    (one session each)."""
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    torch.manual_seed(1)
+    net = build_transt("small")
+    eager, onnx = NetworkService(net, "eager"), NetworkService(net, "onnx")
+    c = net.config
+    rng = np.random.default_rng(1)
+    zs = np.concatenate([eager.template_tokens(
+        rng.normal(size=(1, 3, c.template_size, c.template_size)).astype(np.float32))
+        for _ in range(3)])
+    compared = 0
+    for side in (c.search_size, c.search_size - 32):
+        x = rng.normal(size=(3, 3, side, side)).astype(np.float32)
+        batched = onnx._run(x, zs)
+        for i in range(3):
+            want = eager.evaluate(x[i:i + 1], zs[i:i + 1])
+            alone = onnx.evaluate(x[i:i + 1], zs[i:i + 1])
+            for got in (alone, (batched[0][i], batched[1][i])):
+                np.testing.assert_allclose(got[0], want[0], atol=1e-4)
+                np.testing.assert_allclose(got[1], want[1], atol=1e-5)
+                compared += 1
+    assert compared == 12
 
 
 def test_a_failing_network_call_reaches_every_waiting_caller() -> None:

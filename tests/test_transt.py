@@ -27,7 +27,7 @@ from observer.transt import (
     load_official_state_dict,
 )
 from observer.transt.backbone import SinePositionEncoding
-from observer.transt.crop import box_to_crop, context_side, crop_square, crop_to_box
+from observer.transt.crop import box_to_crop, context_side, crop_square, crop_to_box, normalise
 from observer.transt.tracker import hanning_window
 from observer.transt.training.losses import TransTLoss, giou, positive_cells
 from observer.transt.training.validation import (
@@ -338,6 +338,23 @@ def test_context_side_is_transt_formula() -> None:
     p = (4 - 1) * (w + h) / 2
     assert context_side((w, h), 4.0) == pytest.approx(math.sqrt((w + p) * (h + p)))
     assert context_side((20.0, 20.0), 2.0) == pytest.approx(40.0)
+
+
+def test_normalise_is_imagenet_normalisation() -> None:
+    """ImageNet normalisation ((v/255 - mean)/std per channel, channels first) written out
+    here: the lookup gives the float32 elementwise formula's bits and the float64 values to
+    float32 rounding, for a batch and for a single crop."""
+    rng = np.random.default_rng(5)
+    crops = rng.integers(0, 256, (2, 16, 24, 3)).astype(np.uint8)
+    mean, std = (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)
+    out = normalise(crops)
+    assert out.shape == (2, 3, 16, 24) and out.dtype == np.float32 and out.flags.c_contiguous
+    f32 = crops.astype(np.float32) * np.float32(1.0 / 255.0)
+    f32 = (f32 - np.float32(mean)) / np.float32(std)
+    assert np.array_equal(out, np.moveaxis(f32, -1, 1))
+    f64 = np.stack([(crops[..., c] / 255.0 - mean[c]) / std[c] for c in range(3)], axis=1)
+    np.testing.assert_allclose(out, f64, rtol=0.0, atol=1e-6)
+    assert np.array_equal(normalise(crops[1]), out[1])
 
 
 def test_crop_geometry_against_a_drawn_square() -> None:
@@ -663,6 +680,48 @@ def test_onnx_backend_matches_eager(clean_frame) -> None:
     assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
 
 
+def test_a_smaller_search_crop_is_the_centre_of_the_trained_one(clean_frame) -> None:
+    """``search_size`` 96 of the trained 128: the search region is its centre 3/4 at the same
+    image scale, the network sees the centre 12 x 12 cells of the trained 16 x 16 position
+    encoding and window, and the boxes keep the trained region's scale (the box head's
+    fractions are of the trained-size crop). ONNX Runtime runs it like eager PyTorch."""
+    net, _ = load_weights()
+    n, m = SMALL.search_feature_size, 96 // SMALL.stride
+    full = SinePositionEncoding(SMALL.d_model // 2).encode(n, n)[0]  # (d, 16, 16)
+    want = full[:, 2:14, 2:14].reshape(SMALL.d_model, m * m).T
+    assert torch.equal(net.search_position(m, m)[0], want)
+    assert torch.equal(net.search_position(n, n)[0], full.reshape(SMALL.d_model, n * n).T)
+    out = []
+    for backend in ("eager", "onnx"):
+        trk = TransTTracker(net, backend=backend, search_size=96)
+        box = np.asarray(red_box_image(clean_frame), dtype=float)
+        trk.initialize(clean_frame.image, box)
+        res = trk.track(clean_frame.image)
+        assert trk.last.search_side_px == pytest.approx(
+            0.75 * context_side(box[2:], SMALL.search_factor))
+        out.append((res.box_image_px, res.score))
+        np.testing.assert_allclose(trk._windows[96].reshape(m, m),
+                                   np.outer(np.hanning(n), np.hanning(n))[2:14, 2:14], atol=1e-7)
+    assert np.allclose(out[0][0], out[1][0], atol=1e-2)
+    assert out[0][1] == pytest.approx(out[1][1], abs=1e-4)
+    # the same marker, found at the trained scale: the box size within 20 % of the truth's
+    assert np.all(np.abs(out[0][0][2:] / box[2:] - 1.0) < 0.2)
+    assert np.hypot(*(out[0][0][:2] + out[0][0][2:] / 2 - box[:2] - box[2:] / 2)) < 6.0
+    for bad in (104, 136, 8, 96.0, 0):
+        with pytest.raises(ValueError, match="search_size"):
+            TransTTracker(net, search_size=bad)
+    # per frame: a usable size searches that crop, a bad one fails the frame, keeping the track
+    trk = TransTTracker(net)
+    trk.initialize(clean_frame.image, box)
+    res = trk.track(clean_frame.image, search_size=96)
+    assert res.valid and trk.last.search_side_px == pytest.approx(
+        0.75 * context_side(trk.size_image_px, SMALL.search_factor), rel=0.2)
+    before = trk.centre_image_px.copy()
+    res = trk.track(clean_frame.image, search_size=100)
+    assert not res.valid and "search_size" in res.reason
+    assert np.array_equal(trk.centre_image_px, before)
+
+
 def test_small_default_backend_and_fallback(monkeypatch) -> None:
     import observer.transt.tracker as tracker_mod
 
@@ -675,3 +734,28 @@ def test_small_default_backend_and_fallback(monkeypatch) -> None:
     assert TransTTracker.small().backend == expected
     monkeypatch.setattr(tracker_mod, "DEFAULT_BACKEND", "unavailable")
     assert TransTTracker.small().backend == "eager"
+
+
+def test_a_crop_size_onnx_cannot_build_falls_back_to_eager_with_one_warning(
+        monkeypatch, clean_frame) -> None:
+    """When ONNX Runtime cannot build the session of a smaller search crop, ``small()`` runs
+    eager PyTorch and says so once; the tracker then tracks like eager PyTorch (same box to
+    float32 rounding), not silently otherwise."""
+    pytest.importorskip("onnxruntime")
+    from observer.transt.service import NetworkService
+
+    def refuse(self, search_size):
+        if self.backend == "onnx" and search_size != self.net.config.search_size:
+            raise RuntimeError("no session for this size")
+
+    monkeypatch.setattr(NetworkService, "prepare", refuse)
+    with pytest.warns(UserWarning, match="running eager PyTorch") as caught:
+        trk = TransTTracker.small(search_size=96)
+    assert len(caught) == 1 and trk.backend == "eager"
+    box = red_box_image(clean_frame)
+    trk.initialize(clean_frame.image, box)
+    got = trk.track(clean_frame.image)
+    ref = TransTTracker(load_weights()[0], backend="eager", search_size=96)
+    ref.initialize(clean_frame.image, box)
+    want = ref.track(clean_frame.image)
+    assert got.valid and np.allclose(got.box_image_px, want.box_image_px, atol=1e-4)

@@ -272,10 +272,14 @@ def _arc_coverage(points: NDArray[np.float64], centre: NDArray[np.float64]) -> f
 
 def _median_rgb(image: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
     """Per-channel lower median (3,) of the 8-bit pixels under ``mask`` (the value at rank
-    ceil(n/2), as a 256-bin histogram would give it)."""
-    px = image[mask.astype(bool)]
-    k = (len(px) - 1) // 2
-    return np.partition(px, k, axis=0)[k].astype(np.float32)
+    ceil(n/2)), read from each channel's 256-bin histogram (``cv2.calcHist``: the counts are
+    exact, so this is the order statistic itself, without sorting the pixels)."""
+    k = (cv2.countNonZero(mask) - 1) // 2
+    out = np.empty(3, np.float32)
+    for c in range(3):
+        counts = cv2.calcHist([image], [c], mask, [256], [0, 256]).ravel()
+        out[c] = np.searchsorted(np.cumsum(counts), k, side="right")
+    return out
 
 
 # --- the stage ---------------------------------------------------------------------------------
@@ -295,7 +299,9 @@ def _coverage(
     inner = cv2.erode(region, _ELLIPSE3, iterations=2)
     if cv2.countNonZero(inner) < 3:
         inner = region
-    ring = cv2.dilate(region, _ELLIPSE3, iterations=5) - cv2.dilate(region, _ELLIPSE3, iterations=2)
+    # the ring between 2 and 5 dilations (the 5 as 3 more of the 2: binary dilations compose)
+    near = cv2.dilate(region, _ELLIPSE3, iterations=2)
+    ring = cv2.dilate(near, _ELLIPSE3, iterations=3) - near
     if cv2.countNonZero(ring) < 3:
         return SubpixelResult.invalid("no background visible around the marker in the roi")
     fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)

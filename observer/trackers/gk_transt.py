@@ -49,6 +49,14 @@ in ``observer.trackers.make_pair_tracker``) is run with ``guide_search=False`` a
 on a box of 3.2 expected marker radii (our choice: the marker with its rim) centred on the
 prediction, so that it searches there in the next frame.
 
+With ``steady_search_size`` (a TransT network only; off by default), the network searches only
+the centre of its usual search region, a crop of that many px instead of 128 at the same image
+scale (``TransTTracker.track``'s ``search_size``), in frames that follow a steady one: the red
+marker measured on the network's own box (trusted as such by the trust rule) with a Kalman
+prediction to search at. After any other frame (coasting, a colour fit, a re-detection, a
+restart) it searches the whole region again. The smaller crop costs less (fewer backbone pixels
+and transformer tokens) but the network's box is less accurate in it (docs/tracking.md).
+
 Units: sensor px in and out (``observer.trackers``); the network sees image px of the binned frame.
 ``tilt_hint_rad`` (None by default: cos β = 1 and the scale EMA locked) may be set by the caller
 from the latest attitude estimate before each ``step``.
@@ -101,6 +109,10 @@ class GKTransTPairTracker(MarkerPairTracker):
     drift : DriftConfig or None, optional
         Drift detection (``MarkerPairTracker``): a drifted red marker restarts the network and
         the Kalman filter on the re-detected marker; a drifted yellow one resets V_rel.
+    steady_search_size : int or None, optional
+        Our choice, off by default: the network's search crop side, px of its input, after a
+        steady frame (module docstring); ``tracker`` must then be a ``TransTTracker``, and the
+        size one it accepts (``TransTTracker.prepare``), else ``ValueError``.
     """
 
     def __init__(
@@ -115,6 +127,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         plate: PlateConfig | None = PlateConfig(),  # noqa: B008 - frozen pydantic model
         name: str = "gk_transt",
         drift: DriftConfig | None = DriftConfig(),  # noqa: B008 - frozen pydantic model
+        steady_search_size: int | None = None,
     ) -> None:
         cfg = gk_config or GKConfig()
         if refine is not None:
@@ -124,6 +137,16 @@ class GKTransTPairTracker(MarkerPairTracker):
             })
         super().__init__(params, bool(cfg.refine_red), cfg.subpixel, drift=drift)
         self.tracker = tracker
+        self.steady_search_size = steady_search_size
+        self._transt = None
+        if steady_search_size is not None:
+            from observer.transt.tracker import TransTTracker
+
+            if not isinstance(tracker, TransTTracker):
+                raise ValueError("steady_search_size needs a TransTTracker as tracker, got "
+                                 f"{type(tracker).__name__}")
+            tracker.prepare(steady_search_size)
+            self._transt = tracker
         self.gk = GKAssist(self.params, cfg)
         self.guide_search = bool(guide_search)
         self.restart_on_prediction = bool(restart_on_prediction)
@@ -136,12 +159,15 @@ class GKTransTPairTracker(MarkerPairTracker):
         self._seen: deque[tuple[int, NDArray[np.uint8], NDArray[np.float64]]] = deque(maxlen=2)
         self._frame = 0
         self._hidden_before = False
+        #: The last frame measured the red marker on the network's own box (module docstring).
+        self._steady_before = False
 
     def reset(self) -> None:
         """Forget the track and the GK assistance's state."""
         super().reset()
         self.gk.reset()
         self.last_gk = None
+        self._steady_before = False
         self._forget_plate()
 
     def _forget_plate(self) -> None:
@@ -154,6 +180,7 @@ class GKTransTPairTracker(MarkerPairTracker):
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
         self.tracker.initialize(image, box_sensor_to_image(boxes_sensor_px[0], self.binning))
+        self._steady_before = False
         self.gk.reset()
         self.last_gk = self.gk.step(image, self.binning, box_sensor_px=boxes_sensor_px[0],
                                     tilt_prev_rad=self.tilt_hint_rad)
@@ -198,7 +225,12 @@ class GKTransTPairTracker(MarkerPairTracker):
 
     def _step(self, image: NDArray[np.uint8]) -> PairResult:
         assert self.binning is not None
-        tr = self.tracker.track(image, search_centre_image_px=self.search_centre_image_px())
+        centre = self.search_centre_image_px()
+        if self._transt is not None and centre is not None and self._steady_before:
+            tr = self._transt.track(image, search_centre_image_px=centre,
+                                    search_size=self.steady_search_size)
+        else:
+            tr = self.tracker.track(image, search_centre_image_px=centre)
         box_img = np.asarray(tr.box_image_px, dtype=float).reshape(-1)
         box = box_image_to_sensor(box_img, self.binning) \
             if box_img.shape == (4,) and np.all(np.isfinite(box_img)) else None
@@ -219,6 +251,9 @@ class GKTransTPairTracker(MarkerPairTracker):
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
                            tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
+        self._steady_before = res.red_source == "measurement" and (
+            self.trust is None or self.last_trust is not None
+            and self.last_trust.source == "network")
         if self.trust is not None:
             self.trust.record(res.red_source == "measurement", res.yellow_source == "measurement")
         self._plate_after(image, res, mapped)
@@ -311,6 +346,7 @@ class GKTransTPairTracker(MarkerPairTracker):
             box = box_around(centres_px[0], self.box_size_px[0])
             self.tracker.initialize(image, box_sensor_to_image(box, self.binning))
             self.gk.restart()
+            self._steady_before = False
         else:
             self.gk.aux.V_rel = centres_px[1] - centres_px[0]
 
@@ -319,6 +355,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         assert self.binning is not None
         res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
         self.last_gk = res
+        self._steady_before = False
         self._frame += 1
         self._hidden_before = True
         if self.plate is not None:

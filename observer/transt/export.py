@@ -40,12 +40,15 @@ class _TrackStep(nn.Module):
         return self.net.track_features(search, z, self.pos_z)
 
 
-def export_onnx(net: TransTNet, path: str | Path | None = None) -> bytes:
-    """Export the per-frame step of ``net`` (eval mode) to ONNX; returns the model bytes and
-    writes them to ``path`` when given."""
+def export_onnx(net: TransTNet, path: str | Path | None = None,
+                search_size: int | None = None) -> bytes:
+    """Export the per-frame step of ``net`` (eval mode) to ONNX for search crops of
+    ``search_size`` px (default: the configuration's; the graph's spatial size is fixed);
+    returns the model bytes and writes them to ``path`` when given."""
     c = net.config
     step = _TrackStep(net.eval()).eval()
-    search = torch.zeros(1, 3, c.search_size, c.search_size)
+    side = c.search_size if search_size is None else int(search_size)
+    search = torch.zeros(1, 3, side, side)
     z = torch.zeros(1, c.template_feature_size**2, c.d_model)
     buf = io.BytesIO()
     with warnings.catch_warnings(), torch.no_grad():
@@ -67,9 +70,11 @@ def export_onnx(net: TransTNet, path: str | Path | None = None) -> bytes:
 
 
 def onnx_session(
-    net: TransTNet, num_threads: int | None = None, spinning: bool | None = None
+    net: TransTNet, num_threads: int | None = None, spinning: bool | None = None,
+    search_size: int | None = None,
 ):  # -> onnxruntime session
-    """An ONNX Runtime ``InferenceSession`` of ``net``'s per-frame step on the CPU.
+    """An ONNX Runtime ``InferenceSession`` of ``net``'s per-frame step on the CPU, for search
+    crops of ``search_size`` px (default: the configuration's).
 
     ``num_threads`` intra-op threads (default: the environment variable
     ``PMSPM_ORT_THREADS``, else 1) and ``spinning`` (default: off) of the worker threads. Our
@@ -93,4 +98,5 @@ def onnx_session(
     opts.inter_op_num_threads = 1
     opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    return ort.InferenceSession(export_onnx(net), opts, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(export_onnx(net, search_size=search_size), opts,
+                                providers=["CPUExecutionProvider"])

@@ -164,10 +164,30 @@ class TransTNet(nn.Module):
         """Template tokens and their position encoding, computed once per target."""
         return self._tokens(template)
 
+    def search_position(self, height: int, width: int) -> Tensor:
+        """Position encoding (1, height·width, d) of a search feature map of ``height`` x
+        ``width`` cells: the trained map's own (``search_feature_size`` cells a side) when it
+        is that size; a smaller map centred in it takes the centre of the trained map's
+        encoding, so that each cell keeps the encoding it had at the trained size and the
+        heads' outputs stay fractions of the trained-size crop (``TransTTracker``'s smaller
+        search crop). Other sizes get the encoding of their own size (as in training)."""
+        n = self.config.search_feature_size
+        enc = self.backbone[1].encode
+        if (height, width) != (n, n) and height <= n and width <= n \
+                and (n - height) % 2 == 0 and (n - width) % 2 == 0:
+            r, c = (n - height) // 2, (n - width) // 2
+            pos = enc(n, n)[:, :, r:r + height, c:c + width]
+        else:
+            pos = enc(height, width)
+        return pos.flatten(2).transpose(1, 2)
+
     def track_features(self, search: Tensor, z: Tensor, pos_z: Tensor) -> tuple[Tensor, Tensor]:
         """Logits (B, L, 2) and boxes (B, L, 4) for search crops against cached template
-        tokens ``z`` (B or 1, Lz, d) with encoding ``pos_z``."""
-        x, pos_x = self._tokens(search)
+        tokens ``z`` (B or 1, Lz, d) with encoding ``pos_z``; a search crop smaller than the
+        trained one is encoded as the centre of a trained-size crop (``search_position``)."""
+        feat, _ = self.backbone(search)
+        x = self.input_proj(feat).flatten(2).transpose(1, 2)
+        pos_x = self.search_position(int(feat.shape[-2]), int(feat.shape[-1])).to(x.device)
         if z.shape[0] != x.shape[0]:
             z = z.expand(x.shape[0], -1, -1)
         hs = self.featurefusion_network(z, x, pos_z, pos_x)

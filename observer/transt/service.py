@@ -2,10 +2,11 @@
 
 A ``NetworkService`` holds one network's per-frame step (``TransTNet.track_features``) in one
 backend: eager PyTorch, ``torch.compile`` or ONNX Runtime (exported with a batch axis,
-``observer.transt.export``). ``evaluate(search, z)`` runs the step for one search crop against
-one template's tokens. ``shared_service(weights, backend)`` returns the process's service of a
-weights file, so the weights are read, checked and exported once per process, not once per
-tracker or per run.
+``observer.transt.export``; one session per search-crop size, the configuration's built with the
+service and any other by ``prepare``). ``evaluate(search, z)`` runs the step for one search crop
+against one template's tokens. ``shared_service(weights, backend)`` returns the process's
+service of a weights file, so the weights are read, checked and exported once per process, not
+once per tracker or per run.
 
 Batching across runs: inside ``service.batching(max_batch)``, threads that registered with
 ``service.client()`` (one per closed-loop run, ``latency.image_engine``) no longer run the network
@@ -78,16 +79,30 @@ class NetworkService:
             self._pos_z = template_position(net)
         self._compiled = torch.compile(net.track_features, dynamic=False) \
             if backend == "compile" else None
-        self._ort = None
+        self._num_threads = num_threads
+        #: ONNX Runtime sessions by search-crop side, px (the graph's spatial size is fixed).
+        self._ort: dict[int, object] = {}
+        self._ort_lock = threading.Lock()
         if backend == "onnx":
-            from observer.transt.export import onnx_session
-
-            self._ort = onnx_session(net, num_threads)
+            self.prepare(net.config.search_size)
         self.batch_sizes: Counter[int] = Counter()
         self._cv = threading.Condition()
         self._max_batch = 0  # 0: not batching
         self._clients = 0
         self._pending: list[_Request] = []
+
+    def prepare(self, search_size: int) -> None:
+        """Build what the backend needs for search crops of ``search_size`` px (the ONNX
+        Runtime session of that size; nothing for the torch backends). Raises what the export
+        or the session raises."""
+        if self.backend != "onnx":
+            return
+        with self._ort_lock:
+            if search_size not in self._ort:
+                from observer.transt.export import onnx_session
+
+                self._ort[search_size] = onnx_session(self.net, self._num_threads,
+                                                      search_size=search_size)
 
     def template_tokens(self, template: NDArray[np.float32]) -> NDArray[np.float32]:
         """Template tokens (1, Lz, d) of a normalised template crop (1, 3, St, St)."""
@@ -119,8 +134,11 @@ class NetworkService:
     def _run(self, search: NDArray[np.float32], z: NDArray[np.float32]
              ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """The network on a stack of crops (B, 3, Sx, Sx) and tokens (B, Lz, d)."""
-        if self._ort is not None:
-            logits, boxes = self._ort.run(None, {"search": search, "z": z})
+        if self.backend == "onnx":
+            side = int(search.shape[-1])
+            if side not in self._ort:
+                self.prepare(side)
+            logits, boxes = self._ort[side].run(None, {"search": search, "z": z})
             return logits, boxes
         fn = self._compiled if self._compiled is not None else self.net.track_features
         with torch.inference_mode():
@@ -134,16 +152,20 @@ class NetworkService:
         if n == 0 or (n < self._clients and n < self._max_batch):
             return
         batch, self._pending = self._pending[: self._max_batch], self._pending[self._max_batch:]
-        try:
-            logits, boxes = self._run(np.concatenate([r.search for r in batch]),
-                                      np.concatenate([r.z for r in batch]))
-        except Exception as exc:  # noqa: BLE001 - handed to every waiting caller
-            for r in batch:
-                r.error, r.done = exc, True
-        else:
-            for i, r in enumerate(batch):
-                r.logits, r.boxes, r.done = logits[i], boxes[i], True
-        self.batch_sizes[len(batch)] += 1
+        # one network call per search-crop size among the waiting crops
+        sizes = dict.fromkeys(r.search.shape for r in batch)
+        for shape in sizes:
+            group = [r for r in batch if r.search.shape == shape]
+            try:
+                logits, boxes = self._run(np.concatenate([r.search for r in group]),
+                                          np.concatenate([r.z for r in group]))
+            except Exception as exc:  # noqa: BLE001 - handed to every waiting caller
+                for r in group:
+                    r.error, r.done = exc, True
+            else:
+                for i, r in enumerate(group):
+                    r.logits, r.boxes, r.done = logits[i], boxes[i], True
+            self.batch_sizes[len(group)] += 1
         self._cv.notify_all()
 
     @contextmanager

@@ -8,6 +8,12 @@ frame's mean colour outside it), ImageNet-normalises it and caches its backbone 
 1. crops the search region (context factor 4 of the current box size) around the previous box
    centre, or around ``search_centre_image_px`` when given (GK-TransT places it at the pixel
    Kalman prediction, seed 000 §3.2.1);
+
+   with ``search_size`` smaller than the configuration's (our addition, for a caller whose
+   search centre is a good prediction), only the centre of that region is cropped, at the same
+   image scale: ``search_size`` of the configuration's ``search_size`` pixels. The network then
+   sees the centre of a trained-size crop (``TransTNet.search_position``): its boxes are
+   fractions of the trained-size region, and the window is the centre of the trained one;
 2. runs the network: a target probability and a box for each of the H x W search-feature cells;
 3. adds a Hanning window to the probabilities, ``p' = (1 - w) p + w hann``, with TransT's window
    influence w = 0.49, and takes the box of the cell with the largest p';
@@ -120,12 +126,17 @@ class TransTTracker:
     window_influence : weight of the Hanning window (default: the configuration's, 0.49 as in
         TransT).
     min_box_px : smallest box side kept, image px (our choice, ``MIN_BOX_PX``).
+    search_size : side of the search crop fed to the network, px (default: the configuration's
+        ``search_size``); smaller, the centre of the usual search region at the same scale
+        (module docstring). It must differ from the configuration's by a multiple of 16 px
+        (a centred block of feature cells); ``ValueError`` otherwise.
 
     Attributes
     ----------
     compute_time_s : wall-clock time of the last ``init`` or ``track`` call, s.
     last : the ``TransTStep`` of the last ``track`` call (None before).
     centre_image_px, size_image_px : the current state (box centre and size), image px.
+    search_size : the search crop's side, px of the network input (see the module docstring).
     """
 
     def __init__(
@@ -135,6 +146,7 @@ class TransTTracker:
         window_influence: float | None = None,
         min_box_px: float = MIN_BOX_PX,
         service: NetworkService | None = None,
+        search_size: int | None = None,
     ) -> None:
         self.net = net.eval()
         self.config: TransTConfig = net.config
@@ -148,7 +160,10 @@ class TransTTracker:
         if service is not None and (service.net is not net or service.backend != backend):
             raise ValueError("service must run the same network in the same backend")
         self._runner = _Runner(service or NetworkService(self.net, backend))
-        self._window = hanning_window(self.config.search_feature_size)
+        #: Hanning windows by search-crop side (those ``prepare`` has made ready).
+        self._windows: dict[int, NDArray[np.float32]] = {}
+        self.search_size = self.config.search_size if search_size is None else search_size
+        self.prepare(self.search_size)
         self.centre_image_px: NDArray[np.float64] | None = None
         self._frame_shape: tuple[int, ...] | None = None
         self.size_image_px: NDArray[np.float64] | None = None
@@ -163,11 +178,14 @@ class TransTTracker:
         weights: str | Path = SMALL_WEIGHTS,
         backend: Backend | None = None,
         expected_sha256: str | None = None,
+        search_size: int | None = None,
     ) -> TransTTracker:
-        """The shipped ``small`` network (``weights/transt_small.pt``), SHA-256 checked.
+        """The shipped ``small`` network (``weights/transt_small.pt``), SHA-256 checked, with
+        search crops of ``search_size`` px (default: the configuration's, 128).
 
         ``backend=None`` takes ``DEFAULT_BACKEND`` (ONNX Runtime) and falls back to eager
-        PyTorch when that is unavailable; ``tracker.backend`` says which one runs.
+        PyTorch, with one warning, when that is unavailable or its session for
+        ``search_size`` cannot be built; ``tracker.backend`` says which one runs.
 
         The network is loaded and exported once per process and shared by every tracker built
         here (``observer.transt.service.shared_service``); an ``expected_sha256`` other than
@@ -178,19 +196,22 @@ class TransTTracker:
         """
         if expected_sha256 is not None:
             net, _ = load_weights(weights, expected_sha256)
-            return cls(net, backend=backend or "eager")
+            return cls(net, backend=backend or "eager", search_size=search_size)
         if backend is not None:
             service = shared_service(weights, backend)
-            return cls(service.net, backend=backend, service=service)
+            return cls(service.net, backend=backend, service=service, search_size=search_size)
         try:
             service = shared_service(weights, DEFAULT_BACKEND)
+            service.prepare(service.net.config.search_size if search_size is None
+                            else search_size)
         except WeightsError:
             raise
         except Exception as exc:  # optional ONNX packages missing or export failed
             warnings.warn(f"ONNX Runtime backend unavailable ({exc}); running eager PyTorch, "
                           "which gives the same results more slowly", stacklevel=2)
             service = shared_service(weights, "eager")
-        return cls(service.net, backend=service.backend, service=service)
+        return cls(service.net, backend=service.backend, service=service,
+                   search_size=search_size)
 
     @classmethod
     def from_config(
@@ -199,6 +220,32 @@ class TransTTracker:
         """A tracker with randomly initialised weights (seeded), e.g. to time ``transt50``."""
         torch.manual_seed(seed)
         return cls(build_transt(config), backend=backend)
+
+    def _search_size_error(self, search_size: object) -> str:
+        """"" if ``search_size`` is a usable search-crop side, else why not."""
+        full, cell = self.config.search_size, self.config.stride
+        if isinstance(search_size, int) and 2 * cell <= search_size <= full \
+                and (full - search_size) % (2 * cell) == 0:
+            return ""
+        return (f"search_size must be an int of at most {full} px whose difference from {full} "
+                f"is a multiple of {2 * cell} (a centred block of feature cells), got "
+                f"{search_size!r}")
+
+    def prepare(self, search_size: int) -> None:
+        """Make search crops of ``search_size`` px ready (the backend's session of that size
+        and the window: the centre of the trained-size one), so that the first ``track`` with
+        it does not pay for them; ``ValueError`` naming ``search_size`` if it is not usable
+        (see ``__init__``)."""
+        why = self._search_size_error(search_size)
+        if why:
+            raise ValueError(why)
+        if search_size not in self._windows:
+            self._runner.service.prepare(search_size)
+            n, m = self.config.search_feature_size, search_size // self.config.stride
+            o = (n - m) // 2
+            # the centre of the trained-size window, flattened row-major like the score map
+            self._windows[search_size] = np.ascontiguousarray(
+                hanning_window(n).reshape(n, n)[o:o + m, o:o + m]).reshape(-1)
 
     # --- the seam ---------------------------------------------------------------------------------
     @property
@@ -251,17 +298,26 @@ class TransTTracker:
         self,
         frame_rgb: NDArray[np.uint8],
         search_centre_image_px: ArrayLike | None = None,
+        search_size: int | None = None,
     ) -> TrackResult:
         """Box (x, y, w, h), image px, and score of the target in the next frame.
 
         ``search_centre_image_px`` (2,), image px, places the search crop there instead of at
-        the previous box centre. A failure (bad frame or centre, a frame shape other than the
-        init frame's, a featureless frame or search region, non-finite network output, not
-        initialised) returns a NaN box and score 0.0 and leaves the state unchanged;
-        ``last.status`` says why.
+        the previous box centre; ``search_size`` (px, default ``self.search_size``) crops only
+        the centre of the search region for this frame (module docstring; made ready by
+        ``prepare`` on first use). A failure (bad frame, centre or search size, a frame shape
+        other than the init frame's, a featureless frame or search region, non-finite network
+        output, not initialised) returns a NaN box and score 0.0 and leaves the state
+        unchanged; ``last.status`` says why.
         """
         t0 = time.perf_counter()
-        res = self._track(frame_rgb, search_centre_image_px, t0)
+        size = self.search_size if search_size is None else search_size
+        why = self._search_size_error(size)
+        if why:
+            res = (np.full(4, np.nan), 0.0, why, np.full(2, np.nan), 0.0)
+        else:
+            self.prepare(size)
+            res = self._track(frame_rgb, search_centre_image_px, size)
         self.compute_time_s = time.perf_counter() - t0
         self.last = TransTStep(
             res[0], res[1], self.compute_time_s, res[2] == "ok", res[2], res[3], res[4]
@@ -271,12 +327,14 @@ class TransTTracker:
                            "" if ok else self.last.status, self.compute_time_s, ok)
 
     def _track(
-        self, frame: object, search_centre: ArrayLike | None, t0: float
+        self, frame: object, search_centre: ArrayLike | None, search_size: int
     ) -> tuple[NDArray[np.float64], float, str, NDArray[np.float64], float]:
         nan_box = np.full(4, np.nan)
         if self.centre_image_px is None or self.size_image_px is None:
             return nan_box, 0.0, "not initialised: call initialize first", np.full(2, np.nan), 0.0
-        side = context_side(self.size_image_px, self.config.search_factor)
+        # the trained-size search region (the boxes' unit) and the part of it cropped
+        full_side = context_side(self.size_image_px, self.config.search_factor)
+        side = full_side * search_size / self.config.search_size
         centre = self.centre_image_px
         # The init frame's shape is required: in a frame of another size the box and search
         # centre would be read in the wrong pixels.
@@ -302,7 +360,7 @@ class TransTTracker:
         region = frame[y0:y1, x0:x1]
         if int(region.max()) - int(region.min()) <= UNIFORM_PTP_DN:
             return nan_box, 0.0, "uniform search region (blank frame)", centre.copy(), side
-        crop = crop_square(frame, centre, side, self.config.search_size, self._pad)
+        crop = crop_square(frame, centre, side, search_size, self._pad)
         logits, boxes = self._runner(normalise(crop[None]))
         if not (np.all(np.isfinite(logits)) and np.all(np.isfinite(boxes))):
             return nan_box, 0.0, "network output not finite", centre.copy(), side
@@ -310,8 +368,8 @@ class TransTTracker:
         e = np.exp(z)
         prob = e[:, 0] / e.sum(axis=1)
         w = self.window_influence
-        best = int(np.argmax(prob * (1.0 - w) + self._window * w))
-        box = crop_to_box(boxes[best], centre, side)
+        best = int(np.argmax(prob * (1.0 - w) + self._windows[search_size] * w))
+        box = crop_to_box(boxes[best], centre, full_side)
         c = box[:2] + box[2:] / 2.0
         c = np.clip(c, [-0.5, -0.5], [w_img - 0.5, h_img - 0.5])
         size = np.clip(box[2:], self.min_box_px, [w_img, h_img])
