@@ -84,6 +84,8 @@ for engine in sys.argv[2:]:
 _WARM_UP_WAIT_S = 900.0
 #: The controller's warm-up: its folder and process.
 _warm_up_key = pytest.StashKey[tuple[Path, subprocess.Popen]]()
+#: The session's cache folder of exported networks, when the session made it.
+_cache_key = pytest.StashKey[Path]()
 #: The warm-up's engines known to be done in this process.
 _done: set[str] = set()
 
@@ -100,8 +102,17 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """In the xdist controller, before the workers start: start the warm-up."""
+    """In the controller (the only process without xdist), before the workers start: a cache
+    folder of exported networks for the session (``observer.transt.export``, shared by the
+    workers and the processes they start; a user's own cache is left alone); with xdist, start
+    the warm-up."""
     config = session.config
+    if hasattr(config, "workerinput"):
+        return
+    if not os.environ.get("PMSPM_CACHE_DIR"):
+        cache = Path(tempfile.mkdtemp(prefix="pmspm-test-cache-"))
+        config.stash[_cache_key] = cache
+        os.environ["PMSPM_CACHE_DIR"] = str(cache)
     if not _is_xdist_controller(config) or config.option.collectonly:
         return
     folder = Path(tempfile.mkdtemp(prefix="pmspm-warm-up-"))
@@ -164,8 +175,11 @@ def _engines_compiled(request: pytest.FixtureRequest) -> None:
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
-    """In the xdist controller: end the warm-up if it still runs (its process group: the
-    runs it started too), remove its folder."""
+    """In the controller: remove the session's cache folder; end the warm-up if it still runs
+    (its process group: the runs it started too), remove its folder."""
+    cache = session.config.stash.get(_cache_key, None)
+    if cache is not None:
+        shutil.rmtree(cache, ignore_errors=True)
     started = session.config.stash.get(_warm_up_key, None)
     if started is None:
         return

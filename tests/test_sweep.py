@@ -49,6 +49,7 @@ def test_run_id_is_content_derived():
     assert run_id(a) != run_id({"x": 1, "y": {"z": 3}})
 
 
+@pytest.mark.slow  # starts a Dask LocalCluster, like the Dask variants below
 def test_local_and_dask_give_identical_tables(tmp_path):
     local = run_sweep(TARGET, configs(), tmp_path / "local", workers=2, progress=False)
     dask = run_sweep(
@@ -176,7 +177,7 @@ def _alive(pid: int) -> bool:
 
 
 # The Dask variants start a LocalCluster (about 15 s each on two cores): they run in the slow
-# lane; the process pool's variants, and the Dask tables check above, stay in the fast suite.
+# lane, with the Dask tables check above; the process pool's variants stay in the fast suite.
 @pytest.mark.parametrize("scheduler", [None, pytest.param("local", marks=pytest.mark.slow)],
                          ids=["pool", "dask"])
 def test_sigkill_of_the_sweep_process_leaves_no_workers(tmp_path, scheduler):

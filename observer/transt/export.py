@@ -7,19 +7,35 @@ outputs ``logits`` (B, L, 2) and ``boxes`` (B, L, 4). The batch axis B is free, 
 take the crops of many runs (``observer.transt.service``). Needs ``onnx`` for the export and
 ``onnxruntime`` to run it (both project dependencies); they are imported lazily, so a checkout
 without them still runs the eager backend, and the error says what is missing.
+
+Exported models are kept in a disk cache (``onnx_cache_dir``): an export takes about 1.4 s of
+CPU, and every process that runs the network (a command, each worker of the image engine, each
+test worker) would otherwise export the same graph again. A cached model is found by a digest
+of everything the graph is made from: the network's configuration and every parameter and
+buffer, the search size, the torch version and opset, and the source of the modules that
+define the graph, so a changed weight or a changed line of the network makes a new entry.
 """
 
 from __future__ import annotations
 
+import hashlib
+import inspect
 import io
 import os
+import tempfile
 import warnings
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
+from observer.transt import backbone, fusion, network
 from observer.transt.network import TransTNet
+
+#: The ONNX opset of the export.
+OPSET = 17
+#: The environment variable naming the cache folder of exported models ("off": no cache).
+CACHE_ENV = "PMSPM_CACHE_DIR"
 
 
 def template_position(net: TransTNet) -> Tensor:
@@ -60,12 +76,66 @@ def export_onnx(net: TransTNet, path: str | Path | None = None,
             input_names=["search", "z"],
             output_names=["logits", "boxes"],
             dynamo=False,
-            opset_version=17,
+            opset_version=OPSET,
             dynamic_axes={name: {0: "batch"} for name in ("search", "z", "logits", "boxes")},
         )
     data = buf.getvalue()
     if path is not None:
         Path(path).write_bytes(data)
+    return data
+
+
+def onnx_cache_dir() -> Path | None:
+    """The folder of cached exports: ``$PMSPM_CACHE_DIR/onnx`` if that variable is set (None if
+    it is "off"), else ``$XDG_CACHE_HOME/pmspm/onnx`` (``~/.cache/pmspm/onnx``)."""
+    root = os.environ.get(CACHE_ENV)
+    if root == "off":
+        return None
+    if not root:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pmspm"
+    return Path(root) / "onnx"
+
+
+def export_digest(net: TransTNet, search_size: int | None = None) -> str:
+    """SHA-256 (hex) of what the exported graph of ``net`` at ``search_size`` is made from (the
+    module docstring): two nets with the same digest export the same model."""
+    h = hashlib.sha256()
+    side = net.config.search_size if search_size is None else int(search_size)
+    h.update(f"{torch.__version__}|opset {OPSET}|search {side}|{net.config!r}".encode())
+    for module in (network, backbone, fusion):
+        h.update(inspect.getsource(module).encode())
+    h.update(inspect.getsource(_TrackStep).encode())
+    for name, tensor in (*net.state_dict().items(), ("pos_z", template_position(net))):
+        t = tensor.detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}".encode())
+        h.update(t.numpy().tobytes() if t.dtype != torch.bfloat16 else t.float().numpy().tobytes())
+    return h.hexdigest()
+
+
+def cached_export(net: TransTNet, search_size: int | None = None) -> bytes:
+    """``export_onnx(net, search_size=...)``, read from the disk cache when it holds that graph
+    (``export_digest``), else exported and written there (through a temporary file and a
+    rename, so a reader never sees half a file; a folder that cannot be written only means no
+    cache)."""
+    folder = onnx_cache_dir()
+    if folder is None:
+        return export_onnx(net, search_size=search_size)
+    with torch.inference_mode():
+        path = folder / f"{export_digest(net, search_size)}.onnx"
+    if path.is_file():
+        return path.read_bytes()
+    data = export_onnx(net, search_size=search_size)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".part")
+    except OSError:
+        return data
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
     return data
 
 
@@ -98,5 +168,5 @@ def onnx_session(
     opts.inter_op_num_threads = 1
     opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    return ort.InferenceSession(export_onnx(net, search_size=search_size), opts,
+    return ort.InferenceSession(cached_export(net, search_size), opts,
                                 providers=["CPUExecutionProvider"])
