@@ -170,7 +170,8 @@ def test_crb_of_the_spin_at_zero_tilt_is_the_about_boresight_bound() -> None:
 
 
 # ------------------------------------------------------------------------------------------------
-# A shortened step test against ground truth
+# A shortened step test against ground truth: rendered, tracked and solved end to end (9 s of
+# frames, about 15 s of CPU), so in the slow lane
 # ------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def short_spin() -> rp.StepTestResult:
@@ -181,6 +182,7 @@ def short_spin() -> rp.StepTestResult:
     return rp.run_step_test("spin", cfg)
 
 
+@pytest.mark.slow
 def test_short_step_test_rmse_against_ground_truth(short_spin: rp.StepTestResult) -> None:
     """Camera spin RMSE, recomputed from the true attitudes, within a bound from the measured
     marker errors.
@@ -213,6 +215,7 @@ def test_short_step_test_rmse_against_ground_truth(short_spin: rp.StepTestResult
     assert r.traces["camera_least_squares"].steady.rmse_deg < 2 * 0.5 / D.min() / DEG
 
 
+@pytest.mark.slow
 def test_short_step_test_mems_within_its_drift_bound(short_spin: rp.StepTestResult) -> None:
     """MEMS spin with the seed's zeroing: after 2 s zeroing at 200 Hz the residual z-gyro bias
     has σ = 0.0038 °/s/√Hz·√200/√400 = 0.0027 °/s, plus angle random walk 0.0038·√7 = 0.010°
@@ -222,6 +225,7 @@ def test_short_step_test_mems_within_its_drift_bound(short_spin: rp.StepTestResu
     assert tr.noise_seed == 0 and tr.rmse_spread_rad is None
 
 
+@pytest.mark.slow
 def test_results_table_structure(short_spin: rp.StepTestResult) -> None:
     """One row per scheme; per axis our RMSE, steady frames and the seed's RMSE (seed 000
     §5.1–5.3); axes that were not run are NaN; the Markdown labels the seed's numbers."""

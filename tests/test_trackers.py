@@ -154,7 +154,9 @@ def test_k2cf_follows_fast_constant_velocity_better_than_plain_kcf(clean):
 
 
 # --- pair trackers on a clean sequence ----------------------------------------------------------
-@pytest.mark.parametrize("name", PAIR_TRACKERS)
+# OpenCV's CSRT takes about 40 ms a frame and marker: its two runs are in the slow lane.
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow)
+                                  if n.startswith("csrt") else n for n in PAIR_TRACKERS])
 def test_pair_trackers_on_a_clean_sequence(name, clean):
     run = run_tracker(_make(name), clean)
     e = run.errors(clean)[1:]
