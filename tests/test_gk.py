@@ -666,7 +666,8 @@ def test_tracker_score_threshold(renderer: AnalyticRenderer) -> None:
         GKConfig(kalman={"Q": -np.eye(4)})
 
 
-@pytest.mark.parametrize("case", ["occlusion", "blur"])
+# The blurred sequence (31 frames of 6 sub-renders each, about 15 s) is in the slow lane.
+@pytest.mark.parametrize("case", ["occlusion", pytest.param("blur", marks=pytest.mark.slow)])
 def test_predicted_window_gives_the_full_search_result(
     case: str, params: PlantParams, monkeypatch
 ) -> None:
