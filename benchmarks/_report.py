@@ -16,21 +16,15 @@ import platform
 import sys
 from pathlib import Path
 
+from plant.machine import cpu_model
+
 HERE = Path(__file__).resolve().parent
 RESULTS_DIR = HERE / "results"
 
 
 def machine() -> str:
     """One line about this machine: CPU model, core count, Python."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    return f"{cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 def record(name: str, title: str, figures: dict[str, float], notes: str = "") -> None:

@@ -84,6 +84,7 @@ from latency.mpc_law import mpc_discrete_law, mpc_state_gain
 from latency.pipeline import LoopTiming, PipelineConfig, PipelineMode
 from latency.profile import measure_pair_tracker_latency
 from latency.scenario import MPC_CALL_MEDIAN_S
+from plant.machine import cpu_model
 from plant.params import PlantParams
 
 # --- 1. margins -----------------------------------------------------------------------------
@@ -307,17 +308,6 @@ def measure_here(params: PlantParams, cfg: StudyConfig, out: Path) -> dict[str, 
     return measured
 
 
-def _cpu_model() -> str:
-    """The CPU's model name as the operating system reports it ("unknown" if it does not)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def machine_facts(params: PlantParams, cfg: StudyConfig | None = None) -> dict[str, str | float]:
     """What the report may say about the run: read from the machine, the parameters and the
     motor and camera files of ``cfg``."""
@@ -326,7 +316,7 @@ def machine_facts(params: PlantParams, cfg: StudyConfig | None = None) -> dict[s
         "motor_file": str(cfg.motor_file) if cfg.motor_file else "",
         "camera_file": str(cfg.camera_file) if cfg.camera_file else "",
         "machine": platform.machine(),
-        "processor": _cpu_model(),
+        "processor": cpu_model(),
         "cpus": float(os.cpu_count() or 0),
         "python": platform.python_version(),
         "frame_rate_hz": params.camera.frame_rate_hz,
