@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from tqdm import tqdm
 
 from experiments.intervals import bootstrap_mean_ci, intervals_overlap, wilson_ci
@@ -48,10 +48,39 @@ from latency.loss_model import (
 from latency.models import SEED_LATENCY_S
 from plant.params import PlantParams
 
+#: Scene appearances of the design (``Scenario.camera_effects``), our choices after the
+#: tracking benchmark's hard cases that last a whole run: the nominal scene; ``dim``, the ring
+#: light at 35 % with the gain doubled (darker markers, twice the read noise; the ``dark``
+#: case); ``highlights``, four stationary specular highlights; ``distractor_red``, a red
+#: sticker of marker size on the rotor; ``uneven_light``, a light gradient, vignetting and an
+#: off-axis light spot (the held-out lighting's kind of change). Transient occluders are not
+#: among them: the renderer draws a scene, not a finger entering it.
+APPEARANCES: dict[str, dict] = {
+    "nominal": {},
+    "dim": {"illumination": 0.35, "gain": 2.0},
+    "highlights": {"n_highlights": 4},
+    "distractor_red": {"colour_distractor": "red"},
+    "uneven_light": {"light_gradient": 0.5, "vignetting": 0.4, "light_spot": 0.6},
+}
+
+
+class CameraSetting(BaseModel):
+    """One camera of the design: frame rate and exposure (``plant.camera``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    frame_rate_hz: float = Field(gt=0.0, description="Frames per second, Hz.")
+    exposure_ms: float = Field(gt=0.0, description="Exposure time, ms (the motion blur).")
+
 
 class CalibrationDesign(BaseModel):
-    """The motions a tracker is calibrated on. Defaults are our choice: the study's rates and
-    delays bracketed (the seed's two latencies included), 3 s runs (108 frames at 36 Hz)."""
+    """The motions and cameras a tracker is calibrated on. Defaults are our choice: the study's
+    rates and delays bracketed (the seed's two latencies included); the seed's camera (36 Hz,
+    2 ms) and three others (60 Hz; 6 ms exposures); every (delay, rate, camera) point of a
+    reference seed in one of ``appearances``, turned by one per point so that each appearance
+    meets every delay, rate and camera across seeds; 4 s runs (144 frames at 36 Hz, 240 at
+    60 Hz, of which the loop processes every second or third at the delays beyond a frame
+    period). The defaults give 384 fit runs of 53,376 processed frames and 96 held-out runs."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -63,41 +92,97 @@ class CalibrationDesign(BaseModel):
         (0.0, SEED_LATENCY_S["gk_transt"] * 1e3, SEED_LATENCY_S["dual_transt"] * 1e3, 45.0),
         description="Constant vision delays, ms.")
     fit_seeds: int = Field(6, ge=1, description="Reference seeds per fit point (0, 1, ...).")
-    holdout_seeds: int = Field(4, ge=1, description="Reference seeds per held-out point "
-                               "(1000, 1001, ...: none of the fit's).")
+    holdout_seeds: int = Field(3, ge=1, description="Reference seeds per held-out point "
+                               "(holdout_first_seed, +1, ...).")
+    holdout_first_seed: int = Field(1000, ge=0, description="First held-out reference seed "
+                                    "(above the fit's 0 .. fit_seeds - 1).")
     model_replicas: int = Field(4, ge=1, description="Measurement-model runs per held-out "
                                 "image run (other noise seeds, the same reference).")
-    duration_s: float = Field(3.0, gt=0.5, description="Simulated time per run, s.")
+    cameras: tuple[CameraSetting, ...] = Field(
+        (CameraSetting(frame_rate_hz=36.0, exposure_ms=2.0),
+         CameraSetting(frame_rate_hz=36.0, exposure_ms=6.0),
+         CameraSetting(frame_rate_hz=60.0, exposure_ms=2.0),
+         CameraSetting(frame_rate_hz=60.0, exposure_ms=6.0)),
+        min_length=1, description="Cameras (frame rate, exposure); every point runs on each.")
+    appearances: tuple[str, ...] = Field(
+        tuple(APPEARANCES), min_length=1,
+        description="Scene appearances (APPEARANCES), one per point in turn.")
+    duration_s: float = Field(4.0, gt=0.5, description="Simulated time per run, s.")
     crossover_rad_s: float = Field(10.0, gt=0.0, description="PID crossover (rad/s).")
 
-    def scenarios(self, tracker: str, holdout: bool) -> list[Scenario]:
-        """The image-mode scenarios of the fit (``holdout`` False) or the held-out part, seed by
-        seed (each seed covers every delay and rate, so a partial collection is balanced)."""
+    @field_validator("appearances")
+    @classmethod
+    def _known_appearances(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        bad = [a for a in v if a not in APPEARANCES]
+        if bad:
+            raise ValueError(f"unknown appearance(s) {bad}; choose among {list(APPEARANCES)}")
+        return v
+
+    def points(self, holdout: bool) -> list[RunPoint]:
+        """The runs of the fit (``holdout`` False) or the held-out part, seed by seed (each seed
+        covers every delay, rate and camera, so a partial collection is balanced)."""
         rates = self.holdout_rates_rad_s if holdout else self.fit_rates_rad_s
-        seeds = [1000 + i for i in range(self.holdout_seeds)] if holdout \
+        seeds = [self.holdout_first_seed + i for i in range(self.holdout_seeds)] if holdout \
             else list(range(self.fit_seeds))
-        return [_scenario(tracker, d, r, s, self, "image")
-                for s in seeds for d in self.delays_ms for r in rates]
+        grid = [(d, r, c) for d in self.delays_ms for r in rates for c in self.cameras]
+        n_app = len(self.appearances)
+        return [RunPoint(delay_ms=d, rate_rad_s=r, camera=c, reference_seed=s,
+                         appearance=self.appearances[(j + s) % n_app])
+                for s in seeds for j, (d, r, c) in enumerate(grid)]
+
+    @model_validator(mode="after")
+    def _seeds_apart(self) -> CalibrationDesign:
+        if self.holdout_first_seed < self.fit_seeds:
+            raise ValueError(f"holdout_first_seed {self.holdout_first_seed} is among the fit's "
+                             f"reference seeds 0 .. {self.fit_seeds - 1}")
+        return self
+
+    def scenarios(self, tracker: str, holdout: bool) -> list[Scenario]:
+        """The image-mode scenarios of ``points(holdout)``."""
+        return [pt.scenario(tracker, self, "image") for pt in self.points(holdout)]
 
 
-def _scenario(tracker: str, delay_ms: float, rate: float, seed: int, design: CalibrationDesign,
-              mode: str, loss: dict | None = None, noise_seed: int | None = None) -> Scenario:
-    """One calibration run: the tracker's image run, or its measurement-model twin."""
-    body = {
-        "name": f"{tracker}-{delay_ms:g}ms-{rate:g}rad_s-r{seed}",
-        "duration_s": design.duration_s,
-        "seed": seed if noise_seed is None else noise_seed,
-        "mode": mode,
-        "observer": {"kind": "solver"},
-        "controller": {"kind": "pid", "config": {"crossover_rad_s": design.crossover_rad_s}},
-        "reference": {"kind": "random", "args": {"max_rate_rad_s": rate, "seed": seed}},
-        "pipeline": {"observer": {"kind": "constant", "value_s": delay_ms / 1e3}},
-    }
-    if mode == "image":
-        body["tracker"] = tracker
-    if loss is not None:
-        body["measurement"] = {"loss": loss}
-    return Scenario.model_validate(body)
+class RunPoint(BaseModel):
+    """One run of the design: motion, delay, camera, scene and reference seed."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    delay_ms: float
+    rate_rad_s: float
+    camera: CameraSetting
+    appearance: str
+    reference_seed: int
+
+    @property
+    def name(self) -> str:
+        c = self.camera
+        return (f"{self.delay_ms:g}ms-{self.rate_rad_s:g}rad_s-{c.frame_rate_hz:g}hz-"
+                f"{c.exposure_ms:g}ms_exp-{self.appearance}-r{self.reference_seed}")
+
+    def scenario(self, tracker: str, design: CalibrationDesign, mode: str,
+                 loss: dict | None = None, noise_seed: int | None = None) -> Scenario:
+        """The tracker's image run of this point, or its measurement-model twin (``loss`` the
+        twin's loss model, ``noise_seed`` its own noise)."""
+        c = self.camera
+        body: dict = {
+            "name": f"{tracker}-{self.name}",
+            "duration_s": design.duration_s,
+            "seed": self.reference_seed if noise_seed is None else noise_seed,
+            "mode": mode,
+            "plant": {"camera": {"frame_rate_hz": c.frame_rate_hz,
+                                 "exposure_s": c.exposure_ms / 1e3}},
+            "observer": {"kind": "solver"},
+            "controller": {"kind": "pid", "config": {"crossover_rad_s": design.crossover_rad_s}},
+            "reference": {"kind": "random", "args": {"max_rate_rad_s": self.rate_rad_s,
+                                                     "seed": self.reference_seed}},
+            "pipeline": {"observer": {"kind": "constant", "value_s": self.delay_ms / 1e3}},
+        }
+        if mode == "image":
+            body["tracker"] = tracker
+            body["camera_effects"] = APPEARANCES[self.appearance]
+        if loss is not None:
+            body["measurement"] = {"loss": loss}
+        return Scenario.model_validate(body)
 
 
 def frame_records(res: LoopResult, params: PlantParams) -> pd.DataFrame:
@@ -135,16 +220,20 @@ def frame_records(res: LoopResult, params: PlantParams) -> pd.DataFrame:
     return out
 
 
-def _run_records(scenarios: list[Scenario], workers: int) -> pd.DataFrame:
-    """The records of image runs, with each run's bookkeeping."""
+def _run_records(tracker: str, design: CalibrationDesign, points: list[RunPoint],
+                 workers: int) -> pd.DataFrame:
+    """The records of the image runs of ``points``, with each run's bookkeeping."""
+    scenarios = [pt.scenario(tracker, design, "image") for pt in points]
     results = run_images(build_loop, scenarios, workers=workers)
     parts = []
-    for s, res in zip(scenarios, results, strict=True):
+    for pt, s, res in zip(points, scenarios, results, strict=True):
         rec = frame_records(res, s.plant)
-        ref = s.reference.args  # type: ignore[union-attr]
-        rec["delay_ms"] = s.pipeline.observer.mean_s * 1e3
-        rec["rate_rad_s"] = ref["max_rate_rad_s"]
-        rec["reference_seed"] = ref["seed"]
+        rec["delay_ms"] = pt.delay_ms
+        rec["rate_rad_s"] = pt.rate_rad_s
+        rec["frame_rate_hz"] = pt.camera.frame_rate_hz
+        rec["exposure_ms"] = pt.camera.exposure_ms
+        rec["appearance"] = pt.appearance
+        rec["reference_seed"] = pt.reference_seed
         rec["run_lost_frame_fraction"] = res.summary["lost_frame_fraction"]
         rec["run_loss_of_control"] = res.summary["loss_of_control"]
         rec["run"] = s.name
@@ -158,22 +247,23 @@ def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 
     says which part). Batches already in ``work`` are read, not run again."""
     work.mkdir(parents=True, exist_ok=True)
     stamp = work / "design.json"
-    text = json.dumps({"tracker": tracker, "design": design.model_dump()}, sort_keys=True)
+    text = json.dumps({"tracker": tracker, "design": design.model_dump(mode="json")},
+                      sort_keys=True)
     if stamp.exists() and stamp.read_text() != text:
         raise ValueError(f"{work} holds a calibration of another design or tracker; use "
                          "another --work folder or delete it")
     stamp.write_text(text)
     parts = []
-    jobs = [(False, s) for s in design.scenarios(tracker, False)] + \
-        [(True, s) for s in design.scenarios(tracker, True)]
+    jobs = [(False, pt) for pt in design.points(False)] + \
+        [(True, pt) for pt in design.points(True)]
     batches = [jobs[i : i + batch_runs] for i in range(0, len(jobs), batch_runs)]
     for k, batch in enumerate(tqdm(batches, desc=f"calibrating {tracker}", unit="batch",
                                    disable=not progress)):
         path = work / f"records-{k:03d}.parquet"
         if not path.exists():
-            rec = _run_records([s for _, s in batch], workers)
-            holdout = {s.name: h for h, s in batch}
-            rec["holdout"] = rec["run"].map(holdout).astype(bool)
+            rec = _run_records(tracker, design, [pt for _, pt in batch], workers)
+            rec["holdout"] = np.repeat([h for h, _ in batch],
+                                       rec.groupby("run", sort=False).size().to_numpy())
             tmp = path.with_suffix(".tmp")
             rec.to_parquet(tmp)
             os.replace(tmp, path)
@@ -207,9 +297,22 @@ def fit(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> LossM
         weights_sha256=current_weights_sha256(tracker),
         hazard=tuple(float(x) for x in hazard), persistence=tuple(float(x) for x in persistence),
         noise_sigma_px=robust_sigma_px(errs), n_frames=len(r), n_runs=int(r["run"].nunique()),
-        design=design.model_dump(mode="json"),
+        design=design.model_dump(mode="json"), lost_by_condition=lost_by_condition(r),
         created_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
     )
+
+
+def lost_by_condition(records: pd.DataFrame) -> list[dict]:
+    """Lost-frame fraction and frame count of ``records`` per camera (frame rate, exposure) and
+    per appearance: what the three-condition model averages over."""
+    rows = []
+    for keys in (["frame_rate_hz", "exposure_ms"], ["appearance"]):
+        for k, g in records.groupby(keys):
+            k = k if isinstance(k, tuple) else (k,)
+            rows.append({**dict(zip(keys, (x.item() if hasattr(x, "item") else x for x in k),
+                                    strict=True)),
+                         "frames": len(g), "lost_frame_fraction": float(g["lost"].mean())})
+    return rows
 
 
 def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> list[dict]:
@@ -217,16 +320,21 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
     loss-of-control rate against the calibrated measurement model's on the same references
     (``model_replicas`` noise seeds each), each with its 95 % interval; ``agree`` when both
     pairs of intervals overlap. Needs the model file written."""
-    runs = (records[records["holdout"]]
-            .groupby("run").first().reset_index())
+    lost_by_run = records[records["holdout"]].groupby("run").first()
     loss = {"kind": "calibrated", "tracker": tracker}
-    twins, keys = [], []
-    for _, row in runs.iterrows():
+    twins, keys, image = [], [], []
+    for pt in design.points(True):
+        name = pt.scenario(tracker, design, "image").name
+        if name not in lost_by_run.index:
+            continue
+        image.append((pt.delay_ms, pt.rate_rad_s, *lost_by_run.loc[name, [
+            "run_lost_frame_fraction", "run_loss_of_control"]]))
         for m in range(design.model_replicas):
-            twins.append(_scenario(tracker, row["delay_ms"], row["rate_rad_s"],
-                                   int(row["reference_seed"]), design, "measurement", loss,
-                                   noise_seed=int(row["reference_seed"]) + 10_000 * (m + 1)))
-            keys.append((row["delay_ms"], row["rate_rad_s"]))
+            twins.append(pt.scenario(tracker, design, "measurement", loss,
+                                     noise_seed=pt.reference_seed + 10_000 * (m + 1)))
+            keys.append((pt.delay_ms, pt.rate_rad_s))
+    runs = pd.DataFrame(image, columns=["delay_ms", "rate_rad_s", "run_lost_frame_fraction",
+                                        "run_loss_of_control"])
     model_runs = pd.DataFrame([(*k, r.summary["lost_frame_fraction"],
                                 r.summary["loss_of_control"])
                                for k, r in zip(keys, simulate_many(twins, tables=False),

@@ -55,7 +55,7 @@ from plant.camera import marker_pixels
 from plant.params import PlantParams
 
 #: Version of the file layout; files of another version are refused.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: Where the shipped calibrations live.
 MODELS_DIR = Path(__file__).resolve().parent / "loss_models"
 #: Trackers that can be calibrated (``observer.trackers.make_pair_tracker`` names).
@@ -94,6 +94,9 @@ class LossModelFile(BaseModel):
     n_frames: int = Field(ge=0, description="Frames the fit used.")
     n_runs: int = Field(ge=0, description="Image-mode runs the fit used.")
     design: dict = Field(description="The calibration design (rates, delays, seeds, length).")
+    lost_by_condition: list[dict] = Field(
+        default_factory=list, description="The fit's lost-frame fraction per camera (frame "
+        "rate, exposure) and per scene appearance (experiments.loss_calibration).")
     validation: list[dict] = Field(
         default_factory=list, description="Held-out agreement rows (experiments.loss_calibration).")
     created_utc: str = Field(description="When it was written.")

@@ -55,6 +55,7 @@ from observer.trackers import TRACKERS
 from plant import attitude
 from plant.config_files import load_mapping
 from plant.params import PlantParams
+from plant.render_analytic import AnalyticRenderOptions
 from plant.renderers import RENDERERS
 from plant.texture import TextureParams
 from plant.user_files import plant_from_files
@@ -214,6 +215,13 @@ class Scenario(_Model):
         description="The rotor's printed pattern (seed and shapes) instead of the two "
         "markers; default on for the ORB observer kinds, off otherwise.",
     )
+    camera_effects: AnalyticRenderOptions | None = Field(
+        None,
+        description="Image mode, analytic renderer: the camera's effects and distractors "
+        "(plant.render_analytic.AnalyticRenderOptions: illumination, gain, read noise, "
+        "specular highlights, a colour distractor, light gradient, vignetting, defocus, JPEG); "
+        "None: its defaults. The rotor's print is ``texture``, not set here.",
+    )
     observer_latency: Literal["model", "measured"] = Field(
         "model",
         description="Observer latency from pipeline.observer ('model', reproducible) or the "
@@ -337,6 +345,21 @@ class Scenario(_Model):
                 f"tracker {self.tracker!r} needs mode: image with a marker observer (aekf, ekf, "
                 f"solver, pixel_kalman); got mode {self.mode!r}, observer {self.observer.kind!r}"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _camera_effects_fit(self) -> Scenario:
+        fx = self.camera_effects
+        if fx is None:
+            return self
+        if self.mode != "image" or self.renderer != "analytic":
+            raise ValueError(
+                f"camera_effects are the analytic renderer's: they need mode: image and "
+                f"renderer: analytic, got mode {self.mode!r}, renderer {self.renderer!r}"
+            )
+        if fx.texture is not None:
+            raise ValueError("camera_effects.texture: set the rotor's print with the "
+                             "scenario's texture field")
         return self
 
     @model_validator(mode="after")

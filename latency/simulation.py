@@ -62,7 +62,8 @@ def build_loop(s: Scenario, clock: Callable[[], float] = time.perf_counter) -> C
     Tests inject a stand-in so that the ``measured`` latencies do not depend on machine load.
     """
     p = s.plant
-    renderer = RENDERERS.get(s.renderer).build(p, s.texture, s.seed) if s.mode == "image" else None
+    renderer = (RENDERERS.get(s.renderer).build(p, s.texture, s.seed, s.camera_effects)
+                if s.mode == "image" else None)
     reference_view = None
     if s.observer.is_orb:  # the textured rotor: rendered frames matched to a reference view
         reference_view = orb_reference(p, renderer, s.texture, config=s.observer.orb)

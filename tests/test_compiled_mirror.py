@@ -51,7 +51,13 @@ from latency.compiled.settings import (
 from latency.compiled.steps import _advance
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd, SearchWindowLoss
 from latency.loop import Advance, _advance_segment, _StepLog
-from latency.loss_model import LossModel, LossModelFile, blur_travel_px, prediction_offset_px
+from latency.loss_model import (
+    FORMAT_VERSION,
+    LossModel,
+    LossModelFile,
+    blur_travel_px,
+    prediction_offset_px,
+)
 from latency.pipeline import FrameScheduler, PipelineConfig
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver, failure_reason
@@ -394,7 +400,8 @@ def test_p_lost_is_the_loss_models():
     for _ in range(400):
         hazard, persistence = rng.normal(0, 1, 3), rng.normal(0, 1, 4)
         model = LossModel(LossModelFile(
-            format_version=1, tracker="kcf_gk", weights_sha256=None, hazard=tuple(hazard),
+            format_version=FORMAT_VERSION, tracker="kcf_gk", weights_sha256=None,
+            hazard=tuple(hazard),
             persistence=tuple(persistence), noise_sigma_px=0.3, n_frames=1, n_runs=1, design={},
             created_utc=""))
         st, pred, truth = _front_end_state(rng)

@@ -162,12 +162,18 @@ def test_shipped_calibration_agrees_with_image_runs_it_was_not_fitted_on(tmp_pat
     """The shipped GK-TransT model against GK-TransT itself in closed loop, on references the
     fit did not use (reference seeds 2000-2003, 3.5 rad/s, 31.23 ms): lost-frame fraction and
     loss of control within each other's 95 % intervals."""
-    from experiments.loss_calibration import CalibrationDesign, _run_records, _scenario, validate
+    from experiments.loss_calibration import (
+        CalibrationDesign,
+        CameraSetting,
+        _run_records,
+        validate,
+    )
 
-    design = CalibrationDesign(model_replicas=4, duration_s=3.0)
-    scenarios = [_scenario("gk_transt", 31.23, 3.5, seed, design, "image")
-                 for seed in range(2000, 2004)]
-    records = _run_records(scenarios, workers=1)
+    design = CalibrationDesign(
+        holdout_rates_rad_s=(3.5,), delays_ms=(31.23,), holdout_seeds=4,
+        holdout_first_seed=2000, cameras=(CameraSetting(frame_rate_hz=36.0, exposure_ms=2.0),),
+        appearances=("nominal",), model_replicas=4, duration_s=3.0)
+    records = _run_records("gk_transt", design, design.points(True), workers=1)
     records["holdout"] = True
     rows = validate("gk_transt", records, design)
     assert len(rows) == 1 and rows[0]["image_runs"] == 4 and rows[0]["model_runs"] == 16

@@ -87,8 +87,8 @@ def calibrate_loss(
         help="gk_transt, dual_transt, kcf_gk (OpenCV KCF inside the GK assistance) or k2cf.")],
     seeds: Annotated[int, typer.Option(help="Reference seeds per fit point (>= 1).")] = 6,
     holdout_seeds: Annotated[int, typer.Option(
-        help="Reference seeds per held-out point (>= 1).")] = 4,
-    duration_s: Annotated[float, typer.Option(help="Simulated time per run, s (> 0.5).")] = 3.0,
+        help="Reference seeds per held-out point (>= 1).")] = 3,
+    duration_s: Annotated[float, typer.Option(help="Simulated time per run, s (> 0.5).")] = 4.0,
     workers: Annotated[int, typer.Option(help="Worker processes of the image engine.")] = 2,
     work: Annotated[Path | None, typer.Option(
         help="Folder of the resumable records (default runs/calibrate-loss-<tracker>).")] = None,

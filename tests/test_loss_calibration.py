@@ -1,0 +1,95 @@
+"""The loss calibration's design: cameras and scene appearances reach the image runs, the design
+is balanced, and a collection resumes instead of running again."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from pydantic import ValidationError
+
+import experiments.loss_calibration as cal
+from experiments.loss_calibration import APPEARANCES, CalibrationDesign, CameraSetting, collect
+from latency import Scenario, build_loop
+
+pytestmark = pytest.mark.engine
+
+IMAGE = {"mode": "image", "observer": {"kind": "solver"}, "duration_s": 0.5}
+
+
+def _mean_grey(camera_effects: dict | None) -> float:
+    """Mean grey level (0-255) of the first rendered frame of an image scenario at rest."""
+    body = {**IMAGE, "camera_effects": camera_effects}
+    renderer = build_loop(Scenario.model_validate(body)).front_end.renderer
+    return float(renderer.render(np.array([1.0, 0.0, 0.0, 0.0])).image.mean())
+
+
+def test_camera_effects_reach_the_renderer() -> None:
+    """The renderer multiplies the scene's brightness by ``illumination`` (no read noise here,
+    gain 1): the frame's mean grey level scales with it, to the rounding to 8 bits."""
+    bright = _mean_grey({"noise_sigma_dn": 0.0})
+    dim = _mean_grey({"noise_sigma_dn": 0.0, "illumination": 0.35})
+    assert bright > 20.0
+    assert dim / bright == pytest.approx(0.35, abs=0.02)
+
+
+@pytest.mark.parametrize(("extra", "match"), [
+    ({"mode": "measurement"}, "need mode: image"),
+    ({"renderer": "mujoco"}, "renderer: analytic"),
+    ({"camera_effects": {"texture": {"seed": 1}}}, "texture field"),
+    ({"camera_effects": {"illumination": -1.0}}, "illumination"),
+])
+def test_camera_effects_where_they_do_not_apply_are_refused(extra: dict, match: str) -> None:
+    body = {**IMAGE, "camera_effects": {"illumination": 0.5}, **extra}
+    with pytest.raises(ValidationError, match=match):
+        Scenario.model_validate(body)
+
+
+def test_design_meets_every_appearance_with_every_camera_and_keeps_seeds_apart() -> None:
+    design = CalibrationDesign()
+    fit, held = design.points(False), design.points(True)
+    assert len(fit) == len(design.fit_rates_rad_s) * len(design.delays_ms) * \
+        len(design.cameras) * design.fit_seeds
+    pairs = {(p.appearance, p.camera) for p in fit}
+    assert pairs == {(a, c) for a in design.appearances for c in design.cameras}
+    assert {p.reference_seed for p in fit}.isdisjoint({p.reference_seed for p in held})
+    assert len({p.name for p in fit + held}) == len(fit) + len(held)
+    with pytest.raises(ValidationError, match="among the fit's"):
+        CalibrationDesign(fit_seeds=8, holdout_first_seed=5)
+    with pytest.raises(ValidationError, match="unknown appearance"):
+        CalibrationDesign(appearances=("nominal", "foggy"))
+    assert set(APPEARANCES) >= set(design.appearances)
+
+
+def test_collection_records_the_camera_and_resumes(tmp_path, monkeypatch) -> None:
+    """A small design (two cameras, two appearances, one seed each side) of KCF inside the GK
+    assistance: every run's processed frames number its duration times its frame rate, each
+    record carries its run's camera and appearance, and a second call reads the batches back
+    instead of running them."""
+    design = CalibrationDesign(
+        fit_rates_rad_s=(3.0,), holdout_rates_rad_s=(2.0,), delays_ms=(0.0,), fit_seeds=1,
+        holdout_seeds=1, cameras=(CameraSetting(frame_rate_hz=36.0, exposure_ms=2.0),
+                                  CameraSetting(frame_rate_hz=60.0, exposure_ms=6.0)),
+        appearances=("nominal", "dim"), duration_s=0.6)
+    records = collect("kcf_gk", design, tmp_path, workers=1, batch_runs=3, progress=False)
+    runs = records.groupby("run").agg(frames=("lost", "size"), fps=("frame_rate_hz", "first"),
+                                      exp=("exposure_ms", "first"),
+                                      app=("appearance", "first"), holdout=("holdout", "first"))
+    assert len(runs) == 4 and runs["holdout"].sum() == 2
+    np.testing.assert_allclose(runs["frames"], design.duration_s * runs["fps"], atol=1.0)
+    for pt in design.points(False) + design.points(True):
+        row = runs.loc[f"kcf_gk-{pt.name}"]
+        assert (row["fps"], row["exp"], row["app"]) == (
+            pt.camera.frame_rate_hz, pt.camera.exposure_ms, pt.appearance)
+    assert sorted(p.name for p in tmp_path.glob("records-*.parquet")) == \
+        ["records-000.parquet", "records-001.parquet"]
+
+    def no_runs(*args, **kwargs):
+        raise AssertionError("a resumed collection ran again")
+
+    monkeypatch.setattr(cal, "_run_records", no_runs)
+    again = collect("kcf_gk", design, tmp_path, workers=1, batch_runs=3, progress=False)
+    pd.testing.assert_frame_equal(again, records)
+    with pytest.raises(ValueError, match="another design"):
+        collect("kcf_gk", design.model_copy(update={"duration_s": 0.7}), tmp_path,
+                workers=1, progress=False)
