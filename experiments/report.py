@@ -187,10 +187,24 @@ def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
     ]
 
 
-def _calibration_section(calibration: pd.DataFrame | None) -> list[str]:
-    """The calibrated loss models' held-out validation (from their files)."""
+def _calibration_section(calibration: pd.DataFrame | None,
+                         conditions: pd.DataFrame | None = None) -> list[str]:
+    """The calibrated loss models' held-out validation and their fit's lost frames per camera
+    and scene (from their files)."""
     if calibration is None or not len(calibration):
         return []
+    by_condition = []
+    if conditions is not None and len(conditions):
+        c = conditions.pivot(index="condition", columns="tracker", values="lost_frame_fraction")
+        c = (100.0 * c).round(1)
+        by_condition = [
+            "Lost frames (%) in each tracker's fit runs, per camera and per scene appearance "
+            "(every delay and peak rate of the design pooled; the model's three conditions, "
+            "prediction miss, blur and frames lost in a row, stand in for these):",
+            "",
+            md_table(c.reset_index()),
+            "",
+        ]
     t = calibration[["tracker", "fit_frames", "delay_ms", "rate_rad_s", "image_runs",
                      "model_runs"]].copy()
     t["lost frames image (%)"] = _ends(calibration, "image_lost_frame_fraction", 100.0)
@@ -208,6 +222,7 @@ def _calibration_section(calibration: pd.DataFrame | None) -> list[str]:
         "",
         md_table(t),
         "",
+        *by_condition,
     ]
 
 
@@ -273,12 +288,13 @@ def _reference_sentence(cfg) -> str:
 def write_report(
     out: Path, cfg, findings, margins, intervals, loss, ts: dict, measured: dict[str, float],
     facts: dict, mpc_margins=None, image_loop: pd.DataFrame | None = None,
-    calibration: pd.DataFrame | None = None,
+    calibration: pd.DataFrame | None = None, conditions: pd.DataFrame | None = None,
 ) -> None:
     """Write ``report.md`` and ``report.html`` into ``out``. Facts about the machine and the
     camera come from ``facts`` (read in this run), latencies from ``measured``; the image-mode
     section from ``image_loop`` (None: not run), the calibrated loss models' held-out
-    agreement from ``calibration``."""
+    agreement from ``calibration`` and their fit's lost frames per condition from
+    ``conditions``."""
     md = [
         *_header_lines(facts),
         "## Summary",
@@ -289,7 +305,7 @@ def write_report(
         *_mpc_section(mpc_margins),
         *_sweep_section(cfg, facts, intervals),
         *_image_loop_section(image_loop, cfg),
-        *_calibration_section(calibration),
+        *_calibration_section(calibration, conditions),
         *_time_series_section(ts, measured),
     ]
     text = "\n".join(md)

@@ -62,6 +62,7 @@ from experiments.study_plots import (
 )
 from experiments.study_summary import predicted_boundary_ms, summary_text
 from experiments.study_sweep import (
+    calibration_conditions,
     calibration_table,
     controller_spec,
     image_loop,
@@ -377,8 +378,10 @@ def run_study(out_root: Path = Path("runs"), config: StudyConfig | None = None) 
     findings = summary_text(margins, intervals, loss, ts, measured, facts, cfg, mpc_margins,
                             image)
     (out / "study_config.json").write_text(json.dumps(cfg.model_dump(mode="json"), indent=1))
-    calibration = calibration_table(cfg.trackers) if cfg.loss_model == "calibrated" else None
+    calibrated = cfg.loss_model == "calibrated"
+    calibration = calibration_table(cfg.trackers) if calibrated else None
+    conditions = calibration_conditions(cfg.trackers) if calibrated else None
     write_report(out, cfg, findings, margins, intervals, loss, ts, measured, facts, mpc_margins,
-                 image, calibration)
+                 image, calibration, conditions)
     return out
 

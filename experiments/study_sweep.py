@@ -267,6 +267,20 @@ def _overlap(row: pd.Series, a: str, b: str) -> bool:
                                for c in (a, b)))
 
 
+def calibration_conditions(trackers: tuple[str, ...]) -> pd.DataFrame:
+    """Each tracker's lost-frame fraction in its calibration's fit runs per camera (frame rate,
+    exposure) and per scene appearance, as written by ``pmspm calibrate-loss``: what its loss
+    model averages over (one row per tracker and condition)."""
+    rows = []
+    for t in trackers:
+        for c in load_loss_model(t).data.lost_by_condition:
+            what = (f"{c['frame_rate_hz']:g} Hz, {c['exposure_ms']:g} ms exposure"
+                    if "appearance" not in c else f"scene: {c['appearance']}")
+            rows.append({"tracker": t, "condition": what, "frames": c["frames"],
+                         "lost_frame_fraction": c["lost_frame_fraction"]})
+    return pd.DataFrame(rows, columns=["tracker", "condition", "frames", "lost_frame_fraction"])
+
+
 def calibration_table(trackers: tuple[str, ...]) -> pd.DataFrame:
     """The held-out validation of each tracker's calibrated loss model, as written by
     ``pmspm calibrate-loss`` (one row per tracker, delay and peak rate)."""

@@ -3,6 +3,8 @@ is balanced, and a collection resumes instead of running again."""
 
 from __future__ import annotations
 
+from collections import Counter
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -52,6 +54,15 @@ def test_design_meets_every_appearance_with_every_camera_and_keeps_seeds_apart()
         len(design.cameras) * design.fit_seeds
     pairs = {(p.appearance, p.camera) for p in fit}
     assert pairs == {(a, c) for a in design.appearances for c in design.cameras}
+    n_app = len(design.appearances)
+    for seed in range(design.fit_seeds):  # each seed's runs spread evenly over the scenes
+        counts = Counter(p.appearance for p in fit if p.reference_seed == seed)
+        per_seed = len(fit) // design.fit_seeds
+        assert set(counts) == set(design.appearances)
+        assert set(counts.values()) <= {per_seed // n_app, -(-per_seed // n_app)}
+    for d, r, c in {(p.delay_ms, p.rate_rad_s, p.camera) for p in fit}:  # and over seeds
+        assert {p.appearance for p in fit if (p.delay_ms, p.rate_rad_s, p.camera) == (d, r, c)} \
+            == set(design.appearances)
     assert {p.reference_seed for p in fit}.isdisjoint({p.reference_seed for p in held})
     assert len({p.name for p in fit + held}) == len(fit) + len(held)
     with pytest.raises(ValidationError, match="among the fit's"):

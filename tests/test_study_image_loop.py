@@ -14,6 +14,7 @@ from experiments.study_summary import _image_loop_lines
 from experiments.study_sweep import (
     _overlap,
     _twin,
+    calibration_conditions,
     calibration_table,
     image_loop,
     image_loop_scenarios,
@@ -39,6 +40,11 @@ def models(tmp_path, monkeypatch):
             weights_sha256=lm.current_weights_sha256(tracker), hazard=(hazard, 0.0, 0.0),
             persistence=(hazard, 0.0, 0.0, 0.0), noise_sigma_px=0.2, n_frames=10, n_runs=1,
             design={}, created_utc="2026-01-01T00:00:00+00:00",
+            lost_by_condition=[
+                {"frame_rate_hz": 36.0, "exposure_ms": 2.0, "frames": 900,
+                 "lost_frame_fraction": 0.25 * p if tracker == "dual_transt" else 0.0},
+                {"appearance": "dim", "frames": 400,
+                 "lost_frame_fraction": p if tracker == "dual_transt" else 0.0}],
             validation=[{"delay_ms": 16.33, "rate_rad_s": 2.0, "image_runs": 4, "model_runs": 16,
                          "image_lost_frame_fraction": [0.1, 0.05, 0.15],
                          "model_lost_frame_fraction": [0.12, 0.1, 0.14],
@@ -114,6 +120,13 @@ def test_calibration_table_reads_the_files(models):
     assert t.image_lost_frame_fraction_lo.tolist() == [0.05, 0.05]
     text = "\n".join(_calibration_section(t))
     assert "held-out" in text and "dual_transt" in text
+    c = calibration_conditions(("gk_transt", "dual_transt"))
+    assert len(c) == 4 and set(c.condition) == {"36 Hz, 2 ms exposure", "scene: dim"}
+    lines = "\n".join(_calibration_section(t, c)).splitlines()
+    # one row per condition, the trackers in columns, in percent: dual TransT's 5 % and 20 %
+    assert "| condition | dual_transt | gk_transt |" in lines
+    assert "| 36 Hz, 2 ms exposure | 5.000 | 0.000 |" in lines
+    assert "| scene: dim | 20.000 | 0.000 |" in lines
 
 
 @pytest.mark.slow
