@@ -35,6 +35,7 @@ from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
 from latency.loop_config import LoopResult
 from latency.loss_model import (
+    BASELINE_SCENE,
     FORMAT_VERSION,
     LossModelFile,
     blur_travel_px,
@@ -56,7 +57,7 @@ from plant.params import PlantParams
 #: off-axis light spot (the held-out lighting's kind of change). Transient occluders are not
 #: among them: the renderer draws a scene, not a finger entering it.
 APPEARANCES: dict[str, dict] = {
-    "nominal": {},
+    BASELINE_SCENE: {},
     "dim": {"illumination": 0.35, "gain": 2.0},
     "highlights": {"n_highlights": 4},
     "distractor_red": {"colour_distractor": "red"},
@@ -132,6 +133,9 @@ class CalibrationDesign(BaseModel):
 
     @model_validator(mode="after")
     def _seeds_apart(self) -> CalibrationDesign:
+        if BASELINE_SCENE not in self.appearances:
+            raise ValueError(f"appearances must include {BASELINE_SCENE!r}, the scene the "
+                             "model's intercepts describe")
         if self.holdout_first_seed < self.fit_seeds:
             raise ValueError(f"holdout_first_seed {self.holdout_first_seed} is among the fit's "
                              f"reference seeds 0 .. {self.fit_seeds - 1}")
@@ -283,13 +287,22 @@ def fit(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> LossM
     """The loss model of the fit part of ``records`` (see the module docstring)."""
     r = records[~records["holdout"]]
     Xh, Xp = design_matrices(r["offset_px"], r["blur_px"], r["frames_lost"])
+    # one indicator per scene other than the baseline: its offset on both intercepts
+    scenes = [a for a in design.appearances if a != BASELINE_SCENE]
+    D = np.column_stack([(r["appearance"] == a).to_numpy(dtype=float) for a in scenes]) \
+        if scenes else np.empty((len(r), 0))
+    Xh, Xp = np.hstack([Xh, D]), np.hstack([Xp, D])
     after_tracked = r["frames_lost"].to_numpy() == 0
     lost = r["lost"].to_numpy(dtype=float)
     hazard = fit_logistic(Xh[after_tracked], lost[after_tracked])
     if np.any(~after_tracked):
         persistence = fit_logistic(Xp[~after_tracked], lost[~after_tracked])
     else:  # never lost in the design: a loss would last one frame
-        persistence = np.array([-20.0, 0.0, 0.0, 0.0])
+        persistence = np.r_[-20.0, np.zeros(Xp.shape[1])]
+    k = len(scenes)
+    offsets = {a: (float(hazard[-k + i]), float(persistence[-k + i]))
+               for i, a in enumerate(scenes)}
+    hazard, persistence = hazard[: len(hazard) - k], persistence[: len(persistence) - k]
     ok = ~r["lost"].to_numpy(dtype=bool)
     errs = r.loc[ok, [c for c in r.columns if c.startswith("err_")]].to_numpy().ravel()
     return LossModelFile(
@@ -297,7 +310,8 @@ def fit(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> LossM
         weights_sha256=current_weights_sha256(tracker),
         hazard=tuple(float(x) for x in hazard), persistence=tuple(float(x) for x in persistence),
         noise_sigma_px=robust_sigma_px(errs), n_frames=len(r), n_runs=int(r["run"].nunique()),
-        design=design.model_dump(mode="json"), lost_by_condition=lost_by_condition(r),
+        design=design.model_dump(mode="json"), scene_offsets=offsets,
+        lost_by_condition=lost_by_condition(r),
         created_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
     )
 
@@ -321,7 +335,6 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
     (``model_replicas`` noise seeds each), each with its 95 % interval; ``agree`` when both
     pairs of intervals overlap. Needs the model file written."""
     lost_by_run = records[records["holdout"]].groupby("run").first()
-    loss = {"kind": "calibrated", "tracker": tracker}
     twins, keys, image = [], [], []
     for pt in design.points(True):
         name = pt.scenario(tracker, design, "image").name
@@ -329,6 +342,7 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
             continue
         image.append((pt.delay_ms, pt.rate_rad_s, *lost_by_run.loc[name, [
             "run_lost_frame_fraction", "run_loss_of_control"]]))
+        loss = {"kind": "calibrated", "tracker": tracker, "scene": pt.appearance}
         for m in range(design.model_replicas):
             twins.append(pt.scenario(tracker, design, "measurement", loss,
                                      noise_seed=pt.reference_seed + 10_000 * (m + 1)))

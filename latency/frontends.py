@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from latency.loss_model import (
+    BASELINE_SCENE,
     CALIBRATABLE,
     LossModel,
     blur_travel_px,
@@ -161,16 +162,19 @@ class CalibratedLoss(BaseModel):
     noise: Literal["calibrated", "sigma_px"] = Field(
         "calibrated", description="Centre noise of tracked frames: the tracker's calibrated "
         "spread, or the measurement model's sigma_px.")
+    scene: str = Field(BASELINE_SCENE, description="The scene appearance of the calibration "
+                       "(its file lists them: nominal, dim, highlights, distractor_red, "
+                       "uneven_light; experiments.loss_calibration.APPEARANCES).")
 
     @model_validator(mode="after")
     def _file_loads(self) -> CalibratedLoss:
-        load_loss_model(self.tracker)
+        load_loss_model(self.tracker, scene=self.scene)
         return self
 
     @property
     def model(self) -> LossModel:
-        """The loaded calibration."""
-        return load_loss_model(self.tracker)
+        """The loaded calibration, in this scene."""
+        return load_loss_model(self.tracker, scene=self.scene)
 
 
 LossSpec = Annotated[SearchWindowLoss | CalibratedLoss, Field(discriminator="kind")]

@@ -54,6 +54,8 @@ from plant import attitude
 from plant.camera import marker_pixels
 from plant.params import PlantParams
 
+#: The scene appearance the intercepts describe; the others carry offsets (``scene_offsets``).
+BASELINE_SCENE = "nominal"
 #: Version of the file layout; files of another version are refused.
 FORMAT_VERSION = 2
 #: Where the shipped calibrations live.
@@ -94,6 +96,9 @@ class LossModelFile(BaseModel):
     n_frames: int = Field(ge=0, description="Frames the fit used.")
     n_runs: int = Field(ge=0, description="Image-mode runs the fit used.")
     design: dict = Field(description="The calibration design (rates, delays, seeds, length).")
+    scene_offsets: dict[str, tuple[float, float]] = Field(
+        default_factory=dict, description="Per scene appearance of the calibration other than "
+        "BASELINE_SCENE: the offsets (hazard, persistence) added to the intercepts h0 and r0.")
     lost_by_condition: list[dict] = Field(
         default_factory=list, description="The fit's lost-frame fraction per camera (frame "
         "rate, exposure) and per scene appearance (experiments.loss_calibration).")
@@ -108,16 +113,31 @@ def sigmoid(x: NDArray[np.float64] | float) -> NDArray[np.float64] | float:
 
 
 class LossModel:
-    """A loaded calibration: the loss probability of a frame (module docstring)."""
+    """A loaded calibration: the loss probability of a frame (module docstring) in one of the
+    calibration's scene appearances (``scene``; its offsets added to both intercepts)."""
 
-    def __init__(self, data: LossModelFile) -> None:
+    def __init__(self, data: LossModelFile, scene: str = BASELINE_SCENE) -> None:
         self.data = data
+        self.scene = scene
         self.hazard = np.asarray(data.hazard, dtype=float)
         self.persistence = np.asarray(data.persistence, dtype=float)
         if self.hazard.shape != (1 + len(HAZARD_FEATURES),) or \
                 self.persistence.shape != (1 + len(PERSISTENCE_FEATURES),):
             raise LossModelError(f"calibration of {data.tracker!r} has coefficients of the wrong "
                                  f"length; rewrite it with `{calibrate_command(data.tracker)}`")
+        if scene != BASELINE_SCENE:
+            if scene not in data.scene_offsets:
+                raise LossModelError(
+                    f"the calibration of {data.tracker!r} has no scene {scene!r}; choose one of "
+                    f"{', '.join(self.scenes)}")
+            dh, dr = data.scene_offsets[scene]
+            self.hazard[0] += dh
+            self.persistence[0] += dr
+
+    @property
+    def scenes(self) -> tuple[str, ...]:
+        """The scene appearances this calibration describes (``BASELINE_SCENE`` first)."""
+        return (BASELINE_SCENE, *self.data.scene_offsets)
 
     @property
     def noise_sigma_px(self) -> float:
@@ -177,10 +197,12 @@ def _load(path: str, mtime_ns: int, tracker: str) -> LossModel:
     return LossModel(data)
 
 
-def load_loss_model(tracker: str, folder: Path | None = None) -> LossModel:
-    """The calibrated loss model of ``tracker``; ``LossModelError`` for an unknown tracker, a
-    missing file, a file of another format version, or a file calibrated with other network
-    weights than the shipped ones (each naming the command that rewrites it)."""
+def load_loss_model(tracker: str, folder: Path | None = None,
+                    scene: str = BASELINE_SCENE) -> LossModel:
+    """The calibrated loss model of ``tracker`` in the scene appearance ``scene``;
+    ``LossModelError`` for an unknown tracker or scene, a missing file, a file of another format
+    version, or a file calibrated with other network weights than the shipped ones (each naming
+    the command that rewrites it)."""
     check_tracker(tracker)
     p = model_path(tracker, folder)
     if not p.is_file():
@@ -193,7 +215,7 @@ def load_loss_model(tracker: str, folder: Path | None = None) -> LossModel:
             f"the calibration {p} was made with other TransT weights (SHA-256 "
             f"{model.data.weights_sha256}, shipped {want}): it is stale; rewrite it with "
             f"`{calibrate_command(tracker)}`")
-    return model
+    return model if scene == BASELINE_SCENE else LossModel(model.data, scene)
 
 
 def write_loss_model(data: LossModelFile, folder: Path | None = None) -> Path:

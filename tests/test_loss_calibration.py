@@ -104,3 +104,53 @@ def test_collection_records_the_camera_and_resumes(tmp_path, monkeypatch) -> Non
     with pytest.raises(ValueError, match="another design"):
         collect("kcf_gk", design.model_copy(update={"duration_s": 0.7}), tmp_path,
                 workers=1, progress=False)
+
+
+def test_fit_recovers_known_scene_offsets_and_the_model_applies_them(tmp_path, monkeypatch):
+    """Records drawn from a known two-state model whose intercepts differ by scene: the fit
+    recovers the shared slopes and each scene's offsets (about 0.05-0.1 standard error at this
+    size), and the loaded model's loss probability in a scene is the logistic of the offset
+    intercept, computed here by hand."""
+    import latency.loss_model as lm
+
+    rng = np.random.default_rng(3)
+    design = CalibrationDesign(appearances=("nominal", "dim", "highlights"))
+    h, r = np.array([-3.0, 0.8, 0.3]), np.array([1.0, -0.5, 0.2, -0.6])
+    true = {"nominal": (0.0, 0.0), "dim": (1.2, -0.7), "highlights": (-0.8, 0.9)}
+    n = 60_000
+    scene = rng.choice(list(true), size=n)
+    offset, blur = rng.gamma(2.0, 3.0, n), rng.gamma(2.0, 1.5, n)
+    frames_lost = rng.integers(0, 6, n)
+    a, b, c = np.log1p(offset), np.log1p(blur), np.log1p(frames_lost)
+    dh = np.array([true[s][0] for s in scene])
+    dr = np.array([true[s][1] for s in scene])
+    logit = np.where(frames_lost == 0, h[0] + dh + h[1] * a + h[2] * b,
+                     r[0] + dr + r[1] * a + r[2] * b + r[3] * c)
+    records = pd.DataFrame({
+        "offset_px": offset, "blur_px": blur, "frames_lost": frames_lost,
+        "lost": rng.random(n) < 0.5 * (1 + np.tanh(0.5 * logit)), "appearance": scene,
+        "holdout": False, "run": "r", "frame_rate_hz": 36.0, "exposure_ms": 2.0,
+        **{f"err_{k}_px": rng.normal(0, 0.3, n) for k in ("red_u", "red_v")}})
+    data = cal.fit("kcf_gk", records, design)
+    np.testing.assert_allclose(data.hazard, h, atol=0.25)
+    np.testing.assert_allclose(data.persistence, r, atol=0.25)
+    assert set(data.scene_offsets) == {"dim", "highlights"}
+    for s in ("dim", "highlights"):
+        np.testing.assert_allclose(data.scene_offsets[s], true[s], atol=0.25)
+
+    monkeypatch.setattr(lm, "MODELS_DIR", tmp_path)
+    lm._load.cache_clear()
+    lm.write_loss_model(data)
+    dim = lm.load_loss_model("kcf_gk", scene="dim")
+    base = lm.load_loss_model("kcf_gk")
+    assert dim.scenes == ("nominal", "dim", "highlights")
+    for lost_before in (0, 3):
+        hz = data.hazard if lost_before == 0 else data.persistence
+        off = data.scene_offsets["dim"][0 if lost_before == 0 else 1]
+        feats = [np.log1p(4.0), np.log1p(2.0)] + ([np.log1p(3)] if lost_before else [])
+        want = 1.0 / (1.0 + np.exp(-(hz[0] + off + np.dot(hz[1:], feats))))
+        assert dim.p_lost(4.0, 2.0, lost_before) == pytest.approx(want, rel=1e-12)
+        assert base.p_lost(4.0, 2.0, lost_before) != pytest.approx(want, rel=1e-3)
+    with pytest.raises(lm.LossModelError, match="choose one of nominal, dim, highlights"):
+        lm.load_loss_model("kcf_gk", scene="foggy")
+    lm._load.cache_clear()

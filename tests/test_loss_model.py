@@ -81,19 +81,42 @@ def test_front_end_loses_frames_at_the_markov_chain_rate(models) -> None:
     assert abs(err.std() - 0.3) < 0.02
 
 
-def _calibrated_scenario(seed: int) -> Scenario:
+def test_a_scene_moves_both_intercepts(models) -> None:
+    """Zero slopes again, base hazard 0.01 and persistence 0.2, and a scene whose offsets make
+    them 0.05 and 0.6: the front end in that scene loses p / (p + 1 - r) of its frames."""
+    def logit(x: float) -> float:
+        return float(np.log(x / (1 - x)))
+
+    write_loss_model(_file(hazard=(logit(0.01), 0.0, 0.0),
+                           persistence=(logit(0.2), 0.0, 0.0, 0.0),
+                           scene_offsets={"dim": (logit(0.05) - logit(0.01),
+                                                  logit(0.6) - logit(0.2))}))
+    q, w = np.array([1.0, 0, 0, 0]), np.zeros(3)
+    for scene, p, r in (("nominal", 0.01, 0.2), ("dim", 0.05, 0.6)):
+        cfg = MeasurementConfig(loss={"kind": "calibrated", "tracker": "kcf_gk", "scene": scene})
+        fe = MeasurementFrontEnd(PlantParams(), cfg, np.random.default_rng(2))
+        lost = np.array([fe.capture(q, w, 0.0).lost for _ in range(20_000)])
+        assert abs(lost.mean() - p / (p + 1 - r)) < 0.01, scene
+    with pytest.raises(ValueError, match="no scene 'foggy'; choose one of nominal, dim"):
+        MeasurementConfig(loss={"kind": "calibrated", "tracker": "kcf_gk", "scene": "foggy"})
+
+
+def _calibrated_scenario(seed: int, scene: str = "nominal") -> Scenario:
     return Scenario.model_validate({
         "duration_s": 1.5, "seed": seed, "observer": {"kind": "solver"},
         "reference": {"kind": "random", "args": {"seed": seed, "max_rate_rad_s": 6.0}},
         "pipeline": {"observer": {"kind": "constant", "value_s": 0.031}},
-        "measurement": {"loss": {"kind": "calibrated", "tracker": "kcf_gk"}},
+        "measurement": {"loss": {"kind": "calibrated", "tracker": "kcf_gk", "scene": scene}},
     })
 
 
-def test_compiled_and_event_loop_lose_the_same_frames(models) -> None:
-    # a model that depends on the motion: the offset and blur features must agree too
-    write_loss_model(_file(hazard=(-4.0, 1.2, 0.5), persistence=(0.5, 0.3, -0.2, -0.5)))
-    scenarios = [_calibrated_scenario(s) for s in (0, 1, 2)]
+@pytest.mark.parametrize("scene", ["nominal", "dim"])
+def test_compiled_and_event_loop_lose_the_same_frames(models, scene) -> None:
+    # a model that depends on the motion: the offset and blur features must agree too, and
+    # the scene's offsets reach both engines
+    write_loss_model(_file(hazard=(-4.0, 1.2, 0.5), persistence=(0.5, 0.3, -0.2, -0.5),
+                           scene_offsets={"dim": (1.5, -1.0)}))
+    scenarios = [_calibrated_scenario(s, scene) for s in (0, 1, 2)]
     assert all(compiled.coverage(build_loop(s)).path == "compiled" for s in scenarios)
     batched = simulate_many(scenarios, engine="batched")
     event = simulate_many(scenarios, engine="event")
