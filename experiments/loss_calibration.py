@@ -132,7 +132,7 @@ class CalibrationDesign(BaseModel):
                 for s in seeds for j, (d, r, c) in enumerate(grid)]
 
     @model_validator(mode="after")
-    def _seeds_apart(self) -> CalibrationDesign:
+    def _baseline_scene_and_seeds_apart(self) -> CalibrationDesign:
         if BASELINE_SCENE not in self.appearances:
             raise ValueError(f"appearances must include {BASELINE_SCENE!r}, the scene the "
                              "model's intercepts describe")
@@ -159,6 +159,7 @@ class RunPoint(BaseModel):
 
     @property
     def name(self) -> str:
+        """The run's name: delay, peak rate, camera, scene and reference seed."""
         c = self.camera
         return (f"{self.delay_ms:g}ms-{self.rate_rad_s:g}rad_s-{c.frame_rate_hz:g}hz-"
                 f"{c.exposure_ms:g}ms_exp-{self.appearance}-r{self.reference_seed}")
