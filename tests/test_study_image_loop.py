@@ -64,7 +64,8 @@ def test_sweep_has_each_tracker_with_its_own_calibrated_loss(models):
     assert len(random_pid) == 2 * 2 * 2 * 2 * 3
     for c in random_pid:
         assert c["measurement"]["loss"] == {"kind": "calibrated",
-                                            "tracker": c["study"]["tracker"], "noise": "calibrated"}
+                                            "tracker": c["study"]["tracker"], "noise": "calibrated",
+                                            "scene": "nominal"}
     # the step and the variants with the first tracker only
     others = [c for c in configs if c not in random_pid]
     assert others and {c["study"]["tracker"] for c in others} == {"gk_transt"}
