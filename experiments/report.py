@@ -199,8 +199,9 @@ def _calibration_section(calibration: pd.DataFrame | None,
         c = (100.0 * c).round(1)
         by_condition = [
             "Lost frames (%) in each tracker's fit runs, per camera and per scene appearance "
-            "(every delay and peak rate of the design pooled; the model's three conditions, "
-            "prediction miss, blur and frames lost in a row, stand in for these):",
+            "(every delay and peak rate of the design pooled). The model describes the camera "
+            "through the prediction's miss and the blur, the scene through an offset on its "
+            "intercepts; the study's runs use the nominal scene:",
             "",
             md_table(c.reset_index()),
             "",
