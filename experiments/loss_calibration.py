@@ -164,13 +164,17 @@ class RunPoint(BaseModel):
         return (f"{self.delay_ms:g}ms-{self.rate_rad_s:g}rad_s-{c.frame_rate_hz:g}hz-"
                 f"{c.exposure_ms:g}ms_exp-{self.appearance}-r{self.reference_seed}")
 
+    def run_name(self, tracker: str) -> str:
+        """The name of ``tracker``'s run of this point (its scenario's, the records' ``run``)."""
+        return f"{tracker}-{self.name}"
+
     def scenario(self, tracker: str, design: CalibrationDesign, mode: str,
                  loss: dict | None = None, noise_seed: int | None = None) -> Scenario:
         """The tracker's image run of this point, or its measurement-model twin (``loss`` the
         twin's loss model, ``noise_seed`` its own noise)."""
         c = self.camera
         body: dict = {
-            "name": f"{tracker}-{self.name}",
+            "name": self.run_name(tracker),
             "duration_s": design.duration_s,
             "seed": self.reference_seed if noise_seed is None else noise_seed,
             "mode": mode,
@@ -267,8 +271,7 @@ def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 
         path = work / f"records-{k:03d}.parquet"
         if not path.exists():
             rec = _run_records(tracker, design, [pt for _, pt in batch], workers)
-            rec["holdout"] = np.repeat([h for h, _ in batch],
-                                       rec.groupby("run", sort=False).size().to_numpy())
+            rec["holdout"] = rec["run"].map({pt.run_name(tracker): h for h, pt in batch})
             tmp = path.with_suffix(".tmp")
             rec.to_parquet(tmp)
             os.replace(tmp, path)
@@ -320,14 +323,9 @@ def fit(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> LossM
 def lost_by_condition(records: pd.DataFrame) -> list[dict]:
     """Lost-frame fraction and frame count of ``records`` per camera (frame rate, exposure) and
     per appearance: what the three-condition model averages over."""
-    rows = []
-    for keys in (["frame_rate_hz", "exposure_ms"], ["appearance"]):
-        for k, g in records.groupby(keys):
-            k = k if isinstance(k, tuple) else (k,)
-            rows.append({**dict(zip(keys, (x.item() if hasattr(x, "item") else x for x in k),
-                                    strict=True)),
-                         "frames": len(g), "lost_frame_fraction": float(g["lost"].mean())})
-    return rows
+    return [row for keys in (["frame_rate_hz", "exposure_ms"], ["appearance"])
+            for row in records.groupby(keys)["lost"]
+            .agg(frames="size", lost_frame_fraction="mean").reset_index().to_dict("records")]
 
 
 def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> list[dict]:
@@ -338,7 +336,7 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
     lost_by_run = records[records["holdout"]].groupby("run").first()
     twins, keys, image = [], [], []
     for pt in design.points(True):
-        name = pt.scenario(tracker, design, "image").name
+        name = pt.run_name(tracker)
         if name not in lost_by_run.index:
             continue
         image.append((pt.delay_ms, pt.rate_rad_s, *lost_by_run.loc[name, [
