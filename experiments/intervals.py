@@ -7,6 +7,12 @@
   score interval (Wilson, JASA 22(158), 1927; ``scipy.stats.binomtest``), which keeps its
   coverage near the nominal level for small ``n`` and for fractions near 0 or 1, where the
   normal approximation collapses to a zero-width interval.
+* A fraction of frames averaged over runs (e.g. the lost-frame fraction): the bootstrap of the
+  runs' fractions, except when no run lost a frame (or every run lost all): a bootstrap then has
+  no spread to resample and would claim the zero-width interval [0, 0]. The interval is then the
+  exact (Clopper-Pearson) binomial interval of 0 (or all) in the pooled frames
+  (``frame_fraction_ci``). Frames of a run are correlated (losses come in bursts), so the pooled
+  frames overstate the information and this is the narrowest defensible interval, not a wide one.
 """
 
 from __future__ import annotations
@@ -42,6 +48,23 @@ def bootstrap_mean_ci(
         method="percentile", rng=np.random.default_rng(seed),
     )
     return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def frame_fraction_ci(
+    lost_frames: ArrayLike, frames: ArrayLike, confidence: float = CONFIDENCE, seed: int = 0
+) -> tuple[float, float, float]:
+    """``(mean, low, high)`` of the mean over runs of ``lost_frames / frames`` (one entry per
+    run): ``bootstrap_mean_ci`` of the runs' fractions, or, when none or all of the pooled frames
+    are lost, the exact binomial interval of the pooled frames (module docstring)."""
+    k = np.asarray(lost_frames, dtype=float)
+    n = np.asarray(frames, dtype=float)
+    if k.shape != n.shape or np.any(n <= 0) or np.any((k < 0) | (k > n)):
+        raise ValueError("need one (lost, frames) pair per run, 0 <= lost <= frames, frames > 0")
+    k_all, n_all = int(k.sum()), int(n.sum())
+    if 0 < k_all < n_all:
+        return bootstrap_mean_ci(k / n, confidence, seed)
+    ci = scipy.stats.binomtest(k_all, n_all).proportion_ci(confidence, method="exact")
+    return k_all / n_all, float(ci.low), float(ci.high)
 
 
 def wilson_ci(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float, float]:

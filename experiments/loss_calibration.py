@@ -29,7 +29,12 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from tqdm import tqdm
 
-from experiments.intervals import bootstrap_mean_ci, intervals_overlap, wilson_ci
+from experiments.intervals import (
+    bootstrap_mean_ci,
+    frame_fraction_ci,
+    intervals_overlap,
+    wilson_ci,
+)
 from latency import Scenario, build_loop, simulate_many
 from latency.frontends import MarkerPrediction
 from latency.image_engine import run_images
@@ -331,22 +336,26 @@ def lost_by_condition(records: pd.DataFrame) -> list[dict]:
 def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> list[dict]:
     """Held-out agreement per (delay, rate): the image runs' lost-frame fraction and
     loss-of-control rate against the calibrated measurement model's on the same references
-    (``model_replicas`` noise seeds each), each with its 95 % interval; ``agree`` when both
-    pairs of intervals overlap. Needs the model file written."""
-    lost_by_run = records[records["holdout"]].groupby("run").first()
+    (``model_replicas`` noise seeds each), each with its 95 % interval (the image runs' lost
+    frames counted from their records, ``frame_fraction_ci``); ``agree`` when both pairs of
+    intervals overlap. Needs the model file written."""
+    held = records[records["holdout"]]
+    lost_by_run = held.groupby("run").first()
+    lost_by_run["frames"] = held.groupby("run").size()
+    lost_by_run["lost_frames"] = held.groupby("run")["lost"].sum()
     twins, keys, image = [], [], []
     for pt in design.points(True):
         name = pt.run_name(tracker)
         if name not in lost_by_run.index:
             continue
         image.append((pt.delay_ms, pt.rate_rad_s, *lost_by_run.loc[name, [
-            "run_lost_frame_fraction", "run_loss_of_control"]]))
+            "lost_frames", "frames", "run_loss_of_control"]]))
         loss = {"kind": "calibrated", "tracker": tracker, "scene": pt.appearance}
         for m in range(design.model_replicas):
             twins.append(pt.scenario(tracker, design, "measurement", loss,
                                      noise_seed=pt.reference_seed + 10_000 * (m + 1)))
             keys.append((pt.delay_ms, pt.rate_rad_s))
-    runs = pd.DataFrame(image, columns=["delay_ms", "rate_rad_s", "run_lost_frame_fraction",
+    runs = pd.DataFrame(image, columns=["delay_ms", "rate_rad_s", "lost_frames", "frames",
                                         "run_loss_of_control"])
     model_runs = pd.DataFrame([(*k, r.summary["lost_frame_fraction"],
                                 r.summary["loss_of_control"])
@@ -356,7 +365,7 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
     out = []
     for (d, rate), g in runs.groupby(["delay_ms", "rate_rad_s"]):
         m = model_runs[(model_runs["delay_ms"] == d) & (model_runs["rate_rad_s"] == rate)]
-        img_lost = bootstrap_mean_ci(g["run_lost_frame_fraction"])
+        img_lost = frame_fraction_ci(g["lost_frames"], g["frames"])
         mod_lost = bootstrap_mean_ci(m["lost"])
         img_loc = wilson_ci(int((g["run_loss_of_control"] > 0.5).sum()), len(g))
         mod_loc = wilson_ci(int((m["loc"] > 0.5).sum()), len(m))

@@ -268,12 +268,18 @@ def design_matrices(offset_px: ArrayLike, blur_px: ArrayLike, frames_lost: Array
     return np.column_stack([a, b]), np.column_stack([a, b, c])
 
 
-def fit_logistic(X: ArrayLike, y: ArrayLike, ridge: float = 1e-3) -> NDArray[np.float64]:
+def fit_logistic(X: ArrayLike, y: ArrayLike, ridge: float = 0.05) -> NDArray[np.float64]:
     """Maximum-likelihood logistic regression with an intercept: coefficients (1 + p,) of
-    P(y = 1 | x) = σ(c0 + c·x), with a ridge penalty ``ridge`` · n · |c|² on the standardised
-    slopes (not the intercept) so that a feature that separates the classes perfectly gives
-    a large finite slope. Solved by L-BFGS (``scipy.optimize.minimize``) on the standardised
-    features, then mapped back to the raw ones."""
+    P(y = 1 | x) = σ(c0 + c·x), with a ridge penalty ``ridge`` · |c|² on the standardised
+    slopes (not the intercept). Solved by L-BFGS (``scipy.optimize.minimize``) on the
+    standardised features, then mapped back to the raw ones.
+
+    The penalty is a fixed amount, not one that grows with the number of frames: it is a
+    Gaussian prior of standard deviation 1 / sqrt(2 ridge) (about 3 for the default) on each
+    standardised slope, which keeps a slope finite when a feature separates the classes
+    perfectly and otherwise vanishes against the likelihood. A penalty scaled by the frame
+    count would stay as strong as the data and flatten the steep, threshold-like hazards the
+    trackers have (a loss floor at slow motion where they lose nothing)."""
     X = np.asarray(X, dtype=float)
     y = np.asarray(y, dtype=float)
     if X.ndim != 2 or y.shape != (X.shape[0],) or X.shape[0] == 0:
@@ -281,14 +287,13 @@ def fit_logistic(X: ArrayLike, y: ArrayLike, ridge: float = 1e-3) -> NDArray[np.
     mu, sd = X.mean(axis=0), X.std(axis=0)
     sd[sd == 0] = 1.0
     Z = np.column_stack([np.ones(len(X)), (X - mu) / sd])
-    n = len(y)
 
     def nll(c: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         s = Z @ c
         # log(1 + exp(s)) - y s, stable for both signs of s
-        loss = np.sum(np.logaddexp(0.0, s) - y * s) + ridge * n * np.sum(c[1:] ** 2)
+        loss = np.sum(np.logaddexp(0.0, s) - y * s) + ridge * np.sum(c[1:] ** 2)
         g = Z.T @ (sigmoid(s) - y)
-        g[1:] += 2.0 * ridge * n * c[1:]
+        g[1:] += 2.0 * ridge * c[1:]
         return float(loss), g
 
     p0 = np.clip(y.mean(), 1e-6, 1 - 1e-6)

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 import scipy.stats
 
-from experiments.intervals import bootstrap_mean_ci, seed_intervals, wilson_ci
+from experiments.intervals import bootstrap_mean_ci, frame_fraction_ci, seed_intervals, wilson_ci
 
 
 @pytest.mark.parametrize("p", [0.05, 0.2, 0.5])
@@ -47,3 +47,21 @@ def test_seed_intervals_table_groups_and_names_the_columns():
     assert t.loc["mpc", "rms_error_deg_lo"] == t.loc["mpc", "rms_error_deg_hi"] == 0.5
     assert t.loc["mpc", "p_loss_of_control_hi"] > 0.0 and t.loc["mpc", "n_runs"] == 4
     assert np.isnan(bootstrap_mean_ci([1.0])[1])
+
+
+def test_frame_fraction_interval_of_runs_without_a_lost_frame_is_the_exact_binomial_one():
+    # 12 runs of 190 frames, none lost: the exact two-sided 95 % bound on 0 of n frames is
+    # 1 - 0.025 ** (1 / n) (Clopper-Pearson), about 3.7 / n; a bootstrap would claim [0, 0]
+    n = 12 * 190
+    mean, lo, hi = frame_fraction_ci(np.zeros(12), np.full(12, 190))
+    assert mean == lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / n), rel=1e-9)
+    # every frame lost: the mirror image
+    mean, lo, hi = frame_fraction_ci(np.full(12, 190), np.full(12, 190))
+    assert mean == hi == 1.0 and lo == pytest.approx(0.025 ** (1 / n), rel=1e-9)
+
+
+def test_frame_fraction_interval_with_lost_frames_is_the_runs_bootstrap():
+    lost, frames = np.array([0, 3, 10, 0, 1]), np.array([200, 180, 190, 210, 200])
+    assert frame_fraction_ci(lost, frames) == bootstrap_mean_ci(lost / frames)
+    with pytest.raises(ValueError, match="0 <= lost <= frames"):
+        frame_fraction_ci([5], [4])

@@ -154,3 +154,36 @@ def test_fit_recovers_known_scene_offsets_and_the_model_applies_them(tmp_path, m
     with pytest.raises(lm.LossModelError, match="choose one of nominal, dim, highlights"):
         lm.load_loss_model("kcf_gk", scene="foggy")
     lm._load.cache_clear()
+
+
+def test_validation_counts_the_image_runs_frames(monkeypatch) -> None:
+    """Held-out image runs that lost no frame against model twins that lose a few: the image
+    side's interval is the exact binomial one of its pooled frames, not a bootstrap's [0, 0],
+    so a model losing 0.05 % agrees and one losing 2 % does not (the runs' frames are counted
+    from the records; the twins are stubbed)."""
+    design = CalibrationDesign(
+        fit_rates_rad_s=(3.0,), holdout_rates_rad_s=(2.0,), delays_ms=(0.0,), holdout_seeds=4,
+        cameras=(CameraSetting(frame_rate_hz=36.0, exposure_ms=2.0),), appearances=("nominal",),
+        model_replicas=2)
+    points = design.points(True)
+    records = pd.DataFrame(
+        [{"run": pt.run_name("kcf_gk"), "holdout": True, "lost": False,
+          "run_lost_frame_fraction": 0.0, "run_loss_of_control": 0.0}
+         for pt in points for _ in range(500)])
+
+    class Twin:
+        def __init__(self, lost: float) -> None:
+            self.summary = {"lost_frame_fraction": lost, "loss_of_control": 0.0}
+
+    def twins_losing(rates: list[float]):
+        return lambda scenarios, tables: [Twin(rates[i % len(rates)])
+                                          for i in range(len(scenarios))]
+
+    monkeypatch.setattr(cal, "simulate_many", twins_losing([0.0, 0.001]))
+    (row,) = cal.validate("kcf_gk", records, design)
+    n = 4 * 500  # pooled frames of the four image runs
+    assert row["image_lost_frame_fraction"][2] == pytest.approx(1 - 0.025 ** (1 / n))
+    assert row["agree"]
+    monkeypatch.setattr(cal, "simulate_many", twins_losing([0.01, 0.03]))
+    (row,) = cal.validate("kcf_gk", records, design)
+    assert not row["agree"]

@@ -52,6 +52,22 @@ def test_fit_recovers_a_known_logistic_model() -> None:
     np.testing.assert_allclose(est, true, atol=0.1)
 
 
+def test_fit_keeps_a_steep_hazard_steep() -> None:
+    # a tracker that loses almost nothing at slow motion and quickly more beyond: a steep
+    # hazard in log1p(offset), 50,000 frames of which about 160 are lost (like a calibration's)
+    rng = np.random.default_rng(3)
+    offset = rng.lognormal(np.log(4.0), 1.0, 50_000)
+    blur = rng.lognormal(np.log(3.0), 0.7, 50_000)
+    X = np.column_stack([np.log1p(offset), np.log1p(blur)])
+    true = np.array([-22.0, 5.0, 0.4])
+    y = rng.random(len(X)) < sigmoid(true[0] + X @ true[1:])
+    est = fit_logistic(X, y)
+    assert abs(est[1] - true[1]) < 0.6  # standard error about 0.25
+    # at 5 px off and 3 px of blur the true hazard is 3.8e-6 per frame: no loss floor
+    slow = np.array([np.log1p(5.0), np.log1p(3.0)])
+    assert sigmoid(est[0] + slow @ est[1:]) < 2e-5
+
+
 def test_fit_refuses_bad_shapes() -> None:
     with pytest.raises(ValueError, match="X must be"):
         fit_logistic(np.zeros((0, 2)), np.zeros(0))
