@@ -17,7 +17,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -99,11 +99,14 @@ def seed_intervals(
     by: Sequence[str],
     means: Sequence[str] = ("rms_error_deg", "lost_frame_fraction"),
     fractions: Sequence[str] = ("loss_of_control",),
+    frame_counts: Mapping[str, tuple[str, str]] | None = None,
 ) -> pd.DataFrame:
     """One row per group of ``runs`` (one run per row, e.g. one seed) with 95 % intervals.
 
     For each column ``c`` of ``means``: ``c`` (the mean over the group's runs), ``c_lo`` and
-    ``c_hi`` (bootstrap). For each 0/1 column ``f`` of ``fractions``: ``p_f`` (the fraction of
+    ``c_hi`` (bootstrap; for a fraction of frames named in ``frame_counts`` with its columns
+    of lost and processed frames, ``frame_fraction_ci`` when every run of the group has its
+    counts). For each 0/1 column ``f`` of ``fractions``: ``p_f`` (the fraction of
     runs with 1), ``p_f_lo``, ``p_f_hi`` (Wilson). Also ``n_runs``.
     """
     rows = []
@@ -111,7 +114,11 @@ def seed_intervals(
         row = dict(zip(by, key if isinstance(key, tuple) else (key,), strict=True))
         row["n_runs"] = len(g)
         for c in means:
-            row[c], row[f"{c}_lo"], row[f"{c}_hi"] = bootstrap_mean_ci(g[c])
+            counts = (frame_counts or {}).get(c)
+            if counts is not None and g[list(counts)].notna().all(axis=None):
+                row[c], row[f"{c}_lo"], row[f"{c}_hi"] = frame_fraction_ci(*(g[k] for k in counts))
+            else:
+                row[c], row[f"{c}_lo"], row[f"{c}_hi"] = bootstrap_mean_ci(g[c])
         for f in fractions:
             flags = g[f].to_numpy(dtype=float)
             flags = flags[np.isfinite(flags)]

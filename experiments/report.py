@@ -173,10 +173,11 @@ def _image_loop_section(image_loop: pd.DataFrame | None, cfg) -> list[str]:
         "(`latency.image_engine`: each run computes what the event loop computes for it; the "
         "latency it charges is the constant above, not the batched wall time). Beside it, the "
         "tracker's calibrated loss model in the measurement-model loop on the same references, "
-        "delays, seeds and durations. 95 % intervals over the runs (bootstrap for lost frames, "
-        f"Wilson for loss of control; with {n} runs a Wilson interval is up to "
-        f"{widest_wilson_width(n):.2f} wide). `agree`: both intervals overlap for the "
-        "lost-frame fraction and for loss of control. "
+        "delays, seeds and durations. 95 % intervals over the runs (bootstrap for lost frames; "
+        "for image runs that lost no frame the exact binomial interval of their pooled frames, "
+        "not a bootstrap's [0, 0]; Wilson for loss of control; "
+        f"with {n} runs a Wilson interval is up to {widest_wilson_width(n):.2f} wide). "
+        "`agree`: both intervals overlap for the lost-frame fraction and for loss of control. "
         + verdict_sentence(cfg.image_loop_duration_s),
         "",
         md_table(t),

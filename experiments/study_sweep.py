@@ -17,6 +17,7 @@ from experiments.intervals import intervals_overlap, seed_intervals
 from experiments.study_config import DUAL_MS, GK_MS, OWN_DELAY_MS, StudyConfig, study_plant
 from latency import Scenario, build_loop, simulate, simulate_many
 from latency.image_engine import run_images
+from latency.loop_config import LoopResult
 from latency.loss_model import load_loss_model
 from latency.simulation import run_summaries
 from plant.params import PlantParams
@@ -233,7 +234,8 @@ def _twin(s: Scenario, tracker: str) -> Scenario:
 def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame:
     """Run the image-engine section (``latency.image_engine``) and the calibrated models'
     twins on the same references; one row per tracker, delay and rate with both sides' 95 %
-    intervals (bootstrap for means, Wilson for loss of control) and ``agree`` (the image
+    intervals (bootstrap for means, the exact binomial one of the pooled frames for image runs
+    that lost none, ``frame_fraction_ci``; Wilson for loss of control) and ``agree`` (the image
     runs' and the model's intervals overlap for the lost-frame fraction and for loss of
     control). Run tables: ``image_loop.parquet`` (``side`` image or model)."""
     jobs = image_loop_scenarios(cfg, params)
@@ -244,12 +246,14 @@ def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame
                         progress=True)
     twins = simulate_many([_twin(s, b["tracker"]) for b, s in jobs], tables=False)
     runs = pd.DataFrame(
-        [b | {"side": side} | r.summary for side, res in (("image", images), ("model", twins))
-         for b, r in zip(books, res, strict=True)])
+        [b | {"side": "image"} | r.summary | _frame_counts(r) for b, r in zip(books, images,
+                                                                           strict=True)]
+        + [b | {"side": "model"} | r.summary for b, r in zip(books, twins, strict=True)])
     runs.to_parquet(out / "image_loop.parquet")
     by = ["tracker", "vision_delay_ms", "max_rate_rad_s"]
-    sides = {side: seed_intervals(g, by, IMAGE_MEANS, ("loss_of_control",)).set_index(by)
-             for side, g in runs.groupby("side")}
+    counts = {"lost_frame_fraction": ("lost_frames", "processed_frames")}
+    sides = {side: seed_intervals(g, by, IMAGE_MEANS, ("loss_of_control",), counts)
+             .set_index(by) for side, g in runs.groupby("side")}
     table = sides["image"].add_prefix("image_").join(sides["model"].add_prefix("model_"))
     table["agree"] = [
         _overlap(r, "image_lost_frame_fraction", "model_lost_frame_fraction")
@@ -258,6 +262,15 @@ def image_loop(cfg: StudyConfig, params: PlantParams, out: Path) -> pd.DataFrame
     table = table.reset_index()
     table.to_parquet(out / "image_loop_intervals.parquet")
     return table
+
+
+def _frame_counts(res: LoopResult) -> dict[str, int]:
+    """An image run's lost and processed (not dropped) frames: the counts behind its
+    lost-frame fraction, for the interval of runs that lost none
+    (``experiments.intervals.frame_fraction_ci``)."""
+    kept = ~res.frames["dropped"].astype(bool)
+    return {"lost_frames": int(res.frames.loc[kept, "lost"].astype(bool).sum()),
+            "processed_frames": int(kept.sum())}
 
 
 def _overlap(row: pd.Series, a: str, b: str) -> bool:

@@ -65,3 +65,19 @@ def test_frame_fraction_interval_with_lost_frames_is_the_runs_bootstrap():
     assert frame_fraction_ci(lost, frames) == bootstrap_mean_ci(lost / frames)
     with pytest.raises(ValueError, match="0 <= lost <= frames"):
         frame_fraction_ci([5], [4])
+
+
+def test_seed_intervals_counts_frames_where_the_runs_have_their_counts():
+    runs = pd.DataFrame({
+        "side": ["image"] * 3 + ["model"] * 3,
+        "rms_error_deg": [1.0, 2.0, 3.0, 1.0, 2.0, 3.0],
+        "lost_frame_fraction": [0.0] * 6,
+        "loss_of_control": [0] * 6,
+        "lost_frames": [0, 0, 0, np.nan, np.nan, np.nan],
+        "processed_frames": [100, 100, 100, np.nan, np.nan, np.nan],
+    })
+    counts = {"lost_frame_fraction": ("lost_frames", "processed_frames")}
+    t = seed_intervals(runs, ["side"], frame_counts=counts).set_index("side")
+    # image runs: 0 of 300 pooled frames; the model runs carry no counts: the bootstrap's [0, 0]
+    assert t.loc["image", "lost_frame_fraction_hi"] == pytest.approx(1 - 0.025 ** (1 / 300))
+    assert t.loc["model", "lost_frame_fraction_hi"] == 0.0

@@ -139,6 +139,12 @@ def test_image_loop_side_by_side_with_the_models(models, tmp_path):
     assert (table.image_n_runs == 2).all() and (table.model_n_runs == 2).all()
     runs = pd.read_parquet(tmp_path / "image_loop.parquet")
     assert set(runs.side) == {"image", "model"}
+    image = runs[runs.side == "image"]
+    # the counts behind the lost-frame fractions (0.8 s at 36 frames/s; the dual TransT at
+    # 31.23 ms processes every second frame)
+    assert (image.processed_frames >= 14).all()
+    np.testing.assert_allclose(image.lost_frames / image.processed_frames,
+                               image.lost_frame_fraction)
     model = runs[runs.side == "model"].groupby("tracker").lost_frame_fraction.mean()
     # the stand-in models: GK-TransT never loses a frame; the dual TransT about one in five
     assert model["gk_transt"] == 0.0 and 0.05 < model["dual_transt"] < 0.4
