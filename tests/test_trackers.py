@@ -319,32 +319,45 @@ def test_gk_and_dual_transt_with_the_real_network(clean, one_torch_thread):
 
 
 def test_gk_transt_searches_a_smaller_crop_only_after_steady_frames(clean, one_torch_thread):
-    """``steady_search_size=96``: the network searches 96 px crops after frames measured on
-    its own box and the full 128 px after the start and after a frame it could not measure (a
-    black frame); the markers stay within 1 px of the renderer's truth. A tracker other than
-    TransT, or a size TransT cannot take, is refused with ValueError."""
+    """By default GK-TransT's network searches 96 px crops once five frames in a row were
+    measured on its own box, and the full 128 px after the start and after a frame it could not
+    measure (a black frame) until five more were; the markers stay within 1 px of the
+    renderer's truth. ``steady_search_size=None`` searches the full crop always. A tracker other
+    than TransT, or a size TransT cannot take, is refused with ValueError."""
     from observer.transt.tracker import TransTTracker
 
-    tr = make_pair_tracker("gk_transt", steady_search_size=96)
-    sizes: list = []
-    track = tr._transt.track
+    def searched(tr, frames):
+        sizes: list = []
+        track = tr._transt.track if tr._transt is not None else tr.tracker.track
 
-    def spy(frame, search_centre_image_px=None, search_size=None):
-        sizes.append(search_size)
-        return track(frame, search_centre_image_px=search_centre_image_px,
-                     search_size=search_size)
+        def spy(frame, search_centre_image_px=None, search_size=None):
+            sizes.append(search_size)
+            return track(frame, search_centre_image_px=search_centre_image_px,
+                         search_size=search_size)
 
-    tr._transt.track = spy  # type: ignore[method-assign]
-    tr.start(clean.images[0], clean.boxes_px[0], clean.binning)
-    frames = [1, 2, 3, 4, None, 5, 6, 7]
-    errors = []
-    for k in frames:
-        r = tr.step(np.zeros_like(clean.images[0]) if k is None else clean.images[k])
-        if k is not None:
-            errors.append(np.hypot(*(r.marker_px - clean.marker_px[k]).T))
-    # the black frame never reaches the network; the frame after it searches the full region
-    assert sizes == [None, 96, 96, 96, None, 96, 96]
-    assert np.max(errors) < 1.0 and len(errors) == 7
+        if tr._transt is not None:
+            tr._transt.track = spy  # type: ignore[method-assign]
+        else:
+            tr.tracker.track = spy  # type: ignore[method-assign]
+        tr.start(clean.images[0], clean.boxes_px[0], clean.binning)
+        errors = []
+        for k in frames:
+            r = tr.step(np.zeros_like(clean.images[0]) if k is None else clean.images[k])
+            if k is not None:
+                errors.append(np.hypot(*(r.marker_px - clean.marker_px[k]).T))
+        assert np.max(errors) < 1.0 and len(errors) == len(frames) - frames.count(None)
+        return sizes
+
+    frames = [1, 2, 3, 4, 5, 6, 7, None, 8, 9, 10, 11, 12, 13, 14]
+    # the black frame never reaches the network; the five after it search the full region
+    assert searched(make_pair_tracker("gk_transt"), frames) == \
+        [None] * 5 + [96] * 2 + [None] * 5 + [96] * 2
+    assert searched(make_pair_tracker("gk_transt", steady_search_size=96, steady_min_frames=1),
+                    frames[:9]) == [None] + [96] * 6 + [None]
+    assert searched(make_pair_tracker("gk_transt", steady_search_size=None), frames[:9]) == \
+        [None] * 8
+    with pytest.raises(ValueError, match="steady_min_frames"):
+        make_pair_tracker("gk_transt", steady_min_frames=0)
     with pytest.raises(ValueError, match="TransTTracker"):
         make_pair_tracker("gk_transt", transt_factory=NumpyKCF, steady_search_size=96)
     with pytest.raises(ValueError, match="search_size"):

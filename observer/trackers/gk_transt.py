@@ -49,13 +49,16 @@ in ``observer.trackers.make_pair_tracker``) is run with ``guide_search=False`` a
 on a box of 3.2 expected marker radii (our choice: the marker with its rim) centred on the
 prediction, so that it searches there in the next frame.
 
-With ``steady_search_size`` (a TransT network only; off by default), the network searches only
-the centre of its usual search region, a crop of that many px instead of 128 at the same image
-scale (``TransTTracker.track``'s ``search_size``), in frames that follow a steady one: the red
-marker measured on the network's own box (trusted as such by the trust rule) with a Kalman
-prediction to search at. After any other frame (coasting, a colour fit, a re-detection, a
-restart) it searches the whole region again. The smaller crop costs less (fewer backbone pixels
-and transformer tokens) but the network's box is less accurate in it (docs/tracking.md).
+With ``steady_search_size`` (a TransT network only; off in this class, on by default for
+``make_pair_tracker("gk_transt")``, ``observer.trackers.registry.STEADY_SEARCH_PX``), the
+network searches only the centre of its usual search region, a crop of that many px instead of
+128 at the same image scale (``TransTTracker.track``'s ``search_size``), in frames that follow
+``steady_min_frames`` steady ones in a row: the red marker measured on the network's own box
+(trusted as such by the trust rule) with a Kalman prediction to search at. After any other
+frame (coasting, a colour fit, a re-detection, a restart) it searches the whole region until
+the track has been steady that long again. The smaller crop costs less (fewer backbone pixels
+and transformer tokens); right after a disturbance the network's box is less reliable in it,
+hence the run of steady frames first (docs/tracking.md).
 
 Units: sensor px in and out (``observer.trackers``); the network sees image px of the binned frame.
 ``tilt_hint_rad`` (None by default: cos β = 1 and the scale EMA locked) may be set by the caller
@@ -110,9 +113,11 @@ class GKTransTPairTracker(MarkerPairTracker):
         Drift detection (``MarkerPairTracker``): a drifted red marker restarts the network and
         the Kalman filter on the re-detected marker; a drifted yellow one resets V_rel.
     steady_search_size : int or None, optional
-        Our choice, off by default: the network's search crop side, px of its input, after a
-        steady frame (module docstring); ``tracker`` must then be a ``TransTTracker``, and the
-        size one it accepts (``TransTTracker.prepare``), else ``ValueError``.
+        The network's search crop side, px of its input, after steady frames (module
+        docstring); ``tracker`` must then be a ``TransTTracker``, and the size one it accepts
+        (``TransTTracker.prepare``), else ``ValueError``. None: always the full crop.
+    steady_min_frames : int
+        Steady frames in a row before the smaller crop is searched (>= 1).
     """
 
     def __init__(
@@ -128,6 +133,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         name: str = "gk_transt",
         drift: DriftConfig | None = DriftConfig(),  # noqa: B008 - frozen pydantic model
         steady_search_size: int | None = None,
+        steady_min_frames: int = 1,
     ) -> None:
         cfg = gk_config or GKConfig()
         if refine is not None:
@@ -138,6 +144,9 @@ class GKTransTPairTracker(MarkerPairTracker):
         super().__init__(params, bool(cfg.refine_red), cfg.subpixel, drift=drift)
         self.tracker = tracker
         self.steady_search_size = steady_search_size
+        if steady_min_frames < 1:
+            raise ValueError(f"steady_min_frames must be >= 1, got {steady_min_frames}")
+        self.steady_min_frames = steady_min_frames
         self._transt = None
         if steady_search_size is not None:
             from observer.transt.tracker import TransTTracker
@@ -159,15 +168,15 @@ class GKTransTPairTracker(MarkerPairTracker):
         self._seen: deque[tuple[int, NDArray[np.uint8], NDArray[np.float64]]] = deque(maxlen=2)
         self._frame = 0
         self._hidden_before = False
-        #: The last frame measured the red marker on the network's own box (module docstring).
-        self._steady_before = False
+        #: Steady frames in a row up to the last one (module docstring).
+        self._steady_run = 0
 
     def reset(self) -> None:
         """Forget the track and the GK assistance's state."""
         super().reset()
         self.gk.reset()
         self.last_gk = None
-        self._steady_before = False
+        self._steady_run = 0
         self._forget_plate()
 
     def _forget_plate(self) -> None:
@@ -180,7 +189,7 @@ class GKTransTPairTracker(MarkerPairTracker):
     def _start(self, image: NDArray[np.uint8], boxes_sensor_px: NDArray[np.float64]) -> None:
         assert self.binning is not None
         self.tracker.initialize(image, box_sensor_to_image(boxes_sensor_px[0], self.binning))
-        self._steady_before = False
+        self._steady_run = 0
         self.gk.reset()
         self.last_gk = self.gk.step(image, self.binning, box_sensor_px=boxes_sensor_px[0],
                                     tilt_prev_rad=self.tilt_hint_rad)
@@ -226,7 +235,8 @@ class GKTransTPairTracker(MarkerPairTracker):
     def _step(self, image: NDArray[np.uint8]) -> PairResult:
         assert self.binning is not None
         centre = self.search_centre_image_px()
-        if self._transt is not None and centre is not None and self._steady_before:
+        if self._transt is not None and centre is not None \
+                and self._steady_run >= self.steady_min_frames:
             tr = self._transt.track(image, search_centre_image_px=centre,
                                     search_size=self.steady_search_size)
         else:
@@ -251,9 +261,10 @@ class GKTransTPairTracker(MarkerPairTracker):
         res = self.gk.step(image, self.binning, box_sensor_px=box, score=score,
                            tilt_prev_rad=self.tilt_hint_rad, judged=judged)
         self.last_gk = res
-        self._steady_before = res.red_source == "measurement" and (
+        steady = res.red_source == "measurement" and (
             self.trust is None or self.last_trust is not None
             and self.last_trust.source == "network")
+        self._steady_run = self._steady_run + 1 if steady else 0
         if self.trust is not None:
             self.trust.record(res.red_source == "measurement", res.yellow_source == "measurement")
         self._plate_after(image, res, mapped)
@@ -346,7 +357,7 @@ class GKTransTPairTracker(MarkerPairTracker):
             box = box_around(centres_px[0], self.box_size_px[0])
             self.tracker.initialize(image, box_sensor_to_image(box, self.binning))
             self.gk.restart()
-            self._steady_before = False
+            self._steady_run = 0
         else:
             self.gk.aux.V_rel = centres_px[1] - centres_px[0]
 
@@ -355,7 +366,7 @@ class GKTransTPairTracker(MarkerPairTracker):
         assert self.binning is not None
         res = self.gk.step(image, self.binning, tilt_prev_rad=self.tilt_hint_rad)  # type: ignore
         self.last_gk = res
-        self._steady_before = False
+        self._steady_run = 0
         self._frame += 1
         self._hidden_before = True
         if self.plate is not None:
