@@ -8,10 +8,12 @@ both markers + 20 px) and ``blur`` (frames 130-160: K = 5, M = 6). Every tracker
 with the true boxes; frames 1-299 are scored (``experiments.tracking_bench``): precision curves
 0-50 px (full-sensor px), precision at 20 px, IoU success AUC, median/p95 latency, FPS = 1/mean
 latency, re-acquisition frames after the occlusion. Trackers: GK-TransT with the shipped ``small``
-network (sub-pixel centres on, the GK default; ``gk_transt_norefine`` without them, the seed's
-algorithm), dual TransT (two ``small`` networks, box centres; ``dual_transt_refine`` with the
-circle fit, for a like-for-like latency ratio with GK-TransT), OpenCV KCF and CSRT (one per
-marker, box centres), the numpy KCF and K²CF (one per marker).
+network (sub-pixel centres on, the GK default, and the smaller search crop in steady frames;
+``gk_transt_norefine`` without the sub-pixel centres, the seed's algorithm;
+``gk_transt_fullcrop`` on the full crop in every frame, the configuration before), dual TransT
+(two ``small`` networks, box centres; ``dual_transt_refine`` with the circle fit, for a
+like-for-like latency ratio with GK-TransT), OpenCV KCF and CSRT (one per marker, box centres),
+the numpy KCF and K²CF (one per marker).
 
 Writes ``benchmarks/results/tracking_*.png`` (precision curves per case like seed Figures 11,
 12a/c, 14a/c; centre error over frames of the first sequence per case like 12b/d, 14b/d),
@@ -109,11 +111,10 @@ def stage_profile(frames: int) -> str:
 
     seq = render_sequence(SequenceSpec(seed=validation_seeds(1)[0], n_frames=frames))
     rows = {}
-    for label, (name, refine) in {"gk_transt": ("gk_transt", True),
-                                  "gk_transt_norefine": ("gk_transt", False),
-                                  "dual_transt": ("dual_transt", False),
-                                  "dual_transt_refine": ("dual_transt", True)}.items():
-        tracker = make_pair_tracker(name, refine=refine)
+    for label in ("gk_transt", "gk_transt_norefine", "gk_transt_fullcrop", "dual_transt",
+                  "dual_transt_refine"):
+        name, kwargs = tb.VARIANTS.get(label, (label, {}))
+        tracker = make_pair_tracker(name, **kwargs)
         tracker.start(seq.images[0], seq.boxes_px[0], seq.binning)
         for k in range(1, 11):
             tracker.step(seq.images[k])
@@ -143,9 +144,11 @@ def main(argv: list[str] | None = None) -> int:
                     choices=list(ALL_CASES) + list(CASE_GROUPS),
                     help="cases, or the groups seed (default), hard, heldout, all")
     ap.add_argument("--trackers", nargs="+", default=list(tb.DEFAULT_TRACKERS),
-                    help="names of observer.trackers.make_pair_tracker, plus gk_transt_norefine "
-                    "(GK-TransT without the sub-pixel circle fit: the seed's algorithm) and "
-                    "dual_transt_refine (dual TransT with it)")
+                    help="names of observer.trackers.make_pair_tracker, plus the variants of "
+                    "experiments.tracking_bench.VARIANTS: gk_transt_norefine (GK-TransT without "
+                    "the sub-pixel circle fit: the seed's algorithm), dual_transt_refine (dual "
+                    "TransT with it), gk_transt_fullcrop (GK-TransT on the full search crop in "
+                    "every frame)")
     ap.add_argument("--stand-in", action="store_true",
                     help="numpy KCF in place of the TransT network (plumbing check)")
     ap.add_argument("--no-unseen", action="store_true",

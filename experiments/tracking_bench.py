@@ -33,12 +33,20 @@ from experiments.tracking_runs import (
 from latency.models import seed_latency_ms
 from observer.tracking import PairTracker
 
-#: The benchmark's trackers: names of ``observer.trackers.make_pair_tracker`` plus
-#: ``gk_transt_norefine`` (GK-TransT without the sub-pixel circle fit: the seed's algorithm) and
-#: ``dual_transt_refine`` (dual TransT with the circle fit), so that the latency ratio can be
-#: taken like for like both ways.
-DEFAULT_TRACKERS: tuple[str, ...] = ("gk_transt", "gk_transt_norefine", "dual_transt",
-                                     "dual_transt_refine", "kcf", "csrt", "kcf_numpy", "k2cf")
+#: Variants of the TransT trackers: the benchmark's name -> (``make_pair_tracker`` name, its
+#: keyword arguments). ``gk_transt_norefine``: GK-TransT without the sub-pixel circle fit (the
+#: seed's algorithm); ``dual_transt_refine``: dual TransT with it (so that the latency ratio can
+#: be taken like for like both ways); ``gk_transt_fullcrop``: GK-TransT searching the full crop
+#: in every frame (no smaller crop in steady frames), beside the default in the same run.
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "gk_transt_norefine": ("gk_transt", {"refine": False}),
+    "dual_transt_refine": ("dual_transt", {"refine": True}),
+    "gk_transt_fullcrop": ("gk_transt", {"steady_search_size": None}),
+}
+#: The benchmark's trackers: names of ``observer.trackers.make_pair_tracker`` and ``VARIANTS``.
+DEFAULT_TRACKERS: tuple[str, ...] = ("gk_transt", "gk_transt_norefine", "gk_transt_fullcrop",
+                                     "dual_transt", "dual_transt_refine", "kcf", "csrt",
+                                     "kcf_numpy", "k2cf")
 #: GK-TransT / dual TransT latency ratios reported (numerator, denominator, what is compared).
 RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("gk_transt_norefine", "dual_transt", "the seed's algorithms: box centres on both sides"),
@@ -109,7 +117,7 @@ def tracker_factories(
     names raise ``ValueError``."""
     from observer.trackers import PAIR_TRACKERS, make_pair_tracker
 
-    known = tuple(PAIR_TRACKERS) + ("gk_transt_norefine", "dual_transt_refine")
+    known = tuple(PAIR_TRACKERS) + tuple(VARIANTS)
     unknown = [n for n in names if n not in known]
     if unknown:
         raise ValueError(f"unknown trackers {unknown}; choose from {', '.join(known)}")
@@ -138,10 +146,9 @@ def tracker_factories(
             if network is None:
                 continue
             label = name.replace("_transt", "_standin") if stand_in else name
-            kind = name.removesuffix("_norefine").removesuffix("_refine")
-            refine = {"_norefine": False, "_refine": True}.get(name[len(kind):])
-            factories[label] = (lambda kind=kind, refine=refine: make_pair_tracker(
-                kind, refine=refine, transt_factory=network))
+            kind, kwargs = VARIANTS.get(name, (name, {}))
+            factories[label] = (lambda kind=kind, kwargs=kwargs: make_pair_tracker(
+                kind, transt_factory=network, **kwargs))
         else:
             factories[name] = (lambda name=name: make_pair_tracker(name))
     return factories, note

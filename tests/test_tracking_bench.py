@@ -460,3 +460,19 @@ def test_broken_transt_weights_fail_bench_trackers_naming_the_rows(tmp_path, mon
     assert "Traceback" not in result.output and not out.exists()
     for words in ("gk_transt need the shipped TransT network", "is empty", "--stand-in"):
         assert words in result.output, result.output
+
+
+def test_benchmark_variants_build_what_they_name():
+    """``gk_transt_fullcrop`` is GK-TransT without the smaller search crop, beside the default
+    that has it; the refine variants set the circle fit; an unknown name lists the known."""
+    factories, note = tb.tracker_factories(
+        ["gk_transt", "gk_transt_fullcrop", "gk_transt_norefine", "dual_transt_refine"])
+    assert note == ""
+    assert factories["gk_transt"]().steady_search_size == 96
+    assert factories["gk_transt_norefine"]().steady_search_size == 96
+    full = factories["gk_transt_fullcrop"]()
+    assert full.steady_search_size is None and full.refine
+    assert not factories["gk_transt_norefine"]().refine
+    assert factories["dual_transt_refine"]().refine
+    with pytest.raises(ValueError, match="gk_transt_fullcrop"):
+        tb.tracker_factories(["gk_transt_cropped"])
