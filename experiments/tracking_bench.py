@@ -54,11 +54,13 @@ RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("gk_transt", "dual_transt", "the defaults: GK-TransT with, dual TransT without the fit"),
 )
 #: The targets for GK-TransT: precision at 20 px (clean; occlusion and blur), the median
-#: latency (seed 000 Table 1: 16.33 ms) and the GK-TransT / dual TransT latency ratio (seed 0.523).
+#: latency on two CPU cores (ours: half the seed's 16.33 ms on a laptop GPU, seed 000 Table 1)
+#: and the GK-TransT / dual TransT latency ratio like for like (ours: the seed's 0.523 rounded
+#: down to a half: one network's work instead of two).
 TARGET_PRECISION_CLEAN = 0.95
 TARGET_PRECISION_DISTURBED = 0.90
-TARGET_RATIO = 0.6
-TARGET_MEDIAN_MS = seed_latency_ms("gk_transt")
+TARGET_RATIO = 0.50
+TARGET_MEDIAN_MS = 8.0
 #: Targets on the hard cases and held-out appearance families: GK-TransT precision at 20 px on
 #: both markers; the network alone (dual TransT: two networks, box centres, no GK) on the clean
 #: held-out families: median centre error (one image px at 4x binning) and precision.
@@ -352,7 +354,8 @@ def _checks(summary: pd.DataFrame, t1: pd.DataFrame, cases: Sequence[str], gk: s
     checks += network_checks(summary, network, [c for c in cases if c.startswith("heldout_")])
     checks += network_checks(summary, unseen_row(network), ["clean"])
     med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
-    checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}): "
+    checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}; seed "
+                  f"{seed_latency_ms('gk_transt')} on a GPU): "
                   f"{'met' if med <= TARGET_MEDIAN_MS else 'NOT met'}")
     for num, den, what, r_med, _ in ratios.like_for_like:
         checks.append(f"{num}/{den} median latency ratio {r_med:.3f}, {what} (target <= "
