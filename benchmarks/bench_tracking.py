@@ -64,7 +64,9 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from _report import HERE, record  # noqa: E402
@@ -155,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="skip the network-alone rows on the unseen image source "
                     "(plant.render_unseen, MuJoCo; needs OpenGL, MUJOCO_GL=egl)")
     ap.add_argument("--no-record", action="store_true",
-                    help="do not record the figures (results/*.json, RESULTS.md)")
+                    help="do not record the figures (results/*.json, RESULTS.md); the plots "
+                    "and tables go to a temporary folder")
     ap.add_argument("--torch-threads", type=int, default=1,
                     help="torch intra-op threads (default 1: on this shared 2-core machine the "
                     "small network was as fast with 1 thread and far steadier)")
@@ -183,12 +186,15 @@ def main(argv: list[str] | None = None) -> int:
     cases = list(dict.fromkeys(c for name in a.cases for c in CASE_GROUPS.get(name, (name,))))
     t0 = time.perf_counter()
     # The one code path, shared with `pmspm bench-trackers` (experiments/tracking_bench.py).
+    # a run that records nothing leaves the recorded run's plots and tables alone
+    out = Path(tempfile.mkdtemp(prefix="bench_tracking-")) if a.no_record else HERE / "results"
     report = tb.run_tracking_benchmark(
-        HERE / "results", seeds=a.seeds, frames=a.frames, cases=cases, trackers=a.trackers,
+        out, seeds=a.seeds, frames=a.frames, cases=cases, trackers=a.trackers,
         stand_in=a.stand_in, link_prefix="results/", unseen=not a.no_unseen,
         progress=lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", flush=True))
     if a.no_record:
         print(report.notes)
+        print(f"(not recorded: plots and tables in {out})")
     else:
         title = "Tracking benchmark: GK-TransT, dual TransT, KCF, CSRT, K²CF (seed 000 §4)"
         if a.stand_in:
