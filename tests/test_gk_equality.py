@@ -127,7 +127,10 @@ class _Replay:
 
 
 def _pair(name: str, inner) -> GKTransTPairTracker:
-    """The tracker as ``observer.trackers.make_pair_tracker`` builds it, around ``inner``."""
+    """The tracker as ``observer.trackers.make_pair_tracker`` builds it, around ``inner``; for
+    GK-TransT on the full search crop in every frame (the recorder is no ``TransTTracker``, so
+    the smaller crop of steady frames, a change of the network's input, is not replayed: the GK
+    stage is what this test keeps)."""
     if name == "gk_transt":
         return GKTransTPairTracker(inner, refine=True)
     return GKTransTPairTracker(inner, refine=True, guide_search=False,
