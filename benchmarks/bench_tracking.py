@@ -185,9 +185,9 @@ def main(argv: list[str] | None = None) -> int:
 
     cases = list(dict.fromkeys(c for name in a.cases for c in CASE_GROUPS.get(name, (name,))))
     t0 = time.perf_counter()
-    # The one code path, shared with `pmspm bench-trackers` (experiments/tracking_bench.py).
-    # a run that records nothing leaves the recorded run's plots and tables alone
+    # A run that records nothing leaves the recorded run's plots and tables alone.
     out = Path(tempfile.mkdtemp(prefix="bench_tracking-")) if a.no_record else HERE / "results"
+    # The one code path, shared with `pmspm bench-trackers` (experiments/tracking_bench.py).
     report = tb.run_tracking_benchmark(
         out, seeds=a.seeds, frames=a.frames, cases=cases, trackers=a.trackers,
         stand_in=a.stand_in, link_prefix="results/", unseen=not a.no_unseen,

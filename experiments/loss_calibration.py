@@ -339,10 +339,8 @@ def validate(tracker: str, records: pd.DataFrame, design: CalibrationDesign) -> 
     (``model_replicas`` noise seeds each), each with its 95 % interval (the image runs' lost
     frames counted from their records, ``frame_fraction_ci``); ``agree`` when both pairs of
     intervals overlap. Needs the model file written."""
-    held = records[records["holdout"]]
-    lost_by_run = held.groupby("run").first()
-    lost_by_run["frames"] = held.groupby("run").size()
-    lost_by_run["lost_frames"] = held.groupby("run")["lost"].sum()
+    by_run = records[records["holdout"]].groupby("run")
+    lost_by_run = by_run.first().assign(frames=by_run.size(), lost_frames=by_run["lost"].sum())
     twins, keys, image = [], [], []
     for pt in design.points(True):
         name = pt.run_name(tracker)
