@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from observer.gk import circle_kernels as kernels
 from observer.gk.hsv_gate import (
     RED,
     YELLOW,
@@ -159,17 +160,8 @@ def fit_circle_algebraic(points: ArrayLike) -> tuple[NDArray[np.float64], float]
     points' mean for conditioning); centre (a/2, b/2), R = √(c + x_c² + y_c²). Returns
     ``(centre (2,), R)``; NaN if the points are collinear.
     """
-    p = np.asarray(points, dtype=float)
-    m = p.mean(axis=0)
-    q = p - m
-    A = np.column_stack([q, np.ones(len(q))])
-    rhs = (q * q).sum(axis=1)
-    sol, _, rank, _ = np.linalg.lstsq(A, rhs, rcond=None)
-    c = 0.5 * sol[:2]
-    r2 = sol[2] + c @ c
-    if not np.all(np.isfinite(sol)) or r2 <= 0.0 or rank < 3:
-        return np.full(2, np.nan), math.nan
-    return c + m, float(math.sqrt(r2))
+    cx, cy, R, _ = kernels.algebraic(_points(points))
+    return np.array([cx, cy]), R
 
 
 def fit_circle_geometric(
@@ -181,25 +173,15 @@ def fit_circle_geometric(
     problem are the seed's eq. 28 (∂f/∂x_c = ∂f/∂y_c = 0, and ∂f/∂R = 0). Returns
     ``(centre (2,), R, residuals d_j − R (n,))``.
     """
-    p = np.asarray(points, dtype=float)
-    c = np.asarray(centre0, dtype=float).copy()
-    R = float(radius0)
-    for _ in range(max_iter):
-        diff = p - c
-        d = np.hypot(diff[:, 0], diff[:, 1])
-        d = np.maximum(d, 1e-12)
-        r = d - R
-        J = np.column_stack([-diff / d[:, None], -np.ones(len(p))])
-        try:  # Gauss–Newton normal equations
-            step = np.linalg.solve(J.T @ J, -(J.T @ r))
-        except np.linalg.LinAlgError:
-            break
-        c += step[:2]
-        R += step[2]
-        if float(np.abs(step).max()) < tol:
-            break
-    diff = p - c
-    return c, R, np.hypot(diff[:, 0], diff[:, 1]) - R
+    c0 = np.asarray(centre0, dtype=float).reshape(2)
+    cx, cy, R, res = kernels.geometric(_points(points), c0[0], c0[1], float(radius0),
+                                       int(max_iter), float(tol))
+    return np.array([cx, cy]), R, res
+
+
+def _points(points: ArrayLike) -> NDArray[np.float64]:
+    """Points as a C-contiguous float64 (n, 2) array (what the kernels take)."""
+    return np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 2))
 
 
 def circle_of_radius(
@@ -237,37 +219,7 @@ def contour_curvature(points: ArrayLike, span: int, closed: bool = True) -> NDAr
     k = 1/r of the circle through points i − span, i, i + span, i.e. k = 4·area/(abc) of that
     triangle, signed by the turn direction (positive for a left turn in (u, v) coordinates).
     Wraps around when ``closed``; at the ends of an open contour the neighbours are clipped."""
-    p = np.asarray(points, dtype=float)
-    n = len(p)
-    if n < 3:
-        return np.zeros(n)
-    i = np.arange(n)
-    if closed:
-        a_idx, c_idx = (i - span) % n, (i + span) % n
-    else:
-        a_idx, c_idx = np.clip(i - span, 0, n - 1), np.clip(i + span, 0, n - 1)
-    A, B, C = p[a_idx], p[i], p[c_idx]
-    ab = np.linalg.norm(B - A, axis=1)
-    bc = np.linalg.norm(C - B, axis=1)
-    ca = np.linalg.norm(A - C, axis=1)
-    cross = (B - A)[:, 0] * (C - B)[:, 1] - (B - A)[:, 1] * (C - B)[:, 0]
-    denom = ab * bc * ca
-    return np.where(denom > 1e-12, 2.0 * cross / np.maximum(denom, 1e-12), 0.0)
-
-
-def burr_mask(k: ArrayLike, k_ref: float, factor: float) -> NDArray[np.bool_]:
-    """True for contour points that are burrs: curvature ``k`` (signed, 1/px, positive for the
-    marker's convex outline) above ``factor · k_ref`` (seed 004 §4.2: a burr is a point of
-    excessive curvature) or below ``k_ref / factor`` (our addition: straight or concave pieces of
-    the outline, such as an occluder's edge, are no part of the marker's circle either)."""
-    kk = np.asarray(k, dtype=float)
-    return (kk > factor * k_ref) | (kk < k_ref / factor)
-
-
-def _arc_coverage(points: NDArray[np.float64], centre: NDArray[np.float64]) -> float:
-    ang = np.arctan2(points[:, 1] - centre[1], points[:, 0] - centre[0])
-    bins = np.floor((ang + np.pi) / (2 * np.pi) * 36).astype(int) % 36
-    return len(np.unique(bins)) / 36.0
+    return kernels.curvature(_points(points), int(span), bool(closed))
 
 
 def _median_rgb(image: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -323,60 +275,18 @@ def _subpixel_edge(
     contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     contour = max(contours, key=len).reshape(-1, 2).astype(float)
     m = cv2.moments(region, binaryImage=True)
-    centroid = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
-    ray = contour - centroid
-    norm = np.hypot(ray[:, 0], ray[:, 1])
-    keep = norm > 0.5
     hh, ww = region.shape
-    on_border = (
-        (contour[:, 0] <= 0) | (contour[:, 1] <= 0)
-        | (contour[:, 0] >= ww - 1) | (contour[:, 1] >= hh - 1)
-    )
-    # Pixels on the crop's border: the region may continue outside it, not a real edge.
-    keep &= ~on_border
-    contour, ray, norm = contour[keep], ray[keep], norm[keep]
-    if len(contour) < cfg.min_points:
-        return SubpixelResult.invalid("too few contour points", len(contour))
-    u = ray / norm[:, None]
     t = np.arange(-cfg.edge_search_px, cfg.edge_search_px + 1e-9, cfg.edge_step_px)
-    sx = (contour[:, 0:1] + u[:, 0:1] * t[None, :]).astype(np.float32)
-    sy = (contour[:, 1:2] + u[:, 1:2] * t[None, :]).astype(np.float32)
+    pts, u, sx, sy = kernels.edge_rays(contour, m["m10"] / m["m00"], m["m01"] / m["m00"],
+                                       ww, hh, t)
+    if len(pts) < cfg.min_points:
+        return SubpixelResult.invalid("too few contour points", len(pts))
     prof = cv2.remap(alpha, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                      borderValue=float("nan"))
-    inside, outside = prof[:, :-1] >= 0.5, prof[:, 1:] < 0.5
-    cross = inside & outside
-    t_mid = 0.5 * (t[:-1] + t[1:])
-    j = np.where(cross, np.abs(t_mid)[None, :], np.inf).argmin(axis=1)
-    found = cross[np.arange(len(j)), j]
-    a0 = prof[np.arange(len(j)), j].astype(float)
-    a1 = prof[np.arange(len(j)), j + 1].astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = t[j] + (a0 - 0.5) / (a0 - a1) * cfg.edge_step_px
-    found &= np.isfinite(ts)
-    edge = contour[found] + u[found] * ts[found, None]
+    edge = kernels.edge_crossings(prof, t, cfg.edge_step_px, pts, u)
     if len(edge) < cfg.min_points:
         return SubpixelResult.invalid("too few sub-pixel edge points", len(edge))
     return edge
-
-
-def _robust_circle(
-    pts: NDArray[np.float64], c0: NDArray[np.float64], R0: float, cfg: SubpixelConfig
-) -> tuple[NDArray[np.float64], float, NDArray[np.float64], NDArray[np.float64], int]:
-    """Geometric circle fit from ``(c0, R0)`` with up to three rounds of rejecting points whose
-    residual exceeds ``outlier_k`` robust sigmas (MAD) or ``outlier_floor_px``, keeping at least
-    ``min_points``. Returns (centre, radius, residuals, points kept, points rejected)."""
-    c, R, res = fit_circle_geometric(pts, c0, R0, cfg.max_iter)
-    n_out = 0
-    for _ in range(3):
-        med = float(np.median(res))
-        sigma = 1.4826 * float(np.median(np.abs(res - med)))
-        bad_pts = np.abs(res) > max(cfg.outlier_k * sigma, cfg.outlier_floor_px)
-        if not bad_pts.any() or len(pts) - bad_pts.sum() < cfg.min_points:
-            break
-        n_out += int(bad_pts.sum())
-        pts = pts[~bad_pts]
-        c, R, res = fit_circle_geometric(pts, c, R, cfg.max_iter)
-    return c, R, res, pts, n_out
 
 
 def refine_marker_centre(
@@ -441,57 +351,58 @@ def refine_marker_centre(
     edge = _subpixel_edge(region, alpha, cfg)
     if isinstance(edge, SubpixelResult):
         return edge
-    start = _circle_start(edge, r_area, radius_px, cfg)
-    if isinstance(start, SubpixelResult):
-        return start
-    pts, n_burrs, c_alg, R_alg = start
-    c, R, res, pts, n_out = _robust_circle(pts, c_alg, R_alg, cfg)
-    return _judged_fit(c, R, res, pts, n_burrs, n_out, offset, region.shape, cfg)
+    fit = _fit_circle(edge, r_area, radius_px, cfg)
+    if isinstance(fit, SubpixelResult):
+        return fit
+    return _judged_fit(*fit, offset, region.shape, cfg)
 
 
-def _circle_start(
+#: Why ``kernels.fit_free`` found no circle, by its status.
+_FREE_FIT_FAILURES = {
+    kernels.NO_CONVEX_OUTLINE: "contour has no convex outline",
+    kernels.TOO_FEW_AFTER_BURRS: "too few points after burr removal",
+    kernels.COLLINEAR: "degenerate contour (collinear points)",
+}
+
+
+def _fit_circle(
     edge: NDArray[np.float64], r_area: float, radius_px: float | None, cfg: SubpixelConfig,
-) -> tuple[NDArray[np.float64], int, NDArray[np.float64], float] | SubpixelResult:
-    """Steps 3-4 up to the geometric fit: the edge points (crop px) to fit, the number
-    removed, and the starting centre and radius. With a known ``radius_px``: the points on a
-    circle of that radius by consensus; otherwise burr removal (seed 004 eq. 25) and the
-    algebraic fit. An invalid result when too few points remain or they are collinear."""
-    if radius_px is not None:
-        # 3-4 with the known radius: consensus on the circle, then the geometric fit
-        c_alg, on_circle = circle_of_radius(edge, radius_px,
-                                            cfg.consensus_tol_fraction * radius_px)
-        pts, n_burrs, R_alg = edge[on_circle], int((~on_circle).sum()), float(radius_px)
-        if len(pts) < cfg.min_points:
-            return SubpixelResult.invalid("too few edge points on a circle of the marker's "
-                                          "radius", len(pts))
-        return pts, n_burrs, c_alg, R_alg
-    # 3. burr removal (seed 004 eq. 25)
-    kept = _remove_burrs(edge, r_area, cfg)
-    if isinstance(kept, SubpixelResult):
-        return kept
-    pts, n_burrs = kept
-    # 4. algebraic fit, then geometric refinement with residual-based outlier rejection
-    c_alg, R_alg = fit_circle_algebraic(pts)
-    if not np.all(np.isfinite(c_alg)):
-        return SubpixelResult.invalid("degenerate contour (collinear points)", len(pts))
-    return pts, n_burrs, c_alg, R_alg
+) -> tuple[NDArray[np.float64], float, float, int, int, int, float] | SubpixelResult:
+    """Steps 3-4: the circle through the edge points (crop px) as (centre, R, RMS residual,
+    points used, points removed as burrs or off the known circle, outliers, arc coverage).
+    With a known ``radius_px``: the points on a circle of that radius by consensus, then the
+    robust geometric fit; otherwise burr removal (seed 004 eq. 25), the algebraic fit and the
+    robust geometric fit (``kernels.fit_free``). An invalid result when too few points remain
+    or they are collinear."""
+    if radius_px is None:
+        status, cx, cy, R, rms, n_pts, n_burrs, n_out, cover = kernels.fit_free(
+            edge, r_area, cfg.burr_span_fraction, cfg.burr_curvature_factor, cfg.outlier_k,
+            cfg.outlier_floor_px, cfg.min_points, cfg.max_iter)
+        if status != kernels.FIT_OK:
+            return SubpixelResult.invalid(_FREE_FIT_FAILURES[status], n_pts)
+        return np.array([cx, cy]), R, rms, n_pts, n_burrs, n_out, cover
+    c0, on_circle = circle_of_radius(edge, radius_px, cfg.consensus_tol_fraction * radius_px)
+    pts, n_off = edge[on_circle], int((~on_circle).sum())
+    if len(pts) < cfg.min_points:
+        return SubpixelResult.invalid("too few edge points on a circle of the marker's "
+                                      "radius", len(pts))
+    cx, cy, R, res, pts, n_out = kernels.robust(pts, c0[0], c0[1], float(radius_px),
+                                                cfg.outlier_k, cfg.outlier_floor_px,
+                                                cfg.min_points, cfg.max_iter)
+    return (np.array([cx, cy]), R, kernels.rms(res), len(pts), n_off, n_out,
+            kernels.arc_coverage(pts, cx, cy))
 
 
 def _judged_fit(
-    c: NDArray[np.float64], R: float, res: NDArray[np.float64], pts: NDArray[np.float64],
-    n_burrs: int, n_out: int, offset: NDArray[np.float64], shape: tuple[int, ...],
-    cfg: SubpixelConfig,
+    c: NDArray[np.float64], R: float, rms: float, n_points: int, n_burrs: int, n_out: int,
+    cover: float, offset: NDArray[np.float64], shape: tuple[int, ...], cfg: SubpixelConfig,
 ) -> SubpixelResult:
-    """The fitted circle (centre ``c`` and radius ``R`` in crop px, residuals ``res`` of the
-    points ``pts``) as a result in image px (``offset`` is the crop's corner): valid unless
-    the fit diverged, its RMS residual exceeds ``max_rms_fraction`` of R, its points cover
-    less than ``min_arc_coverage`` of the circle, or the centre lies outside the crop of
-    ``shape`` (rows, columns)."""
+    """The fitted circle (centre ``c`` and radius ``R`` in crop px, RMS residual ``rms`` of its
+    ``n_points`` points, which cover ``cover`` of the circle) as a result in image px
+    (``offset`` is the crop's corner): valid unless the fit diverged, its RMS residual exceeds
+    ``max_rms_fraction`` of R, its points cover less than ``min_arc_coverage`` of the circle,
+    or the centre lies outside the crop of ``shape`` (rows, columns)."""
     hh, ww = shape
-    rms = float(np.sqrt(np.mean(res * res)))
-    cover = _arc_coverage(pts, c)
-    centre = c + offset
-    result = SubpixelResult(centre, float(R), rms, len(pts), n_burrs, n_out, cover, True)
     reason = ""
     if not (np.all(np.isfinite(c)) and math.isfinite(R) and R > 0.0):
         reason = "circle fit did not converge"
@@ -502,9 +413,9 @@ def _judged_fit(
     elif not (0.0 <= c[0] <= ww - 1 and 0.0 <= c[1] <= hh - 1):
         reason = "fitted centre outside the roi"
     if reason:
-        return SubpixelResult(np.full(2, np.nan), math.nan, rms, len(pts), n_burrs, n_out,
+        return SubpixelResult(np.full(2, np.nan), math.nan, rms, n_points, n_burrs, n_out,
                               cover, False, reason)
-    return result
+    return SubpixelResult(c + offset, float(R), rms, n_points, n_burrs, n_out, cover, True)
 
 
 def _crop(image_rgb: NDArray[np.uint8], roi_image_px: ArrayLike,
@@ -545,26 +456,6 @@ def _segment(crop: NDArray[np.uint8], hsv_range: HSVRange,
     if area < cfg.min_area_px:
         return SubpixelResult.invalid(f"marker region too small ({area} px)")
     return (labels == k).astype(np.uint8), math.sqrt(area / math.pi)
-
-
-def _remove_burrs(edge: NDArray[np.float64], r_area: float,
-                  cfg: SubpixelConfig) -> tuple[NDArray[np.float64], int] | SubpixelResult:
-    """The contour points whose curvature is not a burr's (seed 004 eq. 25, over a span of
-    ``cfg.burr_span_fraction`` of the radius) and the number removed; invalid if the contour
-    has no convex outline or too few points remain."""
-    spacing = float(np.mean(np.hypot(*np.diff(edge, axis=0).T))) if len(edge) > 1 else 1.0
-    span = max(2, int(round(cfg.burr_span_fraction * r_area / max(spacing, 1e-6))))
-    k = contour_curvature(edge, span, closed=True)
-    k_ref = float(np.median(k))
-    if k_ref < 0.0:  # the contour runs clockwise: make the marker's convex outline positive
-        k, k_ref = -k, -k_ref
-    if k_ref <= 0.0:
-        return SubpixelResult.invalid("contour has no convex outline", len(edge))
-    burr = burr_mask(k, k_ref, cfg.burr_curvature_factor)
-    pts = edge[~burr]
-    if len(pts) < cfg.min_points:
-        return SubpixelResult.invalid("too few points after burr removal", len(pts))
-    return pts, int(burr.sum())
 
 
 def refine_in_box(
