@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from plant import attitude
+from plant import attitude, render_kernels
 from plant.camera import Camera
 from plant.mjcf import PLATE_RGB, RED_RGB, ROTOR_RGB, YELLOW_RGB
 from plant.params import PlantParams
@@ -229,12 +229,7 @@ def _rgb255(rgb: tuple[float, float, float]) -> NDArray[np.float64]:
 
 def _inset(polys: NDArray[np.float64], d: float) -> NDArray[np.float64]:
     """Move the vertices of closed polygons (k, n, 2) inward by ``d`` px along their normals."""
-    tangent = np.roll(polys, -1, axis=1) - np.roll(polys, 1, axis=1)
-    x, y = polys[..., 0], polys[..., 1]
-    area2 = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
-    normal = np.stack([-tangent[..., 1], tangent[..., 0]], axis=-1)
-    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
-    return polys + d * np.sign(area2)[:, None, None] * normal
+    return render_kernels.inset(np.ascontiguousarray(polys, dtype=float), float(d))
 
 
 def polygon_coverage(
@@ -536,9 +531,7 @@ class AnalyticRenderer:
             patch = roi[box]
             # patch += alpha * (colour - patch), with OpenCV: numpy's broadcasting over the
             # colour axis is ten times slower here
-            diff = cv2.subtract((*colour.tolist(), 0.0), patch)
-            step = cv2.multiply(diff, cv2.merge([alpha] * 3))
-            patch[...] = cv2.add(patch, step)
+            render_kernels.composite(patch, alpha, colour.astype(np.float32))
         img[y0:y1, x0:x1] = cv2.convertScaleAbs(roi)  # values are >= 0: rounds and saturates
         return img
 
@@ -654,22 +647,17 @@ class AnalyticRenderer:
         plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
         if plain and o.noise_sigma_dn == 0.0 and self._light is None and not o.defocus_sigma_px:
             return jpeg_roundtrip(img, o.jpeg_quality)
-        f = img.astype(np.float32)
-        if self._highlights is not None:
-            f += self._highlights
-        if o.illumination != 1.0:
-            f *= np.float32(o.illumination)
-        if self._light is not None:
-            f *= self._light
+        none = np.empty((0, 0, 0), np.float32)
+        f = render_kernels.exposed(
+            img, none if self._highlights is None else self._highlights, o.illumination,
+            none if self._light is None else self._light)
         if o.defocus_sigma_px:
             f = cv2.GaussianBlur(f, (0, 0), o.defocus_sigma_px)
+        raw = np.empty((0, 0, 0), np.uint8)
         if o.noise_sigma_dn > 0.0:
             raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8).reshape(f.shape)
-            f += cv2.LUT(raw, self._noise_table)
-        if o.gain != 1.0:
-            f *= np.float32(o.gain)
-        np.maximum(f, 0.0, out=f)
-        return jpeg_roundtrip(cv2.convertScaleAbs(f), o.jpeg_quality)  # rounds, saturates
+        return jpeg_roundtrip(render_kernels.digitised(f, raw, self._noise_table, o.gain),
+                              o.jpeg_quality)
 
     def render(
         self,

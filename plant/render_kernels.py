@@ -1,0 +1,104 @@
+"""Compiled per-pixel kernels of the analytic renderer (``plant.render_analytic``): the camera
+effects before and after the defocus blur, the compositing of a layer's colour, and the inset
+of polygon outlines.
+
+Why compiled: a frame is 612 x 512 x 3 values, and the numpy and OpenCV version made one pass
+over the frame per effect (conversion, highlights, illumination, light map, noise, gain,
+clipping, rounding), each writing a new array; here each pixel is read and written once. The
+kernels do the same float32 operations in the same order as that version, so frames are
+identical byte for byte (tests/test_render_kernels.py compares them with the numpy and
+OpenCV operations they replace).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+
+@njit(cache=True)
+def exposed(img: NDArray[np.uint8], highlights: NDArray[np.float32], illumination: float,
+            light: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The frame as float32 (H, W, 3) DN: ``img`` plus ``highlights`` (skipped when empty),
+    times ``illumination`` (float32) and the ``light`` map (skipped when empty)."""
+    h, w, c = img.shape
+    out = np.empty((h, w, c), np.float32)
+    ill = np.float32(illumination)
+    with_h, with_l, scale = highlights.size > 0, light.size > 0, ill != np.float32(1.0)
+    for i in range(h):
+        for j in range(w):
+            for k in range(c):
+                v = np.float32(img[i, j, k])
+                if with_h:
+                    v = v + highlights[i, j, k]
+                if scale:
+                    v = v * ill
+                if with_l:
+                    v = v * light[i, j, k]
+                out[i, j, k] = v
+    return out
+
+
+@njit(cache=True)
+def digitised(f: NDArray[np.float32], noise_bytes: NDArray[np.uint8],
+              noise_table: NDArray[np.float32], gain: float) -> NDArray[np.uint8]:
+    """The sensor's 8-bit output (H, W, 3) of the float32 frame ``f``: plus the read noise
+    ``noise_table[noise_bytes]`` (skipped when ``noise_bytes`` is empty), times ``gain``
+    (float32), clipped at 0, rounded half to even and saturated at 255 (``cv2.convertScaleAbs``)."""
+    h, w, c = f.shape
+    out = np.empty((h, w, c), np.uint8)
+    g = np.float32(gain)
+    with_noise, scale = noise_bytes.size > 0, g != np.float32(1.0)
+    for i in range(h):
+        for j in range(w):
+            for k in range(c):
+                v = f[i, j, k]
+                if with_noise:
+                    v = v + noise_table[noise_bytes[i, j, k]]
+                if scale:
+                    v = v * g
+                v = max(v, np.float32(0.0))
+                r = np.rint(v)
+                out[i, j, k] = 255 if r > 255.0 else np.uint8(r)
+    return out
+
+
+@njit(cache=True)
+def composite(patch: NDArray[np.float32], alpha: NDArray[np.float32],
+              colour: NDArray[np.float32]) -> None:
+    """``patch += alpha * (colour - patch)`` in place, per pixel (H, W, 3), float32."""
+    h, w, c = patch.shape
+    for i in range(h):
+        for j in range(w):
+            a = alpha[i, j]
+            for k in range(c):
+                p = patch[i, j, k]
+                patch[i, j, k] = p + (colour[k] - p) * a
+
+
+@njit(cache=True)
+def inset(polys: NDArray[np.float64], d: float) -> NDArray[np.float64]:
+    """Closed polygons (k, n, 2) with every vertex moved inward by ``d`` px along the normal of
+    the chord between its neighbours (inward by the sign of the polygon's area)."""
+    k, n, _ = polys.shape
+    out = np.empty_like(polys)
+    for p in range(k):
+        area2 = 0.0
+        for i in range(n):
+            nxt = (i + 1) % n
+            area2 += polys[p, i, 0] * polys[p, nxt, 1] - polys[p, nxt, 0] * polys[p, i, 1]
+        sign = 1.0 if area2 > 0.0 else (-1.0 if area2 < 0.0 else (0.0 if area2 == 0.0
+                                                                   else math.nan))
+        ds = d * sign
+        for i in range(n):
+            nxt, prv = (i + 1) % n, (i - 1) % n
+            tx = polys[p, nxt, 0] - polys[p, prv, 0]
+            ty = polys[p, nxt, 1] - polys[p, prv, 1]
+            nx, ny = -ty, tx
+            norm = max(math.sqrt(nx * nx + ny * ny), 1e-12)
+            out[p, i, 0] = polys[p, i, 0] + ds * (nx / norm)
+            out[p, i, 1] = polys[p, i, 1] + ds * (ny / norm)
+    return out
