@@ -647,17 +647,17 @@ class AnalyticRenderer:
         plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
         if plain and o.noise_sigma_dn == 0.0 and self._light is None and not o.defocus_sigma_px:
             return jpeg_roundtrip(img, o.jpeg_quality)
-        none = np.empty((0, 0, 0), np.float32)
+        none = np.empty(0, np.float32)
         f = render_kernels.exposed(
-            img, none if self._highlights is None else self._highlights, o.illumination,
-            none if self._light is None else self._light)
+            img.ravel(), none if self._highlights is None else self._highlights.ravel(),
+            o.illumination, none if self._light is None else self._light.ravel())
         if o.defocus_sigma_px:
-            f = cv2.GaussianBlur(f, (0, 0), o.defocus_sigma_px)
-        raw = np.empty((0, 0, 0), np.uint8)
+            f = cv2.GaussianBlur(f.reshape(img.shape), (0, 0), o.defocus_sigma_px).ravel()
+        raw = np.empty(0, np.uint8)
         if o.noise_sigma_dn > 0.0:
-            raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8).reshape(f.shape)
-        return jpeg_roundtrip(render_kernels.digitised(f, raw, self._noise_table, o.gain),
-                              o.jpeg_quality)
+            raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8)
+        out = render_kernels.digitised(f, raw, self._noise_table, o.gain).reshape(img.shape)
+        return jpeg_roundtrip(out, o.jpeg_quality)
 
     def render(
         self,

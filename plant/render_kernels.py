@@ -22,47 +22,50 @@ from numpy.typing import NDArray
 @njit(cache=True)
 def exposed(img: NDArray[np.uint8], highlights: NDArray[np.float32], illumination: float,
             light: NDArray[np.float32]) -> NDArray[np.float32]:
-    """The frame as float32 (H, W, 3) DN: ``img`` plus ``highlights`` (skipped when empty),
-    times ``illumination`` (float32) and the ``light`` map (skipped when empty)."""
-    h, w, c = img.shape
-    out = np.empty((h, w, c), np.float32)
+    """The frame as float32 DN, flat (H W 3,): ``img`` plus ``highlights`` (skipped when
+    empty), times ``illumination`` (float32) and the ``light`` map (skipped when empty); all
+    arrays flat, in the same order."""
+    out = np.empty(img.size, np.float32)
     ill = np.float32(illumination)
     with_h, with_l, scale = highlights.size > 0, light.size > 0, ill != np.float32(1.0)
-    for i in range(h):
-        for j in range(w):
-            for k in range(c):
-                v = np.float32(img[i, j, k])
-                if with_h:
-                    v = v + highlights[i, j, k]
-                if scale:
-                    v = v * ill
-                if with_l:
-                    v = v * light[i, j, k]
-                out[i, j, k] = v
+    for i in range(img.size):
+        v = np.float32(img[i])
+        if with_h:
+            v = v + highlights[i]
+        if scale:
+            v = v * ill
+        if with_l:
+            v = v * light[i]
+        out[i] = v
     return out
+
+
+@njit(cache=True)
+def _dn(v: np.float32) -> np.uint8:
+    """``v`` clipped at 0, rounded half to even and saturated at 255 (``cv2.convertScaleAbs``
+    of a non-negative value). Adding and removing 2^23 rounds a float32 in [0, 2^23) to an
+    integer in the current rounding mode, nearest-even: the same as ``rint``, which numba
+    does not vectorise."""
+    big = np.float32(8388608.0)
+    v = min(max(v, np.float32(0.0)), np.float32(256.0))
+    return np.uint8(min((v + big) - big, np.float32(255.0)))
 
 
 @njit(cache=True)
 def digitised(f: NDArray[np.float32], noise_bytes: NDArray[np.uint8],
               noise_table: NDArray[np.float32], gain: float) -> NDArray[np.uint8]:
-    """The sensor's 8-bit output (H, W, 3) of the float32 frame ``f``: plus the read noise
+    """The sensor's 8-bit output of the float32 frame ``f`` (flat): plus the read noise
     ``noise_table[noise_bytes]`` (skipped when ``noise_bytes`` is empty), times ``gain``
-    (float32), clipped at 0, rounded half to even and saturated at 255 (``cv2.convertScaleAbs``)."""
-    h, w, c = f.shape
-    out = np.empty((h, w, c), np.uint8)
+    (float32; times 1 changes nothing), clipped at 0, rounded half to even and saturated at 255
+    (``cv2.convertScaleAbs``)."""
+    out = np.empty(f.size, np.uint8)
     g = np.float32(gain)
-    with_noise, scale = noise_bytes.size > 0, g != np.float32(1.0)
-    for i in range(h):
-        for j in range(w):
-            for k in range(c):
-                v = f[i, j, k]
-                if with_noise:
-                    v = v + noise_table[noise_bytes[i, j, k]]
-                if scale:
-                    v = v * g
-                v = max(v, np.float32(0.0))
-                r = np.rint(v)
-                out[i, j, k] = 255 if r > 255.0 else np.uint8(r)
+    if noise_bytes.size > 0:
+        for i in range(f.size):
+            out[i] = _dn((f[i] + noise_table[noise_bytes[i]]) * g)
+    else:
+        for i in range(f.size):
+            out[i] = _dn(f[i] * g)
     return out
 
 

@@ -53,13 +53,14 @@ def test_camera_effects_equal_the_numpy_and_opencv_passes(with_highlights, illum
     table[:4] = (-0.5, 0.5, 1.5, 2.5)
     want = _camera_effects_reference(img, highlights, illumination, light, defocus, raw,
                                      table, gain)
-    none = np.empty((0, 0, 0), np.float32)
-    f = render_kernels.exposed(img, none if highlights is None else highlights, illumination,
-                               none if light is None else light)
+    none = np.empty(0, np.float32)
+    f = render_kernels.exposed(img.ravel(), none if highlights is None else highlights.ravel(),
+                               illumination, none if light is None else light.ravel())
     if defocus:
-        f = cv2.GaussianBlur(f, (0, 0), defocus)
+        f = cv2.GaussianBlur(f.reshape(img.shape), (0, 0), defocus).ravel()
     got = render_kernels.digitised(
-        f, np.empty((0, 0, 0), np.uint8) if raw is None else raw, table, gain)
+        f, np.empty(0, np.uint8) if raw is None else raw.ravel(), table, gain
+    ).reshape(img.shape)
     assert got.dtype == np.uint8
     np.testing.assert_array_equal(got, want)
     assert 0 < np.count_nonzero(got == 255) < got.size  # the cases reach saturation
