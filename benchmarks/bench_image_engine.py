@@ -11,14 +11,16 @@ seed's latency of the tracker, analytic renderer):
   workers' start included;
 * the *network limit*: frames per second of the tracker's networks alone on search crops, at
   the best of 1 or 2 ONNX Runtime threads and batch sizes 1-64 (one network call per frame for
-  GK-TransT, two for the dual TransT; 1-thread figures scaled by the two cores, an upper bound);
+  GK-TransT on its steady 96 px crop, which it searches on all but its first frames and
+  re-acquisitions; two per frame for the dual TransT on 128 px crops; 1-thread figures scaled
+  by the two cores, an upper bound);
 * where a run's time goes: a profile of one event-loop run (the code an engine run executes),
   by part (render, network, GK and trackers, physics, control, the rest).
 
 Keys: ``<tracker>_B<B>_realtime_factor``, ``<tracker>_B<B>_frames_per_s``,
 ``<tracker>_B64_fraction_of_network_limit``, ``<tracker>_B64_ratio_to_event_loop``,
 ``<tracker>_network_limit_frames_per_s``, ``<tracker>_event_loop_realtime_factor``,
-``<tracker>_time_fraction_<part>``, ``network_s_per_sample_threads<T>_B<B>``.
+``<tracker>_time_fraction_<part>``, ``network_s_per_sample_search<px>_threads<T>_B<B>``.
 
 Run on an idle machine: ``python benchmarks/bench_image_engine.py`` (``--quick``: a smoke run
 with small batches and short runs, printed only).
@@ -36,8 +38,12 @@ import numpy as np
 from latency import Scenario, build_loop
 from latency.image_engine import run_images
 from latency.models import SEED_LATENCY_S
+from observer.trackers.registry import STEADY_SEARCH_PX
 
-TRACKERS = {"gk_transt": ("gk_transt", 1), "dual_transt": ("dual_transt", 2)}
+#: tracker: (registry name, network calls per frame, search crop of most frames in px; None:
+#: the network's configured size)
+TRACKERS = {"gk_transt": ("gk_transt", 1, STEADY_SEARCH_PX),
+            "dual_transt": ("dual_transt", 2, None)}
 PARTS = {"render": ("plant/render", "plant/scene"), "network": ("onnxruntime",),
          "gk_and_trackers": ("observer/gk", "observer/trackers", "observer/transt",
                              "observer/tracking", "observer/opencv", "cv2"),
@@ -46,7 +52,7 @@ PARTS = {"render": ("plant/render", "plant/scene"), "network": ("onnxruntime",),
 
 
 def _scenarios(tracker: str, n: int, duration_s: float, first_seed: int = 0) -> list[Scenario]:
-    name, _ = TRACKERS[tracker]
+    name = TRACKERS[tracker][0]
     return [Scenario.model_validate({
         "mode": "image", "tracker": name, "duration_s": duration_s, "seed": s,
         "observer": {"kind": "solver"},
@@ -78,8 +84,11 @@ def engine(tracker: str, B: int, duration_s: float) -> tuple[float, float]:
     return B * duration_s / wall, _frames(res) / wall
 
 
-def network_costs(batches: tuple[int, ...], repeats: int) -> dict[tuple[int, int], float]:
-    """Median seconds per crop of the shipped network (ONNX Runtime) per (threads, batch)."""
+def network_costs(batches: tuple[int, ...], repeats: int,
+                  search_size: int | None) -> tuple[int, dict[tuple[int, int], float]]:
+    """The crop's side (px) and the median seconds per crop of the shipped network (ONNX
+    Runtime) on search crops of ``search_size`` px (None: its configured size) per (threads,
+    batch)."""
     from observer.transt.export import onnx_session
     from observer.transt.weights import SMALL_WEIGHTS, load_weights
 
@@ -88,9 +97,10 @@ def network_costs(batches: tuple[int, ...], repeats: int) -> dict[tuple[int, int
     rng = np.random.default_rng(0)
     out = {}
     for threads in (1, 2):
-        session = onnx_session(net, num_threads=threads)
+        session = onnx_session(net, num_threads=threads, search_size=search_size)
+        side = search_size or c.search_size
         for B in batches:
-            x = rng.normal(size=(B, 3, c.search_size, c.search_size)).astype(np.float32)
+            x = rng.normal(size=(B, 3, side, side)).astype(np.float32)
             z = rng.normal(size=(B, c.template_feature_size ** 2, c.d_model)).astype(np.float32)
             session.run(None, {"search": x, "z": z})
             walls = []
@@ -99,7 +109,7 @@ def network_costs(batches: tuple[int, ...], repeats: int) -> dict[tuple[int, int
                 session.run(None, {"search": x, "z": z})
                 walls.append(time.perf_counter() - t0)
             out[(threads, B)] = float(np.median(walls)) / B
-    return out
+    return side, out
 
 
 def time_split(tracker: str, duration_s: float) -> dict[str, float]:
@@ -134,14 +144,14 @@ def main() -> None:
     sizes = (1, 4) if args.quick else (1, 8, 64)
     batches = (1, 4) if args.quick else (1, 2, 4, 8, 16, 32, 64)
     figures: dict[str, float] = {}
-    costs = network_costs(batches, repeats=8 if args.quick else 64)
-    for (threads, B), s in costs.items():
-        figures[f"network_s_per_sample_threads{threads}_B{B}"] = s
-    # the best frames/s of the networks on two cores: 1 thread in each of 2 processes, or 2
-    # threads in one
-    per_crop = min(min(s / 2.0 for (t, _), s in costs.items() if t == 1),
-                   min(s for (t, _), s in costs.items() if t == 2))
-    for tracker, (_, calls) in TRACKERS.items():
+    for tracker, (_, calls, search_size) in TRACKERS.items():
+        side, costs = network_costs(batches, 8 if args.quick else 64, search_size)
+        for (threads, B), s in costs.items():
+            figures[f"network_s_per_sample_search{side}_threads{threads}_B{B}"] = s
+        # the best frames/s of the networks on two cores: 1 thread in each of 2 processes, or
+        # 2 threads in one
+        per_crop = min(min(s / 2.0 for (t, _), s in costs.items() if t == 1),
+                       min(s for (t, _), s in costs.items() if t == 2))
         limit = 1.0 / (calls * per_crop)
         figures[f"{tracker}_network_limit_frames_per_s"] = limit
         rt_ev, fps_ev = event_loop(tracker, 2, duration)
@@ -171,7 +181,8 @@ def main() -> None:
            notes=f"Runs of {duration:g} s at 36 frames/s, PID, per-frame solver, random "
                  "references at 3 rad/s, each tracker at its seed latency; engine with 2 "
                  "worker processes, the workers' start included. The network limit assumes "
-                 "one network call per GK-TransT frame and two per dual-TransT frame.")
+                 "one network call per GK-TransT frame on its steady 96 px crop and two per "
+                 "dual-TransT frame on 128 px crops.")
 
 
 if __name__ == "__main__":
