@@ -31,11 +31,11 @@ from observer.gk.hsv_gate import (
 from observer.gk.pixel_kalman import F_CV, H_CV, PixelKalman, PixelKalmanConfig
 from observer.gk.scale import PixelScaleEMA, ScaleEMAConfig, scale_from_camera
 from observer.gk.subpixel import (
-    _median_rgb,
     fit_circle_algebraic,
     fit_circle_geometric,
     refine_marker_centre,
 )
+from observer.gk.subpixel_kernels import median_rgb
 from plant import attitude
 from plant.camera import (
     Camera,
@@ -720,7 +720,7 @@ def test_median_rgb_is_the_lower_median_of_the_masked_pixels():
         if len(px) == 0:
             continue
         want = np.sort(px, axis=0)[(len(px) + 1) // 2 - 1]
-        got = _median_rgb(img, mask)
+        got = median_rgb(img, mask)
         assert got.dtype == np.float32 and got.tolist() == want.tolist(), trial
         n_checked += 1
     assert n_checked >= 50

@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from observer.gk import circle_kernels as kernels
+from observer.gk import subpixel_kernels as kernels
 from observer.gk.hsv_gate import (
     RED,
     YELLOW,
@@ -222,18 +222,6 @@ def contour_curvature(points: ArrayLike, span: int, closed: bool = True) -> NDAr
     return kernels.curvature(_points(points), int(span), bool(closed))
 
 
-def _median_rgb(image: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """Per-channel lower median (3,) of the 8-bit pixels under ``mask`` (the value at rank
-    ceil(n/2)), read from each channel's 256-bin histogram (``cv2.calcHist``: the counts are
-    exact, so this is the order statistic itself, without sorting the pixels)."""
-    k = (cv2.countNonZero(mask) - 1) // 2
-    out = np.empty(3, np.float32)
-    for c in range(3):
-        counts = cv2.calcHist([image], [c], mask, [256], [0, 256]).ravel()
-        out[c] = np.searchsorted(np.cumsum(counts), k, side="right")
-    return out
-
-
 # --- the stage ---------------------------------------------------------------------------------
 def _range_of(colour: Colour | HSVRange) -> HSVRange:
     if isinstance(colour, HSVRange):
@@ -256,7 +244,7 @@ def _coverage(
     ring = cv2.dilate(near, _ELLIPSE3, iterations=3) - near
     if cv2.countNonZero(ring) < 3:
         return SubpixelResult.invalid("no background visible around the marker in the roi")
-    fg, bg = _median_rgb(crop, inner), _median_rgb(crop, ring)
+    fg, bg = kernels.median_rgb(crop, inner), kernels.median_rgb(crop, ring)
     crop_f = crop.astype(np.float32)
     d = fg - bg
     dd = float(d @ d)
