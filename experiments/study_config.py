@@ -27,10 +27,15 @@ TRACKER_NAMES = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT", "kcf_gk
 OWN_DELAY_MS = {"gk_transt": GK_MS, "dual_transt": DUAL_MS}
 #: Most runs per batch of the batched engine in the study's sweep (the runs are spread evenly
 #: over the workers first). Our choice: 128, the engine's best batch size measured
-#: (docs/closed_loop.md: 45x real time against 40x at 256), and 28 batches for the default
-#: sweep's 3,584 runs instead of 14, so the last batch, which one worker runs while the other
-#: may be done, is half as long.
+#: (docs/closed_loop.md: 45x real time against 40x at 256), and twice as many batches as at
+#: 256, so the last batch, which one worker runs while the other may be done, is half as long.
 STUDY_BATCH = 128
+#: What ``pmspm study --full`` changes (our choice, within its 30-minute budget on two cores,
+#: docs/closed_loop.md): every closed-loop point of the sweep and of the image-engine section
+#: at 32 reference seeds (a probability of loss of control then has a 95 % Wilson interval at
+#: most 33 % wide, against 53 % with the default's 10 seeds), and every tracker's image runs
+#: at both of the seed's latencies.
+FULL_STUDY = {"n_seeds": 32, "image_loop_n_seeds": 32, "image_loop_delays": "both"}
 
 
 class StudyConfig(BaseModel):
@@ -70,12 +75,12 @@ class StudyConfig(BaseModel):
         ge=1,
         description="Seeds per closed-loop point of the sweep (seeds 0..n-1), every point the "
         "same; each seed draws its own random reference (``reference_mode``). Our choice: 10, "
-        "to keep the simulated time of the former default (32 seeds of 4 s, a sweep of about "
-        "6 min on two idle cores, docs/closed_loop.md) with runs of 12 s: 91 points x 10 "
-        "seeds = 910 runs, 10,920 s simulated against 11,648 s (not yet timed at this "
-        "length). A Wilson interval at 0 of 10 runs reaches 28 % (0 of 32: 11 %); the "
-        "loss-of-control curves pool the references, 40 runs per delay (0 of 40: 9 %). "
-        "Raise it for narrower intervals (``loss_interval_width`` says how many).",
+        "to keep `make study` near its 10-minute budget with runs of 12 s: 133 points x 10 "
+        "seeds = 1,330 runs, 15,960 s simulated, of which the MPC's runs take nearly 90 % of "
+        "the sweep's time (README: the measured times). A Wilson interval at 0 of 10 runs "
+        "reaches 28 % (0 of 32: 11 %); the loss-of-control curves pool the references, 40 runs "
+        "per delay (0 of 40: 9 %). `pmspm study --full` runs 32 (``FULL_STUDY``); raise it "
+        "for narrower intervals (``loss_interval_width`` says how many).",
     )
     loss_interval_width: float | None = Field(
         None,

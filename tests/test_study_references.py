@@ -85,3 +85,33 @@ def test_a_seed_count_too_small_for_the_stated_width_warns_with_the_width_it_ach
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         StudyConfig(n_seeds=need, loss_interval_width=0.2)
+
+
+def test_full_study_runs_every_point_at_32_reference_seeds(monkeypatch, tmp_path):
+    """`pmspm study --full` gives the sweep and the image-engine section 32 reference seeds
+    per point (the sweep's own count unless --n-seeds is given) and both latencies to every
+    tracker; without --full the defaults stay."""
+    from typer.testing import CliRunner
+
+    import experiments.study as study
+    from experiments.cli import app
+
+    seen: list[StudyConfig] = []
+
+    def fake_run_study(out, cfg):
+        seen.append(cfg)
+        return tmp_path
+
+    monkeypatch.setattr(study, "run_study", fake_run_study)
+    runner = CliRunner()
+    for args in (["--full"], ["--full", "--n-seeds", "12"], []):
+        result = runner.invoke(app, ["study", "--out", str(tmp_path), *args])
+        assert result.exit_code == 0, result.output
+    full, full_12, default = seen
+    assert (full.n_seeds, full.image_loop_n_seeds, full.image_loop_delays) == (32, 32, "both")
+    assert (full_12.n_seeds, full_12.image_loop_n_seeds) == (12, 32)
+    assert (default.n_seeds, default.image_loop_n_seeds, default.image_loop_delays) == \
+        (10, 8, "own")
+    configs = sweep_configs(full.model_copy(update={"delays_ms": (16.33,)}))
+    per_point = {len(runs) for runs in _random_points(configs).values()}
+    assert per_point == {32}

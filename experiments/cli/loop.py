@@ -53,8 +53,9 @@ def study(
         Path | None, typer.Option(help="Camera YAML (pmspm calibrate, examples/camera.yaml).")
     ] = None,
     full: Annotated[
-        bool, typer.Option(help="The image-engine section at 32 reference seeds per point "
-                           "instead of 8, GK-TransT and the dual TransT each at both of the "
+        bool, typer.Option(help="Every point at 32 reference seeds: the sweep (instead of 10, "
+                           "unless --n-seeds says otherwise) and the image-engine section "
+                           "(instead of 8), GK-TransT and the dual TransT each at both of the "
                            "seed's latencies (the default: each at its own).")
     ] = False,
     fixed_reference: Annotated[
@@ -71,15 +72,16 @@ def study(
     Example: pmspm study --out runs --workers 2 --motor-file examples/motor.yaml
     """
     from experiments.study import DUAL_MS, GK_MS, StudyConfig, run_study, study_plant
+    from experiments.study_config import FULL_STUDY
 
     _check_workers_and_scheduler(workers, scheduler)
     _writable_folder(out)
     try:
-        extra = {} if n_seeds is None else {"n_seeds": n_seeds}
+        extra = dict(FULL_STUDY) if full else {}
+        if n_seeds is not None:
+            extra["n_seeds"] = n_seeds
         if engine != EngineChoice.auto:
             extra["engine"] = engine.value
-        if full:
-            extra |= {"image_loop_n_seeds": 32, "image_loop_delays": "both"}
         if fixed_reference:
             extra["reference_mode"] = "fixed"
         cfg = StudyConfig(workers=workers, scheduler=scheduler, motor_file=motor_file,
