@@ -15,7 +15,8 @@ seed's latency of the tracker, analytic renderer):
   re-acquisitions; two per frame for the dual TransT on 128 px crops; 1-thread figures scaled
   by the two cores, an upper bound);
 * where a run's time goes: a profile of one event-loop run (the code an engine run executes),
-  by part (render, network, GK and trackers, physics, control, the rest).
+  by part (render, network, GK and trackers, physics, control, the rest), library calls
+  charged to the part that made them.
 
 Keys: ``<tracker>_B<B>_realtime_factor``, ``<tracker>_B<B>_frames_per_s``,
 ``<tracker>_B64_fraction_of_network_limit``, ``<tracker>_B64_ratio_to_event_loop``,
@@ -112,10 +113,19 @@ def network_costs(batches: tuple[int, ...], repeats: int,
     return side, out
 
 
+def _part_of(path: str, func: str) -> str | None:
+    """The ``PARTS`` entry a profiled function belongs to, None if none names it."""
+    where = f"{path}:{func}"
+    return next((part for part, keys in PARTS.items() if any(k in where for k in keys)), None)
+
+
 def time_split(tracker: str, duration_s: float) -> dict[str, float]:
     """Fractions of one run's time by part (see ``PARTS``): the event loop's run, profiled in
     this thread, network built beforehand (an engine run executes the same code; the engine's
-    threads are not seen by the profiler of this one)."""
+    threads are not seen by the profiler of this one). A library function that no part names
+    (a numpy or OpenCV call, a ufunc) is charged to its callers in proportion to the time each
+    call took, up the call chain until a part names the caller; what still has none (the
+    loop's own bookkeeping, the interpreter) is ``rest``."""
     build_loop(_scenarios(tracker, 1, 0.2)[0]).run()  # builds and exports the network
     loop = build_loop(_scenarios(tracker, 1, duration_s, first_seed=200)[0])
     prof = cProfile.Profile()
@@ -123,16 +133,31 @@ def time_split(tracker: str, duration_s: float) -> dict[str, float]:
     loop.run()
     prof.disable()
     stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
-    parts = dict.fromkeys(PARTS, 0.0)
-    total = 0.0
-    for (path, _, func), (_, _, tottime, _, _) in stats.items():
-        total += tottime
-        where = f"{path}:{func}"
-        for part, keys in PARTS.items():
-            if any(k in where for k in keys):
-                parts[part] += tottime
-                break
-    parts["rest"] = total - sum(parts.values())
+    parts = dict.fromkeys([*PARTS, "rest"], 0.0)
+    memo: dict[tuple, dict[str, float]] = {}
+
+    def shares(key: tuple, chain: frozenset) -> dict[str, float]:
+        """How ``key``'s own time splits over the parts (its callers' shares, recursively)."""
+        part = _part_of(key[0], key[2])
+        if part is not None:
+            return {part: 1.0}
+        callers = stats[key][4] if key in stats else {}
+        if not callers or key in chain:
+            return {"rest": 1.0}
+        if key not in memo:
+            by_caller = sum(c[2] for c in callers.values())
+            out: dict[str, float] = {}
+            for caller, c in callers.items():
+                w = c[2] / by_caller if by_caller > 0 else 1.0 / len(callers)
+                for p, f in shares(caller, chain | {key}).items():
+                    out[p] = out.get(p, 0.0) + w * f
+            memo[key] = out
+        return memo[key]
+
+    for key, (_, _, tottime, _, _) in stats.items():
+        for p, f in shares(key, frozenset()).items():
+            parts[p] += tottime * f
+    total = sum(parts.values())
     return {k: v / total for k, v in parts.items()}
 
 
