@@ -339,6 +339,18 @@ def test_subpixel_centres_match_ground_truth(params: PlantParams,
     assert all(b < 0.03 for b in bias_level)  # no perspective bias with the plate level
 
 
+def test_circle_fits_of_degenerate_points_say_so_without_raising() -> None:
+    """Collinear points have no algebraic circle (NaN), and points that all coincide make the
+    geometric fit's normal equations singular: it stops where it started."""
+    line = np.column_stack([np.linspace(0.0, 10.0, 20), np.linspace(5.0, 25.0, 20)])
+    c_a, R_a = fit_circle_algebraic(line)
+    assert np.all(np.isnan(c_a)) and np.isnan(R_a)
+    assert np.isnan(fit_circle_algebraic(line[:2])[1])  # fewer than three points
+    c_g, R_g, res = fit_circle_geometric(np.full((6, 2), 3.0), [1.0, 2.0], 4.0)
+    np.testing.assert_array_equal(c_g, [1.0, 2.0])
+    assert R_g == 4.0 and res.shape == (6,)
+
+
 def test_perspective_bias_of_the_circle_centre_grows_with_tilt(params: PlantParams) -> None:
     """The bias stated in observer/gk/subpixel.py: 0 level, about f·(ρ/Z)²·tan θ at tilt."""
     f_px = params.camera.focal_length_m / params.camera.pixel_size_m

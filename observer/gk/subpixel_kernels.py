@@ -170,35 +170,6 @@ def algebraic(p: NDArray[np.float64]):
 
 
 @njit(cache=True)
-def _solve3(M: NDArray[np.float64], b: NDArray[np.float64]):
-    """x of M x = b (3 x 3) by LU with partial pivoting (LAPACK's gesv); ok False when a pivot
-    is exactly zero (where gesv reports a singular matrix)."""
-    A, x = M.copy(), b.copy()
-    for col in range(3):
-        piv = col
-        for r in range(col + 1, 3):
-            if abs(A[r, col]) > abs(A[piv, col]):
-                piv = r
-        if A[piv, col] == 0.0:
-            return x, False
-        if piv != col:
-            for c in range(3):
-                A[col, c], A[piv, c] = A[piv, c], A[col, c]
-            x[col], x[piv] = x[piv], x[col]
-        for r in range(col + 1, 3):
-            f = A[r, col] / A[col, col]
-            for c in range(col, 3):
-                A[r, c] -= f * A[col, c]
-            x[r] -= f * x[col]
-    for r in range(2, -1, -1):
-        s = x[r]
-        for c in range(r + 1, 3):
-            s -= A[r, c] * x[c]
-        x[r] = s / A[r, r]
-    return x, True
-
-
-@njit(cache=True)
 def residuals(p: NDArray[np.float64], cx: float, cy: float, R: float) -> NDArray[np.float64]:
     """Geometric residuals |p_j - c| - R (n,)."""
     out = np.empty(p.shape[0])
@@ -232,8 +203,9 @@ def geometric(p: NDArray[np.float64], cx: float, cy: float, R: float, max_iter: 
             JTr[1] -= g1 * r
             JTr[2] += r
         JTJ[1, 0], JTJ[2, 0], JTJ[2, 1] = JTJ[0, 1], JTJ[0, 2], JTJ[1, 2]
-        step, ok = _solve3(JTJ, JTr)
-        if not ok:
+        try:  # LAPACK's gesv, as numpy's solve; a singular matrix ends the iteration
+            step = np.linalg.solve(JTJ, JTr)
+        except Exception:  # noqa: BLE001 - numba catches no narrower class
             break
         cx, cy, R = cx + step[0], cy + step[1], R + step[2]
         if max(abs(step[0]), abs(step[1]), abs(step[2])) < tol:
