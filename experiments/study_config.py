@@ -25,10 +25,9 @@ TRACKER_NAMES = {"gk_transt": "GK-TransT", "dual_transt": "dual TransT", "kcf_gk
                  "k2cf": "K²CF"}
 #: Each tracker's own latency in the seed (Table 1), where the study has one.
 OWN_DELAY_MS = {"gk_transt": GK_MS, "dual_transt": DUAL_MS}
-#: Most runs per batch of the batched engine in the study's sweep (the runs are spread evenly
-#: over the workers first). Our choice: 128, the engine's best batch size measured
-#: (docs/closed_loop.md: 45x real time against 40x at 256), and twice as many batches as at
-#: 256, so the last batch, which one worker runs while the other may be done, is half as long.
+#: Most runs per batch of the batched engine in the study's sweep (``run_sweep`` makes the
+#: number of batches a multiple of the workers). Our choice: 128, the engine's best batch size
+#: measured (docs/closed_loop.md: 45x real time against 40x at 256).
 STUDY_BATCH = 128
 #: What ``pmspm study --full`` changes (our choice, within its 30-minute budget on two cores,
 #: docs/closed_loop.md): every closed-loop point of the sweep and of the image-engine section

@@ -207,8 +207,8 @@ def run_sweep(
         Dask scheduler address such as ``"tcp://host:8786"``.
     workers : local processes or LocalCluster workers (default: this machine's cores).
     batch_size : None: ``target`` runs one config. A number: ``target`` is a batch run function
-        (``execute_batch``) and gets up to this many configs at a time, spread evenly over the
-        workers.
+        (``execute_batch``) and gets up to this many configs at a time, in a number of batches
+        that is a multiple of the workers, of sizes differing by at most one.
 
     Returns
     -------
@@ -229,7 +229,9 @@ def run_sweep(
     if batch_size is None:
         jobs = [(execute, target, c, out) for c in todo]
     else:
-        n_chunks = max(n_workers, -(-len(todo) // batch_size))
+        # a multiple of the workers, so that each runs as many batches and none waits alone
+        # through the last one
+        n_chunks = -(-max(n_workers, -(-len(todo) // batch_size)) // n_workers) * n_workers
         jobs = [(execute_batch, target, list(chunk), out)
                 for chunk in np.array_split(np.array(todo, dtype=object), n_chunks) if len(chunk)]
     if scheduler is None:

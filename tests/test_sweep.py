@@ -266,3 +266,22 @@ def test_ctrl_c_ends_the_sweep_without_worker_tracebacks(tmp_path, backend):
     assert proc.returncode == 130, stderr
     assert "interrupted: the runs that finished are kept" in stderr
     assert len(list((out / "runs").glob("*.parquet"))) == 1  # the one that finished is kept
+
+
+def batch_sizes(configs: list[dict]) -> list[dict]:
+    """A batch run function for the tests: each run reports the size of its batch."""
+    return [{"batch": len(configs)} for _ in configs]
+
+
+@pytest.mark.parametrize(("n_runs", "workers", "want"), [(23, 2, [6, 6, 6, 5]),
+                                                          (20, 2, [10, 10]),
+                                                          (7, 3, [3, 2, 2])])
+def test_batched_sweep_gives_every_worker_as_many_batches(tmp_path, n_runs, workers, want):
+    """Batches of at most ``batch_size`` (10) runs, as many per worker, sizes within one: 23
+    runs on 2 workers are 4 batches (not 3, where one worker would run the last alone)."""
+    configs = [{"i": i} for i in range(n_runs)]
+    df = run_sweep("tests.test_sweep:batch_sizes", configs, tmp_path, workers=workers,
+                   progress=False, batch_size=10)
+    sizes = df.groupby("result.batch").size()
+    got = sorted((b for b, n in sizes.items() for _ in range(n // b)), reverse=True)
+    assert got == want
