@@ -66,6 +66,7 @@ def edge_rays(contour: NDArray[np.float64], cx: float, cy: float, width: int, he
         x, y = contour[i, 0], contour[i, 1]
         rx, ry = x - cx, y - cy
         norms[i] = math.hypot(rx, ry)
+        # on the crop's border the region may go on outside it: no edge of the marker there
         border = x <= 0 or y <= 0 or x >= width - 1 or y >= height - 1
         keep[i] = norms[i] > 0.5 and not border
     m = int(keep.sum())
