@@ -29,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import math
 import os
 import signal
 import sys
@@ -231,7 +232,8 @@ def run_sweep(
     else:
         # a multiple of the workers, so that each runs as many batches and none waits alone
         # through the last one
-        n_chunks = -(-max(n_workers, -(-len(todo) // batch_size)) // n_workers) * n_workers
+        per_worker = math.ceil(math.ceil(len(todo) / batch_size) / n_workers)
+        n_chunks = per_worker * n_workers
         jobs = [(execute_batch, target, list(chunk), out)
                 for chunk in np.array_split(np.array(todo, dtype=object), n_chunks) if len(chunk)]
     if scheduler is None:

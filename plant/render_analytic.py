@@ -529,9 +529,7 @@ class AnalyticRenderer:
             alpha = acc[box]
             alpha *= inv_n
             patch = roi[box]
-            # patch += alpha * (colour - patch), with OpenCV: numpy's broadcasting over the
-            # colour axis is ten times slower here
-            render_kernels.composite(patch, alpha, colour.astype(np.float32))
+            render_kernels.composite(patch, alpha, colour.astype(np.float32))  # in place
         img[y0:y1, x0:x1] = cv2.convertScaleAbs(roi)  # values are >= 0: rounds and saturates
         return img
 
