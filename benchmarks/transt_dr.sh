@@ -59,7 +59,7 @@ look)
     EXPORT=$OUT/transt_small_look.pt
     BEST=last.pt
     TRAIN="-m observer.transt.training.train --randomise --yellow-fraction 0.5 --train-seed 21 \
- --val-seed 12 --train-pairs 16000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
+ --val-seed 12 --train-pairs 8000 --val-pairs 512 --threads 1 --render-workers ${RENDER_WORKERS:-1} \
  --cache runs/transt_cache --tracking-fraction 0.5 --appearance-prob 0.7 \
  --init-from observer/transt/weights/transt_small.pt --absent-prob 0.2 \
  --steps 800 --lr 1e-4 --warmup 20 --out $OUT" ;;

@@ -135,3 +135,30 @@ def test_appearance_jitter_keeps_the_target_where_it_is():
     assert len(errors) == n and np.median(errors) < 0.5, errors
     assert np.mean(np.asarray(errors) < 1.0) >= 0.8, errors
     assert changed > n // 2
+
+
+def test_tinted_surroundings_take_a_hue_and_leave_the_target_alone():
+    """A grey search crop with a red disc: the tint (forced by a generator whose first draw is
+    below 0.4) gives the grey outside the disc a colour (its channels differ by > 10 %) of a
+    mean gain of 1, and leaves every pixel inside the grown target ellipse as it was."""
+    from observer.transt.training.augment import _ellipse_mask, _tint_surroundings
+
+    side = 128
+    box = np.array([0.5, 0.5, 0.2, 0.2], np.float32)
+    crop = np.full((side, side, 3), 120.0, np.float32)
+    keep = _ellipse_mask(side, box, 1.2).astype(bool)
+    crop[keep] = (210.0, 25.0, 20.0)
+    tinted = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        if rng.uniform() >= 0.4:
+            continue
+        crops = [crop.copy()]
+        _tint_surroundings(crops, [box], np.random.default_rng(seed))
+        out = crops[0]
+        np.testing.assert_array_equal(out[keep], crop[keep])
+        grey = out[~keep][0]
+        assert grey.max() / grey.min() > 1.1
+        assert abs(grey.mean() - 120.0) < 1e-3
+        tinted += 1
+    assert tinted >= 8

@@ -157,8 +157,10 @@ def appearance_jitter(
     crop fractions): the camera and scene changes that a renderer of another kind brings,
     drawn once per pair and shared by template and search, noise and compression per crop.
 
-    Our choices, wide on purpose: a texture (``_procedural_texture``, contrast 0.1-0.5)
-    multiplied onto everything but the targets (50 %); a glossy highlight on the target
+    Our choices, wide on purpose: the surroundings of the targets tinted a colour of any hue
+    (``_tint_surroundings``, 40 %: the analytic rotor is near grey, a real or other-rendered
+    shell can be orange next to a red marker); a texture (``_procedural_texture``, contrast
+    0.1-0.5) multiplied onto everything but the targets (50 %); a glossy highlight on the target
     (15 %); a disc of random colour and size, or a few thin lines, beside the target (25 %);
     the crops taken as linear light (value ^ 2.2) with a colour matrix (crosstalk ±10 %),
     white balance ±15 %, gain 0.5-1.6, saturation 0.6-1.4 and a smooth illumination field
@@ -168,11 +170,29 @@ def appearance_jitter(
     25 %) and JPEG at quality 30-95 (50 %)."""
     crops = [template.astype(np.float32), search.astype(np.float32)]
     boxes = [_TEMPLATE_BOX, np.asarray(box, np.float32)]
+    _tint_surroundings(crops, boxes, rng)
     _add_texture(crops, boxes, rng)
     _add_glare(crops, boxes, rng)
     _add_distractor(crops[1], boxes[1], rng)
     out = _through_a_camera(crops, rng)
     return out[0], out[1]
+
+
+def _tint_surroundings(crops: list[NDArray[np.float32]], boxes: list[NDArray[np.float32]],
+                       rng: np.random.Generator) -> None:
+    """In place, with probability 0.4: everything but the ellipse 1.2 times each crop's target
+    box multiplied by one colour (hue 0-360°, saturation 0.15-0.6, scaled to a mean gain of
+    1), the same for both crops, so a near-grey rotor can become a shell of any colour,
+    red and orange included."""
+    u = rng.uniform
+    if u() < 0.4:
+        hue, sat = u(0.0, 1.0), u(0.15, 0.6)
+        rgb = np.array(cv2.cvtColor(np.float32([[[360.0 * hue, sat, 1.0]]]),
+                                    cv2.COLOR_HSV2RGB)[0, 0], np.float32)
+        gain = rgb / rgb.mean()
+        for i, (c, b) in enumerate(zip(crops, boxes, strict=True)):
+            outside = 1.0 - _ellipse_mask(c.shape[0], b, 1.2)
+            crops[i] = c * (1.0 + (gain - 1.0) * outside[..., None])
 
 
 def _add_texture(crops: list[NDArray[np.float32]], boxes: list[NDArray[np.float32]],
