@@ -43,3 +43,30 @@ def test_a_cached_graph_is_the_exported_one_and_a_changed_network_is_exported_an
     with pytest.raises(AssertionError, match="exported again"):
         export.cached_export(net)
     assert len(list((tmp_path / "onnx").glob("*"))) == 1
+
+
+def test_the_cache_keeps_the_exports_used_last(net, tmp_path, monkeypatch):
+    """Ten old entries of distinct ages, then one read of the oldest and one new export: the
+    cache keeps CACHE_KEEP files, the new one and the one just read among them, and deletes
+    the least recently used."""
+    import os
+
+    monkeypatch.setenv(export.CACHE_ENV, str(tmp_path))
+    folder = tmp_path / "onnx"
+    folder.mkdir()
+    old = []
+    for k in range(10):
+        f = folder / f"{k:064x}.onnx"
+        f.write_bytes(b"x")
+        os.utime(f, ns=(10**18 + k * 10**9,) * 2)
+        old.append(f)
+    read = folder / f"{export.export_digest(net, 96)}.onnx"
+    read.write_bytes(b"graph")
+    os.utime(read, ns=(10**18 - 10**9,) * 2)  # older than every other entry
+    assert export.cached_export(net, 96) == b"graph"  # a read: now the newest
+    export.cached_export(net)  # a new export: written, then the cache pruned
+    kept = set(folder.glob("*.onnx"))
+    new = folder / f"{export.export_digest(net)}.onnx"
+    assert len(kept) == export.CACHE_KEEP
+    assert {new, read} <= kept
+    assert kept - {new, read} == set(old[-(export.CACHE_KEEP - 2):])

@@ -14,6 +14,9 @@ test worker) would otherwise export the same graph again. A cached model is foun
 of everything the graph is made from: the network's configuration and every parameter and
 buffer, the search size, the torch version and opset, and the source of the modules that
 define the graph, so a changed weight or a changed line of the network makes a new entry.
+The cache keeps the ``CACHE_KEEP`` entries used last (a read marks an entry used) and deletes
+the others when it writes a new one: each entry is about 6.7 MB, and new weights or a changed
+network line would otherwise leave every old export behind.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ from observer.transt.network import TransTNet
 OPSET = 17
 #: The environment variable naming the cache folder of exported models ("off": no cache).
 CACHE_ENV = "PMSPM_CACHE_DIR"
+#: Exported models the cache keeps (the most recently used; our choice: two search sizes of
+#: the shipped network and of a few retrained or edited ones).
+CACHE_KEEP = 8
 
 
 def template_position(net: TransTNet) -> Tensor:
@@ -123,7 +129,12 @@ def cached_export(net: TransTNet, search_size: int | None = None) -> bytes:
     with torch.inference_mode():
         path = folder / f"{export_digest(net, search_size)}.onnx"
     if path.is_file():
-        return path.read_bytes()
+        data = path.read_bytes()
+        try:
+            os.utime(path)  # used now: the pruning keeps the entries used last
+        except OSError:
+            pass
+        return data
     data = export_onnx(net, search_size=search_size)
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -136,7 +147,28 @@ def cached_export(net: TransTNet, search_size: int | None = None) -> bytes:
         os.replace(tmp, path)
     except OSError:
         Path(tmp).unlink(missing_ok=True)
+    prune_cache(folder)
     return data
+
+
+def prune_cache(folder: Path, keep: int = CACHE_KEEP) -> list[Path]:
+    """Delete all but the ``keep`` most recently used exports (``*.onnx`` by modification
+    time, which a read renews) in ``folder``; returns the deleted files. Files another process
+    deletes first, or that cannot be deleted, are skipped."""
+    entries = []
+    for f in folder.glob("*.onnx"):
+        try:
+            entries.append((f.stat().st_mtime_ns, f))
+        except OSError:
+            continue
+    deleted = []
+    for _, f in sorted(entries, reverse=True)[keep:]:
+        try:
+            f.unlink()
+            deleted.append(f)
+        except OSError:
+            continue
+    return deleted
 
 
 def onnx_session(
