@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                     "experiments.tracking_bench.VARIANTS: gk_transt_norefine (GK-TransT without "
                     "the sub-pixel circle fit: the seed's algorithm), dual_transt_refine (dual "
                     "TransT with it), gk_transt_fullcrop (GK-TransT on the full search crop in "
-                    "every frame)")
+                    "every frame), dual_transt_hold (dual TransT whose networks keep their box on "
+                    "a frame scored as lost)")
     ap.add_argument("--stand-in", action="store_true",
                     help="numpy KCF in place of the TransT network (plumbing check)")
     ap.add_argument("--no-unseen", action="store_true",

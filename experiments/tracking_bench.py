@@ -31,6 +31,7 @@ from experiments.tracking_runs import (
     table1,
 )
 from latency.models import seed_latency_ms
+from observer.trackers.registry import DUAL_LOST_SCORE
 from observer.tracking import PairTracker
 
 #: Variants of the TransT trackers: the benchmark's name -> (``make_pair_tracker`` name, its
@@ -42,11 +43,12 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "gk_transt_norefine": ("gk_transt", {"refine": False}),
     "dual_transt_refine": ("dual_transt", {"refine": True}),
     "gk_transt_fullcrop": ("gk_transt", {"steady_search_size": None}),
+    "dual_transt_hold": ("dual_transt", {"hold_below_score": DUAL_LOST_SCORE}),
 }
 #: The benchmark's trackers: names of ``observer.trackers.make_pair_tracker`` and ``VARIANTS``.
 DEFAULT_TRACKERS: tuple[str, ...] = ("gk_transt", "gk_transt_norefine", "gk_transt_fullcrop",
-                                     "dual_transt", "dual_transt_refine", "kcf", "csrt",
-                                     "kcf_numpy", "k2cf")
+                                     "dual_transt", "dual_transt_refine", "dual_transt_hold",
+                                     "kcf", "csrt", "kcf_numpy", "k2cf")
 #: GK-TransT / dual TransT latency ratios reported (numerator, denominator, what is compared).
 RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
     ("gk_transt_norefine", "dual_transt", "the seed's algorithms: box centres on both sides"),
@@ -70,6 +72,13 @@ TARGET_NETWORK_PRECISION = 0.95
 #: The row that shows the network alone: dual TransT runs one network per marker and reports
 #: its box centres, with no GK assistance and no circle fit.
 NETWORK_ALONE = "dual_transt"
+#: Trackers that also run on the unseen image source when they are among the benchmark's:
+#: the network alone with TransT's update and with the hold, and GK-TransT beside them (its
+#: precision there is what the dual TransT's is compared with, ``TARGET_UNSEEN_GAP``).
+UNSEEN_TRACKERS: tuple[str, ...] = ("gk_transt", NETWORK_ALONE, "dual_transt_hold")
+#: Our target for the dual TransT on the unseen source: precision at 20 px within this of
+#: GK-TransT's, per marker, on the seed's clean and occlusion cases.
+TARGET_UNSEEN_GAP = 0.05
 
 
 def case_target(case: str) -> float:
@@ -218,12 +227,34 @@ def network_checks(summary: pd.DataFrame, network: str, cases: Sequence[str]) ->
     return out
 
 
+def unseen_gap_checks(summary: pd.DataFrame, gk: str, tag: str) -> list[str]:
+    """The dual TransT rows on the unseen source against GK-TransT's there, clean and occlusion
+    cases, per marker: met when the precision at 20 px is within ``TARGET_UNSEEN_GAP``."""
+    st = summary.set_index(["tracker", "case"])
+    gk_u = unseen_row(gk)
+    out = []
+    for name in UNSEEN_TRACKERS[1:]:
+        row = unseen_row(name.replace("_transt", tag))
+        for case in ("clean", "occlusion"):
+            if (row, case) not in st.index or (gk_u, case) not in st.index:
+                continue
+            for m in ("main", "aux"):
+                a = float(st.loc[(row, case), f"{m}_precision_20px"])
+                b = float(st.loc[(gk_u, case), f"{m}_precision_20px"])
+                ok = a >= b - TARGET_UNSEEN_GAP
+                out.append(f"{row} {case} {m} precision@20px {a:.3f} against {gk_u}'s {b:.3f} "
+                           f"(target: within {TARGET_UNSEEN_GAP}): {'met' if ok else 'NOT met'}")
+    return out
+
+
 def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
     """Markdown table of the network alone beside GK-TransT per case (empty if either is
     missing): precision at 20 px, median error and the fraction of frames reported as measured
     but wrong, per marker."""
     unseen = unseen_row(network)
-    rows = summary[summary.tracker.isin([gk, network, unseen])]
+    hold = network + "_hold"
+    shown = [gk, network, unseen, unseen_row(gk), hold, unseen_row(hold)]
+    rows = summary[summary.tracker.isin(shown)]
     if not {gk, network} <= set(rows.tracker):
         return ""
     cols = ["case", "tracker", "main_precision_20px", "aux_precision_20px",
@@ -231,7 +262,10 @@ def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
             "aux_wrong_measured_fraction"]
     t = rows[cols].sort_values(["case", "tracker"], kind="stable")
     labels = {network: f"{network} (network alone)",
-              unseen: f"{network} (network alone, unseen renderer)"}
+              unseen: f"{network} (network alone, unseen renderer)",
+              unseen_row(gk): f"{gk} (unseen renderer)",
+              hold: f"{hold} (network alone, holding its box on lost frames)",
+              unseen_row(hold): f"{hold} (network alone, holding its box, unseen renderer)"}
     t = t.assign(tracker=[labels.get(n, n) for n in t.tracker])
     return ("Network alone (dual TransT: box centres, no GK) beside GK-TransT (median errors in "
             "sensor px; wrong_measured = reported as measured but more than 20 px off; "
@@ -353,6 +387,7 @@ def _checks(summary: pd.DataFrame, t1: pd.DataFrame, cases: Sequence[str], gk: s
     network = NETWORK_ALONE.replace("_transt", tag)
     checks += network_checks(summary, network, [c for c in cases if c.startswith("heldout_")])
     checks += network_checks(summary, unseen_row(network), ["clean"])
+    checks += unseen_gap_checks(summary, gk, tag)
     med = float(t1.set_index("algorithm").loc[gk, "latency_median_ms"])
     checks.append(f"{gk} median latency {med:.2f} ms (target <= {TARGET_MEDIAN_MS}; seed "
                   f"{seed_latency_ms('gk_transt')} on a GPU): "
@@ -414,12 +449,11 @@ def _result_notes(summary: pd.DataFrame, t1: pd.DataFrame, all_cases: bool, gk: 
 
 def _run_suite(
     factories: dict[str, TrackerFactory], specs: list, say: Callable[[str], None],
-    on_step: Callable[[], None] | None, unseen_network: str | None,
+    on_step: Callable[[], None] | None, unseen: Sequence[str],
 ) -> tuple[pd.DataFrame, list[TrackRun], list[TrackingSequence], float]:
-    """Render each sequence of ``specs`` in turn and run every tracker on it; with
-    ``unseen_network`` among the trackers, render each again from the unseen image source and
-    run that tracker alone on it (rows ``unseen_row``). Returns the metrics, runs, sequences
-    and the wall time, s."""
+    """Render each sequence of ``specs`` in turn and run every tracker on it; with trackers of
+    ``unseen`` among them, render each again from the unseen image source and run those on it
+    (rows ``unseen_row``). Returns the metrics, runs, sequences and the wall time, s."""
     from experiments.sequences import render_sequence
 
     def render(spec):
@@ -430,12 +464,12 @@ def _run_suite(
     metrics, runs, seqs = run_benchmark(
         factories, [lambda s=s: render(s) for s in specs], progress=say, keep_images=False,
         on_step=on_step)
-    if unseen_network is not None and unseen_network in factories:
+    again = {unseen_row(n): factories[n] for n in unseen if n in factories}
+    if again:
         unseen_specs = [s.model_copy(update={"source": "unseen"}) for s in specs]
         m2, r2, s2 = run_benchmark(
-            {unseen_row(unseen_network): factories[unseen_network]},
-            [lambda s=s: render(s) for s in unseen_specs], progress=say, keep_images=False,
-            on_step=on_step)
+            again, [lambda s=s: render(s) for s in unseen_specs], progress=say,
+            keep_images=False, on_step=on_step)
         metrics, runs, seqs = pd.concat([metrics, m2], ignore_index=True), runs + r2, seqs + s2
     return metrics, runs, seqs, time.perf_counter() - t0
 
@@ -477,12 +511,12 @@ def run_tracking_benchmark(
     and, with ``require_transt``, TransT trackers without the shipped network (else their
     rows are left out and ``progress`` and the notes say so).
 
-    With ``unseen`` (default) and the network-alone tracker (``NETWORK_ALONE``) among
-    ``trackers``, every sequence is rendered a second time from the unseen image source
-    (``SequenceSpec.source = "unseen"``: the same motion and case, MuJoCo in a drawn look
-    through a sensor model, never used for training) and tracked by the network alone: rows
-    ``unseen_row(NETWORK_ALONE)``, checked against the network-alone targets on the clean
-    case.
+    With ``unseen`` (default) and any of ``UNSEEN_TRACKERS`` among ``trackers``, every
+    sequence is rendered a second time from the unseen image source (``SequenceSpec.source =
+    "unseen"``: the same motion and case, MuJoCo in a drawn look through a sensor model, never
+    used for training) and tracked by those: rows ``unseen_row(name)``. The network alone's
+    are checked against the network-alone targets on the clean case, and the dual TransT's
+    precision there against GK-TransT's (``unseen_gap_checks``).
     """
     from experiments.sequences import validation_suite
 
@@ -494,9 +528,10 @@ def run_tracking_benchmark(
     if note_transt:
         say(note_transt)
     specs = validation_suite(seeds, tuple(cases), frames)
-    network = NETWORK_ALONE.replace("_transt", tag_of(stand_in))
-    metrics, runs, seqs, wall = _run_suite(factories, specs, say, on_step,
-                                           network if unseen else None)
+    tag = tag_of(stand_in)
+    metrics, runs, seqs, wall = _run_suite(
+        factories, specs, say, on_step,
+        [n.replace("_transt", tag) for n in UNSEEN_TRACKERS] if unseen else [])
     out = Path(out_dir)
     _write_tables(out, metrics, runs, seqs)
     plots = _write_plots(out, runs, seqs, cases)
@@ -506,7 +541,6 @@ def run_tracking_benchmark(
                 ["clean"] if "clean" in cases else None)
     gk = "gk_standin" if stand_in else "gk_transt"
     dual = "dual_standin" if stand_in else "dual_transt"
-    tag = tag_of(stand_in)
     ratios = _LatencyRatios.of(t1, gk, dual, tag)
     checks = _checks(summary, t1, cases, gk, tag, ratios)
     notes = "\n\n".join(x for x in [

@@ -34,6 +34,7 @@ from observer.trackers import (
 from observer.trackers.gk_transt import GKTransTPairTracker
 from observer.trackers.k2cf import K2CF, K2CFConfig
 from observer.trackers.kcf_numpy import NumpyKCF
+from observer.trackers.registry import DUAL_LOST_SCORE
 
 SEED = development_seeds(1)[0]
 STANDIN = {"transt_factory": NumpyKCF}
@@ -316,6 +317,41 @@ def test_gk_and_dual_transt_with_the_real_network(clean, one_torch_thread):
     TransTTracker.small()  # raises WeightsError naming the file when it does not load
     n_checked = _pair_tracker_steps(TransTTracker.small, clean, 15, trained=True)
     assert n_checked == 2 * 15
+
+
+def test_dual_transt_hold_keeps_its_boxes_while_both_markers_are_hidden(clean, one_torch_thread):
+    """The first clean frame held still, with both markers under one black rectangle (their
+    boxes plus 40 px) on frames 5-14: the ``hold_below_score`` variant reports both markers
+    lost there, keeps every box where it was, and finds both within 1 px of where it found
+    them before, against the renderer's truth within 20 px, on every frame after. TransT's own
+    rule (the default) grows its boxes on the hidden frames (threefold by the tenth, measured),
+    so it is checked to differ there."""
+    b = clean.binning
+    images = np.repeat(clean.images[:1], 20, axis=0)
+    hidden = range(5, 15)
+    box = clean.boxes_px[0] / b
+    x0, y0 = (int(v) - 40 for v in box[:, :2].min(axis=0))
+    x1, y1 = (int(v) + 40 for v in (box[:, :2] + box[:, 2:]).max(axis=0))
+    images[hidden.start:hidden.stop, max(y0, 0):y1, max(x0, 0):x1] = 0
+
+    def run(**kw):
+        tr = make_pair_tracker("dual_transt", **kw)
+        tr.start(images[0], clean.boxes_px[0], b)
+        res = [tr.step(images[k]) for k in range(1, len(images))]
+        return tr, res
+
+    tr, res = run(hold_below_score=DUAL_LOST_SCORE)
+    before = res[hidden.start - 2].boxes_px
+    for k in hidden:
+        assert res[k - 1].red_lost and res[k - 1].yellow_lost
+        np.testing.assert_allclose(res[k - 1].boxes_px, before, atol=1e-9)
+    for r in res[hidden.stop - 1:]:
+        assert not r.lost
+        assert np.all(np.abs(r.marker_px - res[hidden.start - 2].marker_px) < 1.0)
+        assert np.all(np.linalg.norm(r.marker_px - clean.marker_px[0], axis=1) < PRECISION_PX)
+    _, official = run()
+    grown = official[hidden.stop - 2].boxes_px[:, 2:] / before[:, 2:]
+    assert np.all(grown > 1.5), grown
 
 
 def test_gk_transt_searches_a_smaller_crop_only_after_steady_frames(clean, one_torch_thread):

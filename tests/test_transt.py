@@ -562,6 +562,53 @@ def test_window_prefers_the_centre_on_a_tie() -> None:
     assert score == pytest.approx(0.5)
 
 
+def test_a_frame_scored_at_or_below_the_hold_leaves_the_state_as_it_was() -> None:
+    """A network that puts a far box on a weak peak (target probability 1/(1 + e^1.5) = 0.18,
+    every other cell 0.0025):
+    TransT's own rule (no hold) moves the state to that box; with ``hold_below_score`` 0.2 the
+    tracker reports its previous box and keeps its state, at 0.18 and exactly at the
+    threshold; a confident peak (0.98) still moves it. Bad thresholds are refused."""
+    frame = (np.random.default_rng(2).integers(0, 255, (240, 320, 3))).astype(np.uint8)
+    n = SMALL.search_feature_size
+    far = np.array([0.9, 0.1, 0.6, 0.6])  # top-right of the crop, 3x the box
+    box0 = np.array([100.0, 80.0, 30.0, 30.0])
+
+    class Weak(_StubRunner):
+        def __init__(self, logit: float) -> None:
+            super().__init__(n, n * (n // 2) + n // 2, far)  # the window favours it
+            self.logit = logit
+
+        def __call__(self, search):
+            logits, boxes = super().__call__(search)
+            logits[:, 0] = -6.0  # every other cell: background
+            logits[self.peak, 0] = self.logit
+            return logits, boxes
+
+    def step(hold, logit):
+        trk = TransTTracker.from_config("small")
+        trk.hold_below_score = hold
+        trk.initialize(frame, box0)
+        trk._runner = Weak(logit)
+        res = trk.track(frame)
+        return res, trk
+
+    res, trk = step(None, -1.5)
+    assert res.score == pytest.approx(1.0 / (1.0 + math.exp(1.5)), rel=1e-6)
+    assert not np.allclose(res.box_image_px, box0, atol=1.0)
+    assert not np.allclose(trk.size_image_px, box0[2:], atol=1.0)
+    for hold in (0.2, res.score):  # below, and exactly at, the threshold
+        res, trk = step(hold, -1.5)
+        np.testing.assert_allclose(res.box_image_px, box0, atol=1e-9)
+        np.testing.assert_allclose(trk.centre_image_px, box0[:2] + box0[2:] / 2, atol=1e-9)
+        np.testing.assert_allclose(trk.size_image_px, box0[2:], atol=1e-9)
+        assert res.valid and res.measured and res.score < 0.2 + 1e-12
+    res, trk = step(0.2, 4.0)
+    assert res.score > 0.9 and not np.allclose(res.box_image_px, box0, atol=1.0)
+    for bad in (-0.1, 1.0, 2.0):
+        with pytest.raises(ValueError, match="hold_below_score"):
+            TransTTracker(build_transt("small"), hold_below_score=bad)
+
+
 # --- bad input ------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def clean_frame():

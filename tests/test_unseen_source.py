@@ -85,13 +85,19 @@ def test_looks_are_drawn_from_the_seed_and_differ():
 
 
 def test_benchmark_has_network_alone_rows_on_the_unseen_source(tmp_path):
-    """The network-alone tracker (here the stand-in) runs a second time on the same cases
-    rendered by the unseen source: its own rows, figures and a target line on the clean
-    case; the other trackers do not."""
-    rep = tb.run_tracking_benchmark(tmp_path, seeds=1, frames=3, cases=["clean"],
-                                    trackers=["gk_transt", "dual_transt", "kcf"], stand_in=True)
-    assert set(rep.summary.tracker) == {"gk_standin", "dual_standin", "kcf",
-                                        "dual_standin_unseen"}
+    """GK-TransT and the network alone with and without the hold (here with the stand-in) run a
+    second time on the same cases rendered by the unseen source: their own rows, figures, a
+    target line on the clean case and the dual TransT's precision against GK-TransT's there;
+    the other trackers do not."""
+    rep = tb.run_tracking_benchmark(
+        tmp_path, seeds=1, frames=3, cases=["clean"],
+        trackers=["gk_transt", "dual_transt", "dual_transt_hold", "kcf"], stand_in=True)
+    assert set(rep.summary.tracker) == {"gk_standin", "dual_standin", "dual_standin_hold", "kcf",
+                                        "gk_standin_unseen", "dual_standin_unseen",
+                                        "dual_standin_hold_unseen"}
+    for row in ("dual_standin_unseen", "dual_standin_hold_unseen"):
+        assert sum(c.startswith(f"{row} clean ") and "against gk_standin_unseen's" in c
+                   for c in rep.checks) == 2
     assert "dual_standin_unseen_clean_main_err_median_px" in rep.figures
     assert "dual_standin_unseen_clean_main_precision_20px" in rep.figures
     assert any(c.startswith("dual_standin_unseen (network alone, unseen renderer) clean main")
@@ -162,3 +168,30 @@ def test_tinted_surroundings_take_a_hue_and_leave_the_target_alone():
         assert abs(grey.mean() - 120.0) < 1e-3
         tinted += 1
     assert tinted >= 8
+
+
+def test_unseen_gap_checks_compare_each_marker_with_gk_transt():
+    """A precision 0.05 below GK-TransT's on the unseen source is met, 0.06 below is not, per
+    marker and case; rows missing on either side give no line."""
+    import pandas as pd
+
+    from experiments.tracking_runs import summary_table
+
+    rows = [{"tracker": t, "case": c, "main_precision_20px": p[0], "aux_precision_20px": p[1],
+             "main_err_median_px": 1.0, "aux_err_median_px": 1.0}
+            for t, c, p in (("gk_transt_unseen", "clean", (1.0, 1.0)),
+                            ("gk_transt_unseen", "occlusion", (1.0, 0.96)),
+                            ("dual_transt_unseen", "clean", (0.95, 0.94)),
+                            ("dual_transt_unseen", "occlusion", (0.80, 0.92)),
+                            ("dual_transt_hold_unseen", "clean", (1.0, 1.0)))]
+    lines = tb.unseen_gap_checks(summary_table(pd.DataFrame(rows)), "gk_transt", "_transt")
+    verdicts = [(ln.split()[0], ln.split()[1], ln.split()[2], ln.endswith(": met"))
+                for ln in lines]
+    assert verdicts == [
+        ("dual_transt_unseen", "clean", "main", True),
+        ("dual_transt_unseen", "clean", "aux", False),
+        ("dual_transt_unseen", "occlusion", "main", False),
+        ("dual_transt_unseen", "occlusion", "aux", True),
+        ("dual_transt_hold_unseen", "clean", "main", True),
+        ("dual_transt_hold_unseen", "clean", "aux", True),
+    ]

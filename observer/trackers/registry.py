@@ -39,6 +39,14 @@ def _transt(factory: Callable[[], Any] | None) -> Callable[[], Any]:
 #: steady frames required no case's precision moved.
 STEADY_SEARCH_PX, STEADY_MIN_FRAMES = 96, 5
 
+#: The dual TransT's lost threshold (``IndependentPairTracker.lost_score``) and the score at or
+#: below which its ``hold_below_score`` variant keeps a network's box
+#: (``TransTTracker.hold_below_score``): a frame the pair reports lost then does not move the
+#: search region either. Not the default, which is TransT's own rule (docs/tracking.md: the
+#: hold keeps a track through an occluder the markers do not move under, and loses a marker
+#: that moved out of the held search region, where TransT's growing box found it again).
+DUAL_LOST_SCORE = 0.2
+
 
 def _gk_transt(params: PlantParams | None, refine: bool | None,
                transt_factory: Callable[[], Any] | None, **kwargs: Any) -> Any:
@@ -53,6 +61,26 @@ def _gk_transt(params: PlantParams | None, refine: bool | None,
                   "steady_min_frames": STEADY_MIN_FRAMES} | kwargs
     return GKTransTPairTracker(tracker, params, refine=True if refine is None else refine,
                                **kwargs)
+
+
+def _dual_transt(params: PlantParams | None, refine: bool | None,
+                 transt_factory: Callable[[], Any] | None,
+                 hold_below_score: float | None = None, **kwargs: Any) -> Any:
+    """The dual TransT: two independent networks; with ``hold_below_score`` their trackers keep
+    their box on frames scored at or below it (default None: TransT's own rule, always the
+    network's box)."""
+    from observer.transt.tracker import TransTTracker
+
+    single = _transt(transt_factory)
+
+    def held() -> Any:
+        tracker = single()
+        if isinstance(tracker, TransTTracker):
+            tracker.hold_below_score = hold_below_score
+        return tracker
+
+    return _one_per_marker("dual_transt", lambda factory: held, lost_score=DUAL_LOST_SCORE)(
+        params, refine, None, **kwargs)
 
 
 def _gk_opencv(kind: str) -> Callable[..., Any]:
@@ -115,7 +143,7 @@ TRACKERS = Registry(
 TRACKERS.register("gk_transt", "GK-TransT: one TransT network on the red marker inside the GK "
                   "assistance (seed 000 §3.2)", _gk_transt)
 TRACKERS.register("dual_transt", "two independent TransT networks, one per marker (the seed's "
-                  "original TransT)", _one_per_marker("dual_transt", _transt))
+                  "original TransT)", _dual_transt)
 TRACKERS.register("kcf", "OpenCV KCF alone, one per marker", _one_per_marker("kcf", _opencv("kcf")))
 TRACKERS.register("csrt", "OpenCV CSRT alone, one per marker",
                   _one_per_marker("csrt", _opencv("csrt")))

@@ -20,6 +20,13 @@ frame's mean colour outside it), ImageNet-normalises it and caches its backbone 
 4. maps that box from crop fractions to image pixels and makes it the new state (TransT replaces
    the size outright, learning rate 1), clipped to the frame.
 
+With ``hold_below_score`` set (our addition; None, the published tracker's rule, by default), a
+frame whose chosen cell scores at or below it leaves the state as it was and reports the held
+box: the network did not find the target there, and its box regression on a frame without the
+target is meaningless. The published rule takes that box anyway; with our small network a
+marker hidden under a large occluder then moved the box away or grew it to the whole frame,
+and the track never came back (docs/tracking.md, the unseen source's occlusion case).
+
 The returned score is the network's target probability at the chosen cell (in [0, 1], before
 the window). ``compute_time_s`` is the wall-clock time of the whole ``track`` call
 (``time.perf_counter``: checks, crop, network, decoding), and ``last`` holds the
@@ -137,6 +144,7 @@ class TransTTracker:
     last : the ``TransTStep`` of the last ``track`` call (None before).
     centre_image_px, size_image_px : the current state (box centre and size), image px.
     search_size : the search crop's side, px of the network input (see the module docstring).
+    hold_below_score : as the parameter.
     """
 
     def __init__(
@@ -147,6 +155,7 @@ class TransTTracker:
         min_box_px: float = MIN_BOX_PX,
         service: NetworkService | None = None,
         search_size: int | None = None,
+        hold_below_score: float | None = None,
     ) -> None:
         self.net = net.eval()
         self.config: TransTConfig = net.config
@@ -157,6 +166,7 @@ class TransTTracker:
         if not 0.0 <= self.window_influence <= 1.0:
             raise ValueError(f"window_influence must be in [0, 1], got {self.window_influence}")
         self.min_box_px = float(min_box_px)
+        self.hold_below_score = hold_below_score
         if service is not None and (service.net is not net or service.backend != backend):
             raise ValueError("service must run the same network in the same backend")
         self._runner = _Runner(service or NetworkService(self.net, backend))
@@ -170,6 +180,17 @@ class TransTTracker:
         self._pad: NDArray[np.float64] | None = None
         self.compute_time_s = 0.0
         self.last: TransTStep | None = None
+
+    @property
+    def hold_below_score(self) -> float | None:
+        """The score at or below which a frame leaves the state as it was (None: never)."""
+        return self._hold_below_score
+
+    @hold_below_score.setter
+    def hold_below_score(self, value: float | None) -> None:
+        if value is not None and not 0.0 <= value < 1.0:
+            raise ValueError(f"hold_below_score must be None or in [0, 1), got {value}")
+        self._hold_below_score = None if value is None else float(value)
 
     # --- constructors ---------------------------------------------------------------------------
     @classmethod
@@ -369,9 +390,13 @@ class TransTTracker:
         prob = e[:, 0] / e.sum(axis=1)
         w = self.window_influence
         best = int(np.argmax(prob * (1.0 - w) + self._windows[search_size] * w))
+        score = float(prob[best])
+        if self.hold_below_score is not None and score <= self.hold_below_score:
+            held = np.r_[self.centre_image_px - self.size_image_px / 2.0, self.size_image_px]
+            return held, score, "ok", centre.copy(), side
         box = crop_to_box(boxes[best], centre, full_side)
         c = box[:2] + box[2:] / 2.0
         c = np.clip(c, [-0.5, -0.5], [w_img - 0.5, h_img - 0.5])
         size = np.clip(box[2:], self.min_box_px, [w_img, h_img])
         self.centre_image_px, self.size_image_px = c, size
-        return np.r_[c - size / 2.0, size], float(prob[best]), "ok", centre.copy(), side
+        return np.r_[c - size / 2.0, size], score, "ok", centre.copy(), side
