@@ -25,7 +25,8 @@ frame whose chosen cell scores at or below it leaves the state as it was and rep
 box: the network did not find the target there, and its box regression on a frame without the
 target is meaningless. The published rule takes that box anyway; with our small network a
 marker hidden under a large occluder then moved the box away or grew it to the whole frame,
-and the track never came back (docs/tracking.md, the unseen source's occlusion case).
+and the track was gone for about a hundred frames (docs/tracking.md, the unseen source's
+occlusion case; there too, why the dual TransT keeps the published rule by default).
 
 The returned score is the network's target probability at the chosen cell (in [0, 1], before
 the window). ``compute_time_s`` is the wall-clock time of the whole ``track`` call
