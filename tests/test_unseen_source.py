@@ -195,3 +195,15 @@ def test_unseen_gap_checks_compare_each_marker_with_gk_transt():
         ("dual_transt_hold_unseen", "clean", "main", True),
         ("dual_transt_hold_unseen", "clean", "aux", True),
     ]
+
+
+def test_the_unseen_source_runs_only_with_a_network_alone(tmp_path):
+    """GK-TransT without the network alone is not run on the unseen source (it is there only to
+    be compared with it); with the hold variant alone, both are."""
+    rep = tb.run_tracking_benchmark(tmp_path, seeds=1, frames=3, cases=["clean"],
+                                    trackers=["gk_transt", "kcf"], stand_in=True)
+    assert set(rep.summary.tracker) == {"gk_standin", "kcf"}
+    rep = tb.run_tracking_benchmark(tmp_path, seeds=1, frames=3, cases=["clean"],
+                                    trackers=["gk_transt", "dual_transt_hold"], stand_in=True)
+    assert set(rep.summary.tracker) == {"gk_standin", "dual_standin_hold", "gk_standin_unseen",
+                                        "dual_standin_hold_unseen"}
