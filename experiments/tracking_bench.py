@@ -517,10 +517,9 @@ def run_tracking_benchmark(
     among ``trackers``, every sequence is rendered a second time from the unseen image source
     (``SequenceSpec.source = "unseen"``: the same motion and case, MuJoCo in a drawn look
     through a sensor model, never used for training) and tracked by the ``UNSEEN_TRACKERS``
-    among ``trackers``: rows
-    ``unseen_row(name)``. The network alone's
-    are checked against the network-alone targets on the clean case, and the dual TransT's
-    precision there against GK-TransT's (``unseen_gap_checks``).
+    among ``trackers``: rows ``unseen_row(name)``. The network alone's are checked against the
+    network-alone targets on the clean case, and the dual TransT's precision there against
+    GK-TransT's (``unseen_gap_checks``).
     """
     from experiments.sequences import validation_suite
 
