@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from experiments.network_alone import network_checks
 from experiments.sequences import (
     HARD_FRAMES,
     SequenceSpec,
@@ -18,7 +19,7 @@ from experiments.sequences import (
     disturb,
     render_sequence,
 )
-from experiments.tracking_bench import min_frames, network_checks
+from experiments.tracking_bench import min_frames
 from experiments.tracking_runs import summary_table
 from observer.gk.hsv_gate import RED, colour_mask
 from observer.transt.network import SMALL

@@ -175,6 +175,7 @@ def test_unseen_gap_checks_compare_each_marker_with_gk_transt():
     marker and case; rows missing on either side give no line."""
     import pandas as pd
 
+    from experiments.network_alone import unseen_gap_checks
     from experiments.tracking_runs import summary_table
 
     rows = [{"tracker": t, "case": c, "main_precision_20px": p[0], "aux_precision_20px": p[1],
@@ -184,7 +185,7 @@ def test_unseen_gap_checks_compare_each_marker_with_gk_transt():
                             ("dual_transt_unseen", "clean", (0.95, 0.94)),
                             ("dual_transt_unseen", "occlusion", (0.80, 0.92)),
                             ("dual_transt_hold_unseen", "clean", (1.0, 1.0)))]
-    lines = tb.unseen_gap_checks(summary_table(pd.DataFrame(rows)), "gk_transt", "_transt")
+    lines = unseen_gap_checks(summary_table(pd.DataFrame(rows)), "gk_transt", "_transt")
     verdicts = [(ln.split()[0], ln.split()[1], ln.split()[2], ln.endswith(": met"))
                 for ln in lines]
     assert verdicts == [
