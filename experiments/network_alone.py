@@ -19,11 +19,14 @@ TARGET_NETWORK_PRECISION = 0.95
 #: The row that shows the network alone: dual TransT runs one network per marker and reports
 #: its box centres, with no GK assistance and no circle fit.
 NETWORK_ALONE = "dual_transt"
+#: The network alone holding its box on frames it reports lost (a ``tracking_bench.VARIANTS``
+#: entry: ``hold_below_score``).
+NETWORK_HOLD = f"{NETWORK_ALONE}_hold"
 #: Trackers that also run on the unseen image source when they are among the benchmark's and
 #: the network alone is: GK-TransT first (its precision there is what the dual TransT's is
 #: compared with, ``TARGET_UNSEEN_GAP``), then the network alone with TransT's update and with
 #: the hold.
-UNSEEN_TRACKERS: tuple[str, ...] = ("gk_transt", NETWORK_ALONE, "dual_transt_hold")
+UNSEEN_TRACKERS: tuple[str, ...] = ("gk_transt", NETWORK_ALONE, NETWORK_HOLD)
 #: Our target for the dual TransT on the unseen source: precision at 20 px within this of
 #: GK-TransT's, per marker, on the seed's clean and occlusion cases.
 TARGET_UNSEEN_GAP = 0.05
@@ -79,7 +82,7 @@ def network_and_gk_table(summary: pd.DataFrame, gk: str, network: str) -> str:
     missing): precision at 20 px, median error and the fraction of frames reported as measured
     but wrong, per marker."""
     unseen = unseen_row(network)
-    hold = network + "_hold"
+    hold = NETWORK_HOLD.replace(NETWORK_ALONE, network)
     shown = [gk, network, unseen, unseen_row(gk), hold, unseen_row(hold)]
     rows = summary[summary.tracker.isin(shown)]
     if not {gk, network} <= set(rows.tracker):

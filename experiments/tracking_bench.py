@@ -19,6 +19,7 @@ import pandas as pd
 
 from experiments.network_alone import (
     NETWORK_ALONE,
+    NETWORK_HOLD,
     UNSEEN_TRACKERS,
     network_and_gk_table,
     network_checks,
@@ -51,11 +52,11 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "gk_transt_norefine": ("gk_transt", {"refine": False}),
     "dual_transt_refine": ("dual_transt", {"refine": True}),
     "gk_transt_fullcrop": ("gk_transt", {"steady_search_size": None}),
-    "dual_transt_hold": ("dual_transt", {"hold_below_score": DUAL_LOST_SCORE}),
+    NETWORK_HOLD: (NETWORK_ALONE, {"hold_below_score": DUAL_LOST_SCORE}),
 }
 #: The benchmark's trackers: names of ``observer.trackers.make_pair_tracker`` and ``VARIANTS``.
 DEFAULT_TRACKERS: tuple[str, ...] = ("gk_transt", "gk_transt_norefine", "gk_transt_fullcrop",
-                                     "dual_transt", "dual_transt_refine", "dual_transt_hold",
+                                     "dual_transt", "dual_transt_refine", NETWORK_HOLD,
                                      "kcf", "csrt", "kcf_numpy", "k2cf")
 #: GK-TransT / dual TransT latency ratios reported (numerator, denominator, what is compared).
 RATIO_PAIRS: tuple[tuple[str, str, str], ...] = (
