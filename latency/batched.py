@@ -37,8 +37,9 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from latency import compiled
-from latency.loop import Advance, ClosedLoop, Segment
+from latency.loop import ClosedLoop
 from latency.loop_config import LoopResult
+from latency.segments import Advance, Segment
 from plant import attitude
 from plant.params import PlantParams
 from plant.rigid_body import RigidBody
@@ -173,7 +174,7 @@ def run_batched(
 
 def _run_group(loops: Sequence[ClosedLoop]) -> list[LoopResult]:
     """Loops that share their ``PlantParams``, in lockstep: each round moves every run with an
-    open ``Advance`` to its next grid point or its target (``latency.loop._advance_segment``
+    open ``Advance`` to its next grid point or its target (``latency.segments._advance_segment``
     for many runs), stores the state at the grid points, and resumes the runs whose target is
     reached with their ``Segment``."""
     B = len(loops)

@@ -53,6 +53,7 @@ from latency.frontends import Capture, FrontEnd
 from latency.loop_config import LoopConfig, LoopResult
 from latency.metrics import summarize
 from latency.pipeline import FrameScheduler
+from latency.segments import Advance, KernelAdvance, Segment, _advance_segment
 from observer.pixel_observer import PixelObserver
 from observer.tracking import attitude_source
 from plant import attitude
@@ -171,9 +172,13 @@ class ClosedLoop:
         native = c.mujoco_sensor_delay_s is not None
         timeline = self.timeline(plant, progress)
         try:
-            req = next(timeline)
+            req = next(timeline)  # the run's start: sets the disturbance hook
+            if native or plant.disturbance is not None:
+                while True:
+                    req = timeline.send(_advance_segment(plant, req, h, n_steps, native))
+            advance = KernelAdvance(plant, n_steps)
             while True:
-                req = timeline.send(_advance_segment(plant, req, h, n_steps, native))
+                req = timeline.send(advance(req))
         except StopIteration as done:
             return done.value
 
@@ -441,31 +446,6 @@ class ClosedLoop:
         self.observer.record_torque(t, alloc.delivered)
 
 
-@dataclass(frozen=True)
-class Advance:
-    """A timeline's request: move the physics from ``t_s`` to ``t_target_s`` (s) with the coil
-    currents ``currents`` (16,), A, held, stopping at each physics grid point; ``k_log`` is the
-    index of the last grid point recorded."""
-
-    currents: NDArray[np.float64]
-    t_s: float
-    t_target_s: float
-    k_log: int
-
-
-@dataclass(frozen=True)
-class Segment:
-    """The answer to an ``Advance``: the time reached ``t_s`` and, at each grid point passed
-    (``k_log + 1``, ``k_log + 2``, ...), the attitude (n, 4), body rate (n, 3), rad/s, actual
-    currents (n, 16), A, and MuJoCo's delayed-sensor reading (n, 4) or None."""
-
-    t_s: float
-    q: NDArray[np.float64]
-    omega: NDArray[np.float64]
-    currents: NDArray[np.float64]
-    q_native: NDArray[np.float64] | None = None
-
-
 def run_streams(seed: int) -> tuple[np.random.Generator, ...]:
     """A run's random streams, one Generator per purpose, spawned from ``LoopConfig.seed``:
     the pipeline's latencies, the controller's latencies and the disturbance. Each stream is
@@ -474,36 +454,6 @@ def run_streams(seed: int) -> tuple[np.random.Generator, ...]:
     rng = np.random.default_rng(seed)
     rng_pipe, rng_ctrl, rng_dist = (np.random.default_rng(s) for s in rng.integers(2**32, size=3))
     return rng_pipe, rng_ctrl, rng_dist
-
-
-def _advance_segment(
-    plant: MujocoPlant, req: Advance, h: float, n_steps: int, native: bool
-) -> Segment:
-    """Serve an ``Advance`` on one plant: step to the next grid point or the target, whichever
-    is first (``MujocoPlant.advance`` puts the target on its exact time), record the state at
-    each grid point up to ``n_steps``, until within 1e-12 s of the target.
-
-    Mirrored in ``latency.compiled.steps._advance``; keep both in step
-    (tests/test_compiled_mirror.py checks them equal)."""
-    t, k = req.t_s, req.k_log
-    rows: list[tuple] = []
-    while True:
-        t_grid = (k + 1) * h
-        t_to = min(req.t_target_s, t_grid)
-        if t_to > t:
-            plant.advance(req.currents, t_to - t)
-            t = t_to
-        if abs(t - t_grid) < 1e-12 and k + 1 <= n_steps:
-            k += 1
-            rows.append((plant.q, plant.omega, plant.currents,
-                         plant.delayed_q() if native else None))
-        if t >= req.t_target_s - 1e-12:
-            break
-    if not rows:
-        empty = np.zeros((0, 4))
-        return Segment(t, empty, np.zeros((0, 3)), np.zeros((0, N_COILS)))
-    q, w, cur, nat = zip(*rows, strict=True)
-    return Segment(t, np.array(q), np.array(w), np.array(cur), np.array(nat) if native else None)
 
 
 def _no_estimate(t: float) -> Estimate:

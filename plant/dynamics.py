@@ -89,6 +89,21 @@ class MujocoPlant:
         self.currents = np.zeros(N_COILS)
         mujoco.mj_forward(self.model, self.data)
 
+    def set_state(self, q: ArrayLike, omega: ArrayLike, currents: ArrayLike,
+                  time_s: float) -> None:
+        """Put the rotor at attitude ``q`` (unit, w x y z), body rate ``omega`` (rad/s), coil
+        currents ``currents`` (16,), A, and time ``time_s`` (s): the state that another
+        integrator of this plant's physics reached (the compiled physics step of
+        ``latency.loop``). No MuJoCo step is taken, so the delayed sensor is not updated:
+        for plants built without ``sensor_delay_s``."""
+        if self._native_sensor:
+            raise ValueError("set_state would leave the delayed sensor behind: this plant has "
+                             "sensor_delay_s, advance it with advance()")
+        self.data.qpos[:] = q
+        self.data.qvel[:] = omega
+        self.currents = np.array(currents, dtype=float)
+        self.data.time = float(time_s)
+
     @property
     def q(self) -> NDArray[np.float64]:
         """Attitude quaternion (w, x, y, z), rotor to stator."""

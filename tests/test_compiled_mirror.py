@@ -50,7 +50,7 @@ from latency.compiled.settings import (
 )
 from latency.compiled.steps import _advance
 from latency.frontends import MeasurementConfig, MeasurementFrontEnd, SearchWindowLoss
-from latency.loop import Advance, _advance_segment, _StepLog
+from latency.loop import _StepLog
 from latency.loss_model import (
     FORMAT_VERSION,
     LossModel,
@@ -59,6 +59,7 @@ from latency.loss_model import (
     prediction_offset_px,
 )
 from latency.pipeline import FrameScheduler, PipelineConfig
+from latency.segments import Advance, _advance_segment
 from observer.cor_model import CorModel
 from observer.cor_solver import CorSolver, failure_reason
 from observer.gk.pixel_kalman import PixelKalmanConfig
@@ -210,7 +211,7 @@ TESTED = {
         "test_torque_map_is_the_torque_map",
     ("latency.compiled.allocation._least_norm", "plant.torque.allocate"):
         "test_least_norm_is_allocate_within_the_limits",
-    ("latency.compiled.steps._advance", "latency.loop._advance_segment"):
+    ("latency.compiled.steps._advance", "latency.segments._advance_segment"):
         "test_advance_is_advance_segment",
     ("latency.compiled.steps._record", "latency.loop._StepLog.write_rows"):
         "test_advance_is_advance_segment",
@@ -731,7 +732,7 @@ def test_least_norm_is_allocate_within_the_limits():
 def test_advance_is_advance_segment():
     """A rotor at a random attitude and rate, with the coils' lag, under random held currents,
     advanced over random spans (whole steps, a shortened last one, across grid points, onto the
-    tilt stop): the state and the steps table's rows of ``latency.loop._advance_segment`` on a
+    tilt stop): the state and the steps table's rows of ``latency.segments._advance_segment`` on a
     ``MujocoPlant`` and ``_StepLog.write_rows`` to 1e-12 (the same compiled step; the compiled
     run loop keeps the pair lists across steps, tests/test_rigid_body.py: the same pairs),
     the tilt-stop flags equal."""

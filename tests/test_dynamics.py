@@ -221,3 +221,14 @@ def test_allocate_takes_an_optional_current_limit():
 def test_allocate_rejects_a_bad_current_limit(i_max):
     with pytest.raises(ValueError, match="i_max"):
         MujocoPlant().allocate([0.0, 0.0, 0.01], i_max=i_max)
+
+
+def test_set_state_moves_the_rotor_and_refuses_a_plant_with_the_delayed_sensor():
+    plant = MujocoPlant(PlantParams())
+    q = A.from_zyz(0.1, 0.05, -0.1)
+    plant.set_state(q, [0.1, -0.2, 0.3], np.full(16, 0.25), 0.125)
+    assert np.array_equal(plant.q, q) and np.array_equal(plant.omega, [0.1, -0.2, 0.3])
+    assert np.array_equal(plant.currents, np.full(16, 0.25)) and plant.time == 0.125
+    with pytest.raises(ValueError, match="delayed sensor"):
+        MujocoPlant(PlantParams(), sensor_delay_s=0.01).set_state(q, np.zeros(3), np.zeros(16),
+                                                                   0.0)

@@ -123,6 +123,51 @@ def test_saturation_and_tilt_stop_events():
     assert tilt.max() - np.radians(15.0) < w_impact * STOP_TIMECONST_S
 
 
+def test_run_steps_the_physics_compiled_and_equals_the_step_by_step_path(monkeypatch):
+    """``ClosedLoop.run`` serves the physics through the compiled kernel (``KernelAdvance``)
+    and writes its state back into the plant; a stiff PD on a 20° request (saturated currents,
+    the tilt stop) with the coils' lag gives the steps table of the step-by-step path
+    (``_advance_segment``) to 1e-12."""
+    from latency import loop as loop_module
+    from latency import segments
+    from plant.params import MotorParams
+
+    class Big(TiltStep):
+        def __init__(self):
+            super().__init__(tilt_deg=20.0)
+
+    params = P.model_copy(update={"motor": MotorParams(coil_time_constant_s=0.0015)})
+    calls = []
+
+    class Spy(segments.KernelAdvance):
+        def __call__(self, req):
+            calls.append(req.t_target_s)
+            return super().__call__(req)
+
+    class StepByStep:
+        def __init__(self, plant, n_steps):
+            self.plant, self.n_steps = plant, n_steps
+
+        def __call__(self, req):
+            return segments._advance_segment(self.plant, req, params.physics_dt_s,
+                                             self.n_steps, False)
+
+    def steps(advance):
+        monkeypatch.setattr(loop_module, "KernelAdvance", advance)
+        front = MeasurementFrontEnd(params, MeasurementConfig(), np.random.default_rng(0))
+        loop = ClosedLoop(params, PD(wc=30.0), Big(), front, FilterObserver(params),
+                          LoopConfig(duration_s=0.6))
+        r = loop.run()
+        return r.steps.select_dtypes("number").to_numpy(float), set(r.events.kind)
+
+    fast, kinds = steps(Spy)
+    assert len(calls) > 30
+    slow, kinds_slow = steps(StepByStep)
+    assert {"saturation", "tilt_stop_contact"} <= kinds == kinds_slow
+    assert fast.shape == slow.shape
+    assert np.nanmax(np.abs(fast - slow)) <= 1e-12
+
+
 def test_config_errors_are_clear():
     with pytest.raises(ValueError, match="duration_s"):
         LoopConfig(duration_s=0.01, pipeline=PipelineConfig(observer=seed_profile("csrt")))

@@ -84,12 +84,12 @@ def _record(st, k, ref_grid, log, evs, par):
 @njit(cache=True, fastmath=FASTMATH)
 def _advance(st, target, ref_grid, log, evs, par, J, J_inv, com, m_g, coils, magnets, gain,
              scal, pairs):
-    """``latency.loop._advance_segment`` on the run's state: to the next grid point or the
+    """``latency.segments._advance_segment`` on the run's state: to the next grid point or the
     target, whichever is first (whole steps, a shortened last one, the coils' first-order
     lag exact at each step's start), recording each grid point, until within 1e-12 s of the
     target.
 
-    Compiled mirror of ``latency.loop._advance_segment``."""
+    Compiled mirror of ``latency.segments._advance_segment``."""
     h, tau_l, n_steps = par[_P_H], par[_P_TAU_L], int(par[_P_N_STEPS])
     # one rotor's state as tuples, stepped by the physics kernel's per-row function with the
     # run's pair lists ``pairs`` (no array per step)
