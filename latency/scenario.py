@@ -252,6 +252,14 @@ class Scenario(_Model):
             raise ValueError(f"{where} must be a finite number (got inf or nan)")
         return data
 
+    @field_validator("seed", mode="before")
+    @classmethod
+    def _seed_not_bool(cls, v):
+        """A seed is an integer; ``true``/``false`` (a YAML slip) is refused, not read as 1/0."""
+        if isinstance(v, bool):
+            raise ValueError(f"seed must be an integer >= 0, got {v!r}")
+        return v
+
     @field_validator("name")
     @classmethod
     def _folder_name(cls, v: str) -> str:

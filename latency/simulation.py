@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
-from typing import Literal
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Literal, get_args
 
 from pydantic import ValidationError
 
@@ -138,19 +138,31 @@ def describe_paths(scenarios: Sequence[Scenario], engine: Engine = "auto") -> di
     return paths
 
 
-def simulate(scenario: Scenario, engine: Engine = "auto", progress: bool = False) -> LoopResult:
-    """Run one scenario (see ``simulate_many`` for ``engine``); its result, with the steps,
-    frames and events tables."""
+def simulate(scenario: Scenario | Mapping, engine: Engine = "auto",
+             progress: bool = False) -> LoopResult:
+    """Run one scenario (a ``Scenario`` or its fields as a mapping, e.g. a scenario file's
+    content; see ``simulate_many`` for ``engine``); its result, with the steps, frames and
+    events tables."""
     return simulate_many([scenario], engine, progress)[0]
 
 
-def simulate_many(scenarios: Sequence[Scenario], engine: Engine = "auto",
+def _scenario(s: Scenario | Mapping, k: int) -> Scenario:
+    """``s`` as a ``Scenario`` (a mapping is validated); ``TypeError`` for anything else."""
+    if isinstance(s, Scenario):
+        return s
+    if isinstance(s, Mapping):
+        return Scenario.model_validate(s)
+    raise TypeError(f"scenario {k}: expected a latency.Scenario or a mapping of its fields, "
+                    f"got {type(s).__name__}")
+
+
+def simulate_many(scenarios: Iterable[Scenario | Mapping], engine: Engine = "auto",
                   progress: bool = False, tables: bool = True) -> list[LoopResult]:
     """Run scenarios and return their results in order.
 
     Parameters
     ----------
-    scenarios : the runs.
+    scenarios : the runs: ``Scenario`` objects or mappings of their fields (validated here).
     engine : ``"auto"`` (each run on the fastest engine that takes it, the reason logged at
         INFO on ``latency.simulation`` when that is the event loop), ``"batched"`` (every run
         batched; ``ValueError`` for one it cannot take) or ``"event"``.
@@ -158,6 +170,11 @@ def simulate_many(scenarios: Sequence[Scenario], engine: Engine = "auto",
     tables : False returns results without their steps, frames and events tables where the
         batched engine can skip them (only the summaries are wanted).
     """
+    if engine not in get_args(Engine):
+        raise ValueError(f"engine must be one of {', '.join(get_args(Engine))}, got {engine!r}")
+    if isinstance(scenarios, Scenario | Mapping | str):
+        raise TypeError("simulate_many takes a sequence of scenarios; for one, use simulate")
+    scenarios = [_scenario(s, k) for k, s in enumerate(scenarios)]
     n_image = _batchable_image_runs(scenarios)
     choices = [choose_engine(s, engine, n_image) for s in scenarios]
     for reason in sorted({why for e, why in choices if e == "event" and engine == "auto"}):

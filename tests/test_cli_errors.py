@@ -101,6 +101,7 @@ CASES = [
     scenario("text-duration", "duration_s: long\n", "duration_s"),
     scenario("seed-minus-one", "seed: -1\n", "seed: Input should be greater than or equal to 0"),
     scenario("fractional-seed", "seed: 1.5\n", "seed"),
+    scenario("boolean-seed", "seed: true\n", "seed must be an integer >= 0, got True"),
     scenario("name-with-slash", "name: a/b\n", "name 'a/b'"),
     scenario("name-dotdot", "name: ..\n", "name '..'"),
     scenario("name-parent-path", "name: ../../etc\n", "'..'"),

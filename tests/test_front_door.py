@@ -88,3 +88,21 @@ def test_describe_paths_counts_runs_and_builds_one_loop_per_group(monkeypatch):
     paths = sim.describe_paths(runs)
     assert len(built) == 3
     assert paths == {"engine: batched, compiled run loop": 5, "engine: batched image engine": 2}
+
+
+def test_the_front_door_takes_mappings_and_iterables_and_refuses_what_it_cannot_run():
+    """A scenario file's mapping runs as its ``Scenario`` would; any iterable of scenarios is
+    taken; an unknown engine, a non-scenario and a lone scenario given to ``simulate_many``
+    are refused with messages that say what was expected (an unknown engine once returned no
+    results at all)."""
+    fields = {"duration_s": 0.3, "seed": 4}
+    want = simulate(Scenario(**fields), engine="event").steps
+    assert simulate(fields, engine="event").steps.equals(want)
+    many = simulate_many((Scenario(**fields) for _ in range(2)), engine="event")
+    assert len(many) == 2 and many[1].steps.equals(want)
+    with pytest.raises(ValueError, match="engine must be one of auto, batched, event, got 'warp'"):
+        simulate_many([Scenario(**fields)], engine="warp")
+    with pytest.raises(TypeError, match="scenario 1: expected a latency.Scenario or a mapping"):
+        simulate_many([Scenario(**fields), None])
+    with pytest.raises(TypeError, match="for one, use simulate"):
+        simulate_many(Scenario(**fields))
