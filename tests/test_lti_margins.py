@@ -103,6 +103,12 @@ def test_the_hold_costs_phase():
         (PLANT, 1.0, {"sample_period_s": 0.0}, "sample_period_s must be > 0"),
         (ct.tf([1.0], [1.0, 1.0], 0.1), 1.0, {}, "plant must be a continuous-time"),
         (PLANT, ct.tf([1.0], [1.0, 0.5], 0.1), {"sample_period_s": 0.05}, "differs from"),
+        (PLANT, 1.0, {"delay_s": "0.1"}, "delay_s must be a number of seconds, got str"),
+        (PLANT, 1.0, {"delay_s": True}, "delay_s must be a number of seconds, got bool"),
+        (PLANT, 0.0, {}, "controller is zero: the loop is open"),
+        (ct.tf([0.0], [1.0, 1.0]), 1.0, {}, "plant is zero: the loop is open"),
+        (ct.tf([math.nan], [1.0, 1.0]), 1.0, {}, "plant has non-finite coefficients"),
+        (PLANT, ct.tf([1.0], [1.0, math.inf]), {}, "controller has non-finite coefficients"),
     ],
 )
 def test_bad_input_is_a_value_error_naming_the_argument(plant, controller, kw, match):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from numbers import Real
 
 import control as ct
 import numpy as np
@@ -31,6 +32,8 @@ class _Factor:
 def _as_factor(sys: ct.LTI | float, name: str) -> _Factor:
     """Convert a SISO LTI object (or a number) to a rational factor, checking its shape."""
     if np.isscalar(sys):
+        if float(sys) == 0.0:
+            raise ValueError(f"{name} is zero: the loop is open, it has no margins")
         return _Factor(np.array([float(sys)]), np.array([1.0]), None)
     if not isinstance(sys, ct.LTI):
         raise TypeError(f"{name} must be a python-control LTI object or a number, got {type(sys)}")
@@ -41,8 +44,10 @@ def _as_factor(sys: ct.LTI | float, name: str) -> _Factor:
     den = np.atleast_1d(np.asarray(tf.den[0][0], dtype=float))
     num = np.trim_zeros(num, "f")
     den = np.trim_zeros(den, "f")
+    if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+        raise ValueError(f"{name} has non-finite coefficients (inf or nan)")
     if num.size == 0:
-        num = np.array([0.0])
+        raise ValueError(f"{name} is zero: the loop is open, it has no margins")
     if den.size == 0:
         raise ValueError(f"{name} has a zero denominator")
     if num.size > den.size and sys.isdtime(strict=True):
@@ -146,6 +151,8 @@ class LoopModel:
 
 
 def _check_delay(delay_s: float) -> None:
+    if isinstance(delay_s, bool) or not isinstance(delay_s, Real):
+        raise ValueError(f"delay_s must be a number of seconds, got {type(delay_s).__name__}")
     if not np.isfinite(delay_s) or delay_s < 0.0:
         raise ValueError(f"delay_s must be finite and >= 0, got {delay_s}")
 
