@@ -8,7 +8,9 @@ seed's latency of the tracker, analytic renderer):
   network already built (as every run after a process's first);
 * the engine (``latency.image_engine.run_images``, 2 worker processes) at B = 1, 8 and 64 runs:
   aggregate frames per second and real-time factor (simulated seconds per wall second), the
-  workers' start included;
+  workers' start included, with the engine's default runs per batch (``RUNS_PER_BATCH``) and,
+  at B = 64, with each worker's 32 runs in one batch (a thread per run, network calls
+  batched);
 * the *network limit*: frames per second of the tracker's networks alone on search crops, at
   the best of 1 or 2 ONNX Runtime threads and batch sizes 1-64 (one network call per frame for
   GK-TransT on its steady 96 px crop, which it searches on all but its first frames and
@@ -21,6 +23,7 @@ seed's latency of the tracker, analytic renderer):
 Keys: ``<tracker>_B<B>_realtime_factor``, ``<tracker>_B<B>_frames_per_s``,
 ``<tracker>_B64_fraction_of_network_limit``, ``<tracker>_B64_ratio_to_event_loop``,
 ``<tracker>_network_limit_frames_per_s``, ``<tracker>_event_loop_realtime_factor``,
+``<tracker>_B64_one_batch_per_worker_realtime_factor`` (and ``_frames_per_s``),
 ``<tracker>_time_fraction_<part>``, ``network_s_per_sample_search<px>_threads<T>_B<B>``.
 
 Run on an idle machine: ``python benchmarks/bench_image_engine.py`` (``--quick``: a smoke run
@@ -37,7 +40,7 @@ import time
 import numpy as np
 
 from latency import Scenario, build_loop
-from latency.image_engine import run_images
+from latency.image_engine import RUNS_PER_BATCH, run_images
 from latency.models import SEED_LATENCY_S
 from observer.trackers.registry import STEADY_SEARCH_PX
 
@@ -76,11 +79,15 @@ def event_loop(tracker: str, n: int, duration_s: float) -> tuple[float, float]:
     return n * duration_s / wall, _frames(res) / wall
 
 
-def engine(tracker: str, B: int, duration_s: float) -> tuple[float, float]:
-    """(real-time factor, frames/s) of the engine on B runs, 2 workers, start included."""
+def engine(tracker: str, B: int, duration_s: float, one_batch: bool = False
+           ) -> tuple[float, float]:
+    """(real-time factor, frames/s) of the engine on B runs, 2 workers, start included; with
+    its default runs per batch, or (``one_batch``) each worker's runs in one batch (a thread
+    per run, the network calls batched)."""
     specs = _scenarios(tracker, B, duration_s, first_seed=100)
+    rpb = max(1, -(-B // 2)) if one_batch else RUNS_PER_BATCH
     t0 = time.perf_counter()
-    res = run_images(build_loop, specs, workers=2, runs_per_batch=max(1, -(-B // 2)))
+    res = run_images(build_loop, specs, workers=2, runs_per_batch=rpb)
     wall = time.perf_counter() - t0
     return B * duration_s / wall, _frames(res) / wall
 
@@ -187,6 +194,9 @@ def main() -> None:
             figures[f"{tracker}_B{B}_realtime_factor"] = rt
             figures[f"{tracker}_B{B}_frames_per_s"] = fps
         top = max(sizes)
+        rt, fps = engine(tracker, top, duration, one_batch=True)
+        figures[f"{tracker}_B{top}_one_batch_per_worker_realtime_factor"] = rt
+        figures[f"{tracker}_B{top}_one_batch_per_worker_frames_per_s"] = fps
         figures[f"{tracker}_B{top}_fraction_of_network_limit"] = \
             figures[f"{tracker}_B{top}_frames_per_s"] / limit
         figures[f"{tracker}_B{top}_ratio_to_event_loop"] = \
@@ -205,7 +215,8 @@ def main() -> None:
            figures,
            notes=f"Runs of {duration:g} s at 36 frames/s, PID, per-frame solver, random "
                  "references at 3 rad/s, each tracker at its seed latency; engine with 2 "
-                 "worker processes, the workers' start included. The network limit assumes "
+                 f"worker processes, {RUNS_PER_BATCH} run(s) per batch unless the key says "
+                 "one batch per worker, the workers' start included. The network limit assumes "
                  "one network call per GK-TransT frame on its steady 96 px crop and two per "
                  "dual-TransT frame on 128 px crops.")
 

@@ -11,7 +11,7 @@ tracker, delays, controller and reference), built in the process that runs it by
 * advances a batch's runs together, one thread per run, each on the event loop's own timeline
   (``ClosedLoop.run``), so a run computes exactly what the event loop computes for it: the same
   frames from the same renderer and seed, the same tracker and GK code, the same physics and
-  control;
+  control (by default a batch is one run: ``RUNS_PER_BATCH``);
 * evaluates the network on the crops of all runs of the batch that are waiting for it in one
   call (``NetworkService.batching``: a call takes every run's crop once all of the batch's runs
   are waiting on the network or done, at most ``max_network_batch`` crops). A crop's result does
@@ -45,9 +45,13 @@ from latency.loop_config import LoopResult
 
 Spec = TypeVar("Spec")
 
-#: Our choice: runs advanced together in one process. Enough for the network to see full
-#: batches while the other runs render and track (docs/closed_loop.md, the image engine).
-RUNS_PER_BATCH = 16
+#: Runs advanced together in one process, by measurement (docs/closed_loop.md, the image
+#: engine): on this two-core CPU one network call costs about as much per crop alone as in a
+#: batch (6.5 against 6.0 ms), while a batch's threads wait for each other and share one
+#: interpreter, so one run at a time per worker was 35-40 % faster for GK-TransT (48 runs) and
+#: as fast for the dual TransT. Raise it where the network's cost per crop falls with the batch
+#: (a GPU).
+RUNS_PER_BATCH = 1
 #: Our choice: most crops in one network call (the per-crop cost measured flat from 8 to 64,
 #: benchmarks/results/bench_image_engine.json).
 MAX_NETWORK_BATCH = 16

@@ -143,3 +143,23 @@ def test_a_failing_network_call_reaches_every_waiting_caller() -> None:
         for th in threads:
             th.join()
     assert len(errors) == 3
+
+
+def test_runs_go_one_per_batch_by_default_and_in_batches_when_asked(monkeypatch):
+    """``run_images`` hands a worker its runs one at a time by default (on this CPU batching
+    the network did not pay for its threads: ``RUNS_PER_BATCH``) and in batches of
+    ``runs_per_batch`` when asked, the results in the order of the specs."""
+    from latency import image_engine
+
+    chunks = []
+
+    def fake(build, specs, max_network_batch):
+        chunks.append(list(specs))
+        return [build(s) for s in specs]
+
+    monkeypatch.setattr(image_engine, "_run_specs", fake)
+    assert image_engine.run_images(str, [1, 2, 3], workers=1) == ["1", "2", "3"]
+    assert chunks == [[1], [2], [3]]
+    chunks.clear()
+    assert image_engine.run_images(str, [1, 2, 3], workers=1, runs_per_batch=2) == ["1", "2", "3"]
+    assert chunks == [[1, 2], [3]]
