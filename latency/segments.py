@@ -92,19 +92,15 @@ class KernelAdvance:
     def __init__(self, plant: MujocoPlant, n_steps: int) -> None:
         # imported here: latency.compiled imports latency.loop, which imports this module
         from latency.compiled import layout as lay
+        from latency.compiled.settings import physics_settings
         from latency.compiled.steps import _advance
         from plant.rigid_body import PAIR_REUSE_RAD, _pair_lists
 
-        p = plant.params
         self._lay, self._kernel, self.plant = lay, _advance, plant
         self.consts = plant.body.consts
         self.pairs = _pair_lists(self.consts[5].shape[0], self.consts[4].shape[0],
                                  PAIR_REUSE_RAD)
-        self.par = np.zeros(lay._N_PAR)
-        self.par[lay._P_H] = p.physics_dt_s
-        self.par[lay._P_TAU_L] = p.motor.coil_time_constant_s
-        self.par[lay._P_N_STEPS] = n_steps
-        self.par[lay._P_COS_STOP] = np.cos(np.deg2rad(p.rotor.tilt_stop_deg))
+        self.par = physics_settings(plant.params, n_steps)
         self.state = np.zeros(lay._N_STATE)
         # the kernel's steps table and event record (their rows are read here; the reference
         # and the tilt-stop events are the timeline's)

@@ -75,14 +75,23 @@ from plant.rigid_body import RigidBody
 from plant.torque import TorqueMap
 
 
+def physics_settings(p: PlantParams, n_steps: int) -> NDArray[np.float64]:
+    """A ``par`` with the numbers the physics between events reads
+    (``latency.compiled.steps._advance``): the physics step (s), the coils' time constant (s),
+    the run's steps and the cosine of the tilt stop; the rest zero."""
+    par = np.zeros(_N_PAR)
+    par[_P_H], par[_P_TAU_L], par[_P_N_STEPS] = (p.physics_dt_s, p.motor.coil_time_constant_s,
+                                                 n_steps)
+    par[_P_COS_STOP] = np.cos(np.deg2rad(p.rotor.tilt_stop_deg))
+    return par
+
+
 def _settings(loop: ClosedLoop) -> NDArray[np.float64]:
     """The run's numbers for the kernel (``par``; the ``_P_*`` indices)."""
     c, p = loop.config, loop.params
     fe: MeasurementFrontEnd = loop.front_end  # type: ignore[assignment]
-    par = np.zeros(_N_PAR)
-    par[_P_DURATION], par[_P_H] = c.duration_s, p.physics_dt_s
-    par[_P_TAU_L], par[_P_N_STEPS] = p.motor.coil_time_constant_s, loop.n_steps
-    par[_P_COS_STOP] = np.cos(np.deg2rad(p.rotor.tilt_stop_deg))
+    par = physics_settings(p, loop.n_steps)
+    par[_P_DURATION] = c.duration_s
     par[_P_DIV_DEG], par[_P_LOSS_PX] = c.divergence_deg, c.loss_threshold_px
     _front_end_settings(par, fe.config, p)
     _observer_settings(par, loop.observer)
