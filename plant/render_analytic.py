@@ -322,6 +322,7 @@ class AnalyticRenderer:
         self._highlights = self._draw_highlights()
         self._light = self._lighting_map()
         self._noise_table = (self.options.noise_sigma_dn * _NOISE_TABLE).astype(np.float32)
+        self._digitised_levels: NDArray[np.uint8] | None = None
 
     # --- static parts -----------------------------------------------------------------------
     def _pixel_rays(self) -> NDArray[np.float64]:
@@ -645,6 +646,11 @@ class AnalyticRenderer:
         plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
         if plain and o.noise_sigma_dn == 0.0 and self._light is None and not o.defocus_sigma_px:
             return jpeg_roundtrip(img, o.jpeg_quality)
+        if self._highlights is None and self._light is None and not o.defocus_sigma_px and (
+                o.noise_sigma_dn > 0.0):
+            raw = np.frombuffer(self.rng.bytes(img.size), dtype=np.uint8)
+            out = render_kernels.digitised_by_levels(img.ravel(), raw, self._levels())
+            return jpeg_roundtrip(out.reshape(img.shape), o.jpeg_quality)
         none = np.empty(0, np.float32)
         f = render_kernels.exposed(
             img.ravel(), none if self._highlights is None else self._highlights.ravel(),
@@ -656,6 +662,15 @@ class AnalyticRenderer:
             raw = np.frombuffer(self.rng.bytes(f.size), dtype=np.uint8)
         out = render_kernels.digitised(f, raw, self._noise_table, o.gain).reshape(img.shape)
         return jpeg_roundtrip(out, o.jpeg_quality)
+
+    def _levels(self) -> NDArray[np.uint8]:
+        """The table of output bytes by frame value and noise byte
+        (``render_kernels.digitised_levels``), computed on first use."""
+        if self._digitised_levels is None:
+            o = self.options
+            self._digitised_levels = render_kernels.digitised_levels(
+                self._noise_table, o.illumination, o.gain)
+        return self._digitised_levels
 
     def render(
         self,

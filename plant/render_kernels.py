@@ -1,6 +1,7 @@
 """Compiled per-pixel kernels of the analytic renderer (``plant.render_analytic``): the camera
-effects before and after the defocus blur, the compositing of a layer's colour, and the inset
-of polygon outlines.
+effects before and after the defocus blur (or, where no highlight, light map or blur makes a
+pixel depend on more than its own value and noise byte, a table of both at once), the
+compositing of a layer's colour, and the inset of polygon outlines.
 
 Why compiled: a frame is 612 x 512 x 3 values, and the numpy and OpenCV version made one pass
 over the frame per effect (conversion, highlights, illumination, light map, noise, gain,
@@ -66,6 +67,36 @@ def digitised(f: NDArray[np.float32], noise_bytes: NDArray[np.uint8],
     else:
         for i in range(f.size):
             out[i] = _dn(f[i] * g)
+    return out
+
+
+@njit(cache=True)
+def digitised_levels(noise_table: NDArray[np.float32], illumination: float,
+                     gain: float) -> NDArray[np.uint8]:
+    """The table (256 x 256, flat) of ``digitised(exposed(v), b)`` for every frame value ``v``
+    and noise byte ``b`` (index ``v * 256 + b``), for frames without highlights, light map or
+    defocus: there each output byte is a function of those two bytes alone, computed here with
+    the same float32 operations in the same order."""
+    out = np.empty(65536, np.uint8)
+    ill, g = np.float32(illumination), np.float32(gain)
+    for v in range(256):
+        f = np.float32(v)
+        if ill != np.float32(1.0):
+            f = f * ill
+        for b in range(256):
+            out[v * 256 + b] = _dn((f + noise_table[b]) * g)
+    return out
+
+
+@njit(cache=True)
+def digitised_by_levels(img: NDArray[np.uint8], noise_bytes: NDArray[np.uint8],
+                        levels: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """``digitised(exposed(img), noise_bytes)`` through the table of ``digitised_levels``
+    (all arrays flat): one look-up per value instead of the float pass, about three times
+    faster on a frame, byte for byte the same."""
+    out = np.empty(img.size, np.uint8)
+    for i in range(img.size):
+        out[i] = levels[(np.int64(img[i]) << 8) | np.int64(noise_bytes[i])]
     return out
 
 

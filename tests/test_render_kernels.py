@@ -89,3 +89,18 @@ def test_inset_shrinks_a_circle_by_the_distance(direction):
     out = render_kernels.inset(circle[None], 0.75)[0]
     radius = np.hypot(out[:, 0] - 50, out[:, 1] - 40)
     np.testing.assert_allclose(radius, 19.25, atol=1e-9)
+
+
+@pytest.mark.parametrize(("illumination", "gain"), [(1.0, 1.0), (0.45, 2.4), (1.7, 0.6)])
+def test_the_table_of_levels_equals_the_numpy_and_opencv_passes(illumination, gain):
+    rng = np.random.default_rng(11)
+    img = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    img[0, :5] = (255, 0, 128)
+    raw = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    table = np.linspace(-6.5, 6.5, 256).astype(np.float32)
+    table[:4] = (-0.5, 0.5, 1.5, 2.5)  # exact halves: rounding half to even
+    want = _camera_effects_reference(img, None, illumination, None, 0.0, raw, table, gain)
+    levels = render_kernels.digitised_levels(table, illumination, gain)
+    got = render_kernels.digitised_by_levels(img.ravel(), raw.ravel(), levels).reshape(img.shape)
+    np.testing.assert_array_equal(got, want)
+    assert 0 < np.count_nonzero(got == 255) < got.size
