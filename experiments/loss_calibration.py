@@ -19,6 +19,7 @@ already there. The model is written atomically (``latency.loss_model.write_loss_
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import os
@@ -37,7 +38,7 @@ from experiments.intervals import (
 )
 from latency import Scenario, build_loop, simulate_many
 from latency.frontends import MarkerPrediction
-from latency.image_engine import run_images
+from latency.image_engine import ImagePool, run_images
 from latency.loop_config import LoopResult
 from latency.loss_model import (
     BASELINE_SCENE,
@@ -234,11 +235,12 @@ def frame_records(res: LoopResult, params: PlantParams) -> pd.DataFrame:
     return out
 
 
-def _run_records(tracker: str, design: CalibrationDesign, points: list[RunPoint],
-                 workers: int) -> pd.DataFrame:
-    """The records of the image runs of ``points``, with each run's bookkeeping."""
+def _run_records(tracker: str, design: CalibrationDesign, points: list[RunPoint], *,
+                 workers: int | None = None, pool: ImagePool | None = None) -> pd.DataFrame:
+    """The records of the image runs of ``points`` (``run_images``' ``workers`` or ``pool``),
+    with each run's bookkeeping."""
     scenarios = [pt.scenario(tracker, design, "image") for pt in points]
-    results = run_images(build_loop, scenarios, workers=workers)
+    results = run_images(build_loop, scenarios, workers=workers, pool=pool)
     parts = []
     for pt, s, res in zip(points, scenarios, results, strict=True):
         rec = frame_records(res, s.plant)
@@ -271,16 +273,19 @@ def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 
     jobs = [(False, pt) for pt in design.points(False)] + \
         [(True, pt) for pt in design.points(True)]
     batches = [jobs[i : i + batch_runs] for i in range(0, len(jobs), batch_runs)]
-    for k, batch in enumerate(tqdm(batches, desc=f"calibrating {tracker}", unit="batch",
-                                   disable=not progress)):
-        path = work / f"records-{k:03d}.parquet"
-        if not path.exists():
-            rec = _run_records(tracker, design, [pt for _, pt in batch], workers)
-            rec["holdout"] = rec["run"].map({pt.run_name(tracker): h for h, pt in batch})
-            tmp = path.with_suffix(".tmp")
-            rec.to_parquet(tmp)
-            os.replace(tmp, path)
-        parts.append(pd.read_parquet(path))
+    # one pool for every batch: its workers start (seconds each) once, not once a batch
+    with ImagePool(workers) if workers > 1 else contextlib.nullcontext() as pool:
+        for k, batch in enumerate(tqdm(batches, desc=f"calibrating {tracker}", unit="batch",
+                                       disable=not progress)):
+            path = work / f"records-{k:03d}.parquet"
+            if not path.exists():
+                rec = _run_records(tracker, design, [pt for _, pt in batch],
+                                   workers=None if pool else 1, pool=pool)
+                rec["holdout"] = rec["run"].map({pt.run_name(tracker): h for h, pt in batch})
+                tmp = path.with_suffix(".tmp")
+                rec.to_parquet(tmp)
+                os.replace(tmp, path)
+            parts.append(pd.read_parquet(path))
     return pd.concat(parts, ignore_index=True)
 
 

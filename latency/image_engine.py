@@ -5,7 +5,8 @@ tracker, delays, controller and reference), built in the process that runs it by
 ``build(spec)`` (e.g. ``latency.simulation.build_loop`` on ``Scenario`` objects). The engine
 
 * spreads the runs over ``workers`` processes (one per core by default), in batches of
-  ``runs_per_batch`` runs;
+  ``runs_per_batch`` runs; an ``ImagePool`` keeps its processes for the next call, so a caller
+  that runs in several calls pays the workers' start once;
 * in each process builds the tracker networks once (``observer.transt.service.shared_service``:
   the shipped weights are read, checked and exported to ONNX once per process, not per run);
 * advances a batch's runs together, one thread per run, each on the event loop's own timeline
@@ -128,11 +129,63 @@ def _worker_init() -> None:
     cv2.setNumThreads(1)
 
 
+class ImagePool:
+    """Worker processes for image runs that serve several ``run_images`` calls.
+
+    A worker's start costs seconds (spawning, importing torch and OpenCV, loading the network
+    and the compiled kernels: about 6 s of CPU on the two-core machine) before its first frame;
+    a caller that runs its runs in several calls (``pmspm calibrate-loss``'s batches) keeps one
+    pool open across them and pays it once. Use as a context manager; the processes end when it
+    closes.
+
+    Parameters
+    ----------
+    workers : processes (spawned, started on the first call that needs them; torch and OpenCV
+        held to one thread each).
+    """
+
+    def __init__(self, workers: int = 2) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+        self.workers = workers
+        self._executor = ProcessPoolExecutor(
+            workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+
+    def __enter__(self) -> ImagePool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """End the workers (after the runs they are running; queued runs are dropped)."""
+        self._executor.shutdown(cancel_futures=True)
+
+    def run(self, build: Callable[[Spec], ClosedLoop], chunks: list[list[Spec]],
+            max_network_batch: int, bar: tqdm) -> list[list[LoopResult]]:
+        """Each chunk's results (``_run_specs`` in a worker), in the order of ``chunks``; on a
+        failure the chunks not yet started are dropped and the failure is raised."""
+        out: list[list[LoopResult] | None] = [None] * len(chunks)
+        futures = {self._executor.submit(_run_specs, build, chunk, max_network_batch): k
+                   for k, chunk in enumerate(chunks)}
+        try:
+            for fut in as_completed(futures):
+                k = futures[fut]
+                out[k] = fut.result()
+                bar.update(len(chunks[k]))
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+        return [chunk for chunk in out if chunk is not None]
+
+
 def run_images(
     build: Callable[[Spec], ClosedLoop],
     specs: Sequence[Spec],
     *,
-    workers: int = 2,
+    workers: int | None = None,
+    pool: ImagePool | None = None,
     runs_per_batch: int = RUNS_PER_BATCH,
     max_network_batch: int = MAX_NETWORK_BATCH,
     progress: bool = False,
@@ -144,36 +197,36 @@ def run_images(
     build : picklable callable spec -> ``ClosedLoop`` (an image-mode run), called in the worker
         that runs the spec (trackers hold network sessions that do not cross processes).
     specs : what ``build`` takes, one per run (e.g. ``latency.Scenario``).
-    workers : processes (1: in this process, no pool). With more than one, the processes are
-        spawned: a script that calls this must guard its top level with
-        ``if __name__ == "__main__":``.
+    workers : processes (default 2, or ``pool``'s; 1 without a pool: in this process). With
+        more than one, the processes are spawned: a script that calls this must guard its top
+        level with ``if __name__ == "__main__":``.
+    pool : an open ``ImagePool`` to run on (its workers stay for the next call); default a pool
+        of ``workers`` for this call alone.
     runs_per_batch : runs advanced together in one process.
     max_network_batch : most crops per network call.
     progress : a progress bar over the runs.
     """
-    if workers < 1 or runs_per_batch < 1:
-        raise ValueError(f"workers and runs_per_batch must be >= 1, got {workers}, "
+    if pool is not None and workers not in (None, pool.workers):
+        raise ValueError(f"workers={workers} differs from the pool's {pool.workers}")
+    n_workers = pool.workers if pool is not None else (2 if workers is None else workers)
+    if n_workers < 1 or runs_per_batch < 1:
+        raise ValueError(f"workers and runs_per_batch must be >= 1, got {n_workers}, "
                          f"{runs_per_batch}")
     # Batches no larger than an even share, so that every worker has runs.
-    size = max(1, min(runs_per_batch, -(-len(specs) // workers)))
+    size = max(1, min(runs_per_batch, -(-len(specs) // n_workers)))
     chunks = [list(specs[i : i + size]) for i in range(0, len(specs), size)]
-    out: list[list[LoopResult] | None] = [None] * len(chunks)
     bar = tqdm(total=len(specs), disable=not progress, desc="image runs", unit="run")
     try:
-        if workers == 1 or len(chunks) == 1:
-            for k, chunk in enumerate(chunks):
-                out[k] = _run_specs(build, chunk, max_network_batch)
+        if pool is not None:
+            out = pool.run(build, chunks, max_network_batch, bar)
+        elif n_workers == 1 or len(chunks) == 1:
+            out = []
+            for chunk in chunks:
+                out.append(_run_specs(build, chunk, max_network_batch))
                 bar.update(len(chunk))
         else:
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(workers, len(chunks)), mp_context=ctx,
-                                     initializer=_worker_init) as pool:
-                futures = {pool.submit(_run_specs, build, chunk, max_network_batch): k
-                           for k, chunk in enumerate(chunks)}
-                for fut in as_completed(futures):
-                    k = futures[fut]
-                    out[k] = fut.result()
-                    bar.update(len(chunks[k]))
+            with ImagePool(min(n_workers, len(chunks))) as own:
+                out = own.run(build, chunks, max_network_batch, bar)
     finally:
         bar.close()
-    return [r for chunk in out if chunk is not None for r in chunk]
+    return [r for chunk in out for r in chunk]

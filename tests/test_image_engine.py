@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import os
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from latency import Scenario, build_loop
-from latency.image_engine import run_batch, run_images
+from latency.image_engine import ImagePool, run_batch, run_images
+from latency.loop import ClosedLoop
 from observer.transt.network import build_transt
 from observer.transt.service import NetworkService, shared_services
 
@@ -163,3 +166,32 @@ def test_runs_go_one_per_batch_by_default_and_in_batches_when_asked(monkeypatch)
     chunks.clear()
     assert image_engine.run_images(str, [1, 2, 3], workers=1, runs_per_batch=2) == ["1", "2", "3"]
     assert chunks == [[1, 2], [3]]
+
+
+def _build_noting_the_process(spec: tuple[str, Scenario]) -> ClosedLoop:
+    """``build_loop`` of the scenario, leaving a file named by this process's id in the
+    folder (the engine's workers call it)."""
+    folder, scenario = spec
+    (Path(folder) / f"{os.getpid()}-{scenario.seed}").touch()
+    return build_loop(scenario)
+
+
+@pytest.mark.slow
+def test_a_pool_runs_several_calls_on_the_same_workers(tmp_path) -> None:
+    """Two ``run_images`` calls on one ``ImagePool`` of two workers run in two processes in
+    all (without the pool, each call starts its own two), and give the event loop's results."""
+    specs = [_scenario("kcf_gk", s) for s in (1, 2, 3, 4)]
+    want = [build_loop(s).run() for s in specs]
+    got = []
+    with ImagePool(2) as pool:
+        for part in (specs[:2], specs[2:]):
+            got += run_images(_build_noting_the_process, [(str(tmp_path), s) for s in part],
+                              pool=pool)
+        with pytest.raises(ValueError, match="differs from the pool"):
+            run_images(build_loop, specs, workers=1, pool=pool)
+    processes = {p.name.split("-")[0] for p in tmp_path.iterdir()}
+    assert len(list(tmp_path.iterdir())) == 4 and len(processes) == 2
+    assert str(os.getpid()) not in processes
+    for a, b in zip(want, got, strict=True):
+        np.testing.assert_array_equal(b.frames[MEAS].to_numpy(), a.frames[MEAS].to_numpy())
+        np.testing.assert_array_equal(b.steps[Q].to_numpy(), a.steps[Q].to_numpy())
