@@ -41,6 +41,7 @@ not drawn); the attitude ``q`` is the ground truth.
 
 from __future__ import annotations
 
+import functools
 from statistics import NormalDist
 from typing import Literal
 
@@ -276,6 +277,54 @@ def _fixed(uv: NDArray[np.float64]) -> NDArray[np.int32]:
     return np.round(uv * (1 << _SHIFT)).astype(np.int32)
 
 
+def _pixel_rays(camera: Camera, binning: int) -> NDArray[np.float64]:
+    """Unit viewing rays (H, W, 3) of the pixel centres in the camera frame."""
+    width, height = camera.size(binning)
+    u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
+    xy = cv2.undistortPoints(
+        uv, camera.matrix(binning), np.asarray(camera.params.dist_coeffs)
+    ).reshape(height, width, 2)
+    rays = np.concatenate([xy, np.ones((height, width, 1))], axis=-1)
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=8)
+def _sphere_view(camera: Camera, binning: int) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """The rotor sphere as ``camera`` sees it at ``binning``: the coverage (H, W, 1) of its
+    silhouette and the shading factor (H, W) of its surface. Geometry alone, so the renderers
+    of a process share them (read-only arrays): a renderer's construction was 45 ms, mostly
+    these."""
+    width, height = camera.size(binning)
+    r = camera.rotor_radius_m - 1e-3  # the sphere of plant.mjcf
+    c = camera.to_camera_frame(np.zeros(3))[0]  # the rotor centre O, camera frame
+    dist = float(np.linalg.norm(c))  # optical centre to O
+    rays = _pixel_rays(camera, binning)
+    b = rays @ c
+    disc = np.maximum(b * b - (dist * dist - r * r), 0.0)
+    t_hit = b - np.sqrt(disc)
+    normal = (rays * t_hit[..., None] - c) / r
+    cos = np.clip(-np.sum(normal * rays, axis=-1), 0.0, 1.0)
+    shade = SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
+    # Silhouette: the circle where the viewing cone touches the sphere (stator frame): in
+    # the plane normal to d (O toward the optical centre) at r²/dist from O.
+    rho = r * np.sqrt(dist * dist - r * r) / dist
+    d = camera.center_stator_m / dist
+    e1 = np.cross(d, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    t = np.linspace(0.0, 2.0 * np.pi, _SILHOUETTE_POINTS, endpoint=False)
+    rim = (r * r / dist) * d + rho * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+    uv = camera.project(rim, binning)
+    mask = np.zeros((height, width, 1), np.float32)
+    cov = polygon_coverage(uv, width, height, SUPERSAMPLE_PLATE)
+    if cov is not None:
+        mask[cov[0]] = cov[1][..., None]
+    mask.setflags(write=False)
+    shade.setflags(write=False)
+    return mask, shade
+
+
 class AnalyticRenderer:
     """Render the bottom camera's view analytically.
 
@@ -325,45 +374,12 @@ class AnalyticRenderer:
         self._digitised_levels: NDArray[np.uint8] | None = None
 
     # --- static parts -----------------------------------------------------------------------
-    def _pixel_rays(self) -> NDArray[np.float64]:
-        """Unit viewing rays (H, W, 3) of the pixel centres in the camera frame."""
-        u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
-        uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
-        xy = cv2.undistortPoints(
-            uv, self.camera.matrix(self.binning), np.asarray(self.camera.params.dist_coeffs)
-        ).reshape(self.height, self.width, 2)
-        rays = np.concatenate([xy, np.ones((self.height, self.width, 1))], axis=-1)
-        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-
     def _draw_background(self) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
         """Coverage mask (H, W) of the rotor and the static image: housing plus shaded sphere."""
-        r = self.params.rotor.radius_m - 1e-3  # the sphere of plant.mjcf
-        c = self.camera.to_camera_frame(np.zeros(3))[0]  # the rotor centre O, camera frame
-        dist = float(np.linalg.norm(c))  # optical centre to O
-        rays = self._pixel_rays()
-        b = rays @ c
-        disc = np.maximum(b * b - (dist * dist - r * r), 0.0)
-        t_hit = b - np.sqrt(disc)
-        normal = (rays * t_hit[..., None] - c) / r
-        cos = np.clip(-np.sum(normal * rays, axis=-1), 0.0, 1.0)
-        shade = SHADE_AMBIENT + (1.0 - SHADE_AMBIENT) * cos
+        mask, shade = _sphere_view(self.camera, self.binning)
         sphere = shade[..., None] * _rgb255(self.options.rotor_rgb or ROTOR_RGB)
         if self.options.rotor_pattern != "none":
             sphere = sphere * self._rotor_pattern()[..., None]
-        # Silhouette: the circle where the viewing cone touches the sphere (stator frame): in
-        # the plane normal to d (O toward the optical centre) at r²/dist from O.
-        rho = r * np.sqrt(dist * dist - r * r) / dist
-        d = self.camera.center_stator_m / dist
-        e1 = np.cross(d, [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(d, e1)
-        t = np.linspace(0.0, 2.0 * np.pi, _SILHOUETTE_POINTS, endpoint=False)
-        rim = (r * r / dist) * d + rho * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
-        uv = self.camera.project(rim, self.binning)
-        mask = np.zeros((self.height, self.width, 1), np.float32)
-        cov = polygon_coverage(uv, self.width, self.height, SUPERSAMPLE_PLATE)
-        if cov is not None:
-            mask[cov[0]] = cov[1][..., None]
         img = mask * sphere + (1.0 - mask) * _rgb255(HOUSING_RGB)
         return mask[..., 0], np.clip(np.rint(img), 0, 255).astype(np.uint8)
 

@@ -310,3 +310,23 @@ def test_frame_beyond_the_offscreen_buffer_raises(params, monkeypatch):
     monkeypatch.setattr(render_mujoco, "build_mjcf", small_buffer)
     with pytest.raises(ValueError, match=r"offscreen buffer of 600 x 2048 px.*\[8, 16\]"):
         MujocoRenderer(params, binning=4)
+
+
+def test_the_rotors_silhouette_has_the_pinhole_area_for_each_camera_of_a_process():
+    """The rotor's coverage mask covers the area of the cone tangent to the sphere through an
+    ideal pinhole, pi (f tan(asin(r / d)))^2 px, for two cameras built in turns in one process
+    (the renderers of a process share the sphere's geometry per camera)."""
+    areas = {}
+    for h_c_m in (0.6, 0.8, 0.6):
+        p = PlantParams().model_copy(update={"camera": PlantParams().camera.model_copy(
+            update={"h_c_m": h_c_m, "dist_coeffs": (0.0,) * 5})})
+        r = AnalyticRenderer(p, binning=4, seed=0)
+        cam = r.camera
+        f_px = cam.matrix(4)[0, 0]
+        radius = p.rotor.radius_m - 1e-3  # the drawn sphere
+        dist = float(np.linalg.norm(cam.to_camera_frame(np.zeros(3))[0]))
+        want = np.pi * (f_px * np.tan(np.arcsin(radius / dist))) ** 2
+        area = float(r._rotor_mask.sum())
+        assert area == pytest.approx(want, rel=2e-3)  # measured 4e-4 and 6e-4
+        areas.setdefault(h_c_m, []).append(area)
+    assert areas[0.6][0] == areas[0.6][1] != areas[0.8][0]
