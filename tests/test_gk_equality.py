@@ -12,9 +12,10 @@ outputs, and refit the loss models then). Independent truth for these trackers i
 The single-object tracker inside (the TransT network, OpenCV's KCF) is recorded with its
 inputs and outputs call by call and replayed here, so the comparison does not depend on the
 network's floating-point rounding on another CPU: the replay checks that the GK stage asks for
-the same thing at every call (search centre, restart box, to 1e-9 image px) and hands back
-what the tracker answered then. Centres and boxes must agree to 1e-9 sensor px, flags and
-reasons exactly.
+the same thing at every call (search centre, restart box, to ``TOL_PX``) and hands back
+what the tracker answered then. Centres and boxes must agree to 1e-5 sensor px (on the machine
+that recorded them they agree to 1e-9; ``TOL_PX`` says why not across CPUs), flags and reasons
+exactly.
 
 Sequences: development seed 6,000,000, frames 90-144 of the skin-coloured finger over the red
 marker (trust rule, plate, Kalman coasting) in the quick suite; the seed's occlusion and blur
@@ -37,7 +38,13 @@ from observer.tracking import TrackResult
 
 REFERENCE = Path(__file__).parent / "data" / "gk_reference.npz"
 SEED = development_seeds(1)[0]
-TOL_PX = 1e-9
+#: Sensor px. The same code differs between CPUs in the last bits (numpy and OpenCV choose their
+#: vector paths by instruction set), and the differences grow through the sequences' fits and
+#: filters: recorded on an Intel Xeon, replayed on an AMD EPYC with AVX-512, the centres moved by
+#: up to 1.5e-6 px (the blur case; 3e-8 to 8e-8 px in the others) and the replayed calls' inputs by
+#: up to 3e-9 px, flags and reasons unchanged. 1e-5 px stays far below what the loss models see
+#: (GK-TransT's centre noise is 0.13 px).
+TOL_PX = 1e-5
 
 #: name -> (seed, case, frames rendered, frames tracked: the first is the start frame)
 SEQUENCES: dict[str, tuple[int, str, int, tuple[int, ...]]] = {
