@@ -12,7 +12,8 @@ tracker, delays, controller and reference), built in the process that runs it by
 * advances a batch's runs together, one thread per run, each on the event loop's own timeline
   (``ClosedLoop.run``), so a run computes exactly what the event loop computes for it: the same
   frames from the same renderer and seed, the same tracker and GK code, the same physics and
-  control (by default a batch is one run: ``RUNS_PER_BATCH``);
+  control (by default a batch is one run, ``RUNS_PER_BATCH``, which the worker runs in its own
+  thread with the network unbatched: exactly the event loop's run);
 * evaluates the network on the crops of all runs of the batch that are waiting for it in one
   call (``NetworkService.batching``: a call takes every run's crop once all of the batch's runs
   are waiting on the network or done, at most ``max_network_batch`` crops). A crop's result does
