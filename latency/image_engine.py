@@ -152,6 +152,7 @@ class ImagePool:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
         self.workers = workers
+        self._closed = False
         self._executor = ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
 
@@ -163,12 +164,15 @@ class ImagePool:
 
     def close(self) -> None:
         """End the workers (after the runs they are running; queued runs are dropped)."""
+        self._closed = True
         self._executor.shutdown(cancel_futures=True)
 
     def run(self, build: Callable[[Spec], ClosedLoop], chunks: list[list[Spec]],
             max_network_batch: int, bar: tqdm) -> list[list[LoopResult]]:
         """Each chunk's results (``_run_specs`` in a worker), in the order of ``chunks``; on a
         failure the chunks not yet started are dropped and the failure is raised."""
+        if self._closed:
+            raise ValueError("this ImagePool is closed: open a new one")
         out: list[list[LoopResult] | None] = [None] * len(chunks)
         futures = {self._executor.submit(_run_specs, build, chunk, max_network_batch): k
                    for k, chunk in enumerate(chunks)}

@@ -168,6 +168,18 @@ def test_runs_go_one_per_batch_by_default_and_in_batches_when_asked(monkeypatch)
     assert chunks == [[1, 2], [3]]
 
 
+def test_a_pool_refuses_bad_worker_counts_and_runs_after_it_closed() -> None:
+    for bad in (0, -1, True, 1.5):
+        with pytest.raises(ValueError, match="workers must be an integer"):
+            ImagePool(bad)
+    pool = ImagePool(2)
+    pool.close()
+    with pytest.raises(ValueError, match="closed"):
+        run_images(build_loop, [_scenario("kcf_gk", 1)], pool=pool)
+    with ImagePool(2) as other, pytest.raises(ValueError, match="differs from the pool"):
+        run_images(build_loop, [_scenario("kcf_gk", 1)], workers=3, pool=other)
+
+
 def _build_noting_the_process(spec: tuple[str, Scenario]) -> ClosedLoop:
     """``build_loop`` of the scenario, leaving a file named by this process's id in the
     folder (the engine's workers call it)."""
@@ -187,8 +199,6 @@ def test_a_pool_runs_several_calls_on_the_same_workers(tmp_path) -> None:
         for part in (specs[:2], specs[2:]):
             got += run_images(_build_noting_the_process, [(str(tmp_path), s) for s in part],
                               pool=pool)
-        with pytest.raises(ValueError, match="differs from the pool"):
-            run_images(build_loop, specs, workers=1, pool=pool)
     processes = {p.name.split("-")[0] for p in tmp_path.iterdir()}
     assert len(list(tmp_path.iterdir())) == 4 and len(processes) == 2
     assert str(os.getpid()) not in processes
