@@ -260,7 +260,10 @@ def _run_records(tracker: str, design: CalibrationDesign, points: list[RunPoint]
 def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 2,
             batch_runs: int = 32, progress: bool = True) -> pd.DataFrame:
     """Run (or resume) the design's image runs; the records of all of them (``holdout``
-    says which part). Batches already in ``work`` are read, not run again."""
+    says which part). Batches already in ``work`` are read, not run again. ``workers``: the
+    image engine's processes (1: in this process)."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     work.mkdir(parents=True, exist_ok=True)
     stamp = work / "design.json"
     text = json.dumps({"tracker": tracker, "design": design.model_dump(mode="json")},

@@ -104,6 +104,9 @@ def test_collection_records_the_camera_and_resumes(tmp_path, monkeypatch) -> Non
     with pytest.raises(ValueError, match="another design"):
         collect("kcf_gk", design.model_copy(update={"duration_s": 0.7}), tmp_path,
                 workers=1, progress=False)
+    for bad in (0, True, 2.0):
+        with pytest.raises(ValueError, match="workers must be an integer"):
+            collect("kcf_gk", design, tmp_path, workers=bad, progress=False)
 
 
 def test_fit_recovers_known_scene_offsets_and_the_model_applies_them(tmp_path, monkeypatch):
