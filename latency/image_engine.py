@@ -82,7 +82,7 @@ def run_batch(loops: Sequence[ClosedLoop], max_network_batch: int = MAX_NETWORK_
     """Run the image-mode ``loops`` together in this process (one thread each, their network
     calls batched; see the module docstring) and return their results in order. An exception in
     a run is raised here after the others have finished. A lone loop runs as the event loop runs
-    it, in this thread (a thread and the batching cost it about 6 % for nothing)."""
+    it, in this thread (a thread and the batching would cost it about 6 % for nothing)."""
     for lp in loops:
         check_image_loop(lp)
     if len(loops) == 1:  # nothing to batch: the event loop's run itself, in this thread

@@ -293,8 +293,8 @@ def _pixel_rays(camera: Camera, binning: int) -> NDArray[np.float64]:
 def _sphere_view(camera: Camera, binning: int) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
     """The rotor sphere as ``camera`` sees it at ``binning``: the coverage (H, W, 1) of its
     silhouette and the shading factor (H, W) of its surface. Geometry alone, so the renderers
-    of a process share them (read-only arrays): a renderer's construction was 45 ms, mostly
-    these."""
+    of a process share them (read-only arrays): computing them is about 40 ms, most of a
+    renderer's construction."""
     width, height = camera.size(binning)
     r = camera.rotor_radius_m - 1e-3  # the sphere of plant.mjcf
     c = camera.to_camera_frame(np.zeros(3))[0]  # the rotor centre O, camera frame
