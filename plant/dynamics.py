@@ -93,8 +93,8 @@ class MujocoPlant:
                   time_s: float) -> None:
         """Put the rotor at attitude ``q`` (unit, w x y z), body rate ``omega`` (rad/s), coil
         currents ``currents`` (16,), A, and time ``time_s`` (s): the state that another
-        integrator of this plant's physics reached (the compiled physics step of
-        ``latency.loop``). No MuJoCo step is taken, so the delayed sensor is not updated:
+        integrator of this plant's physics reached (the compiled physics step that the event
+        loop uses between events). No MuJoCo step is taken, so the delayed sensor is not updated:
         for plants built without ``sensor_delay_s``."""
         if self._native_sensor:
             raise ValueError("set_state would leave the delayed sensor behind: this plant has "

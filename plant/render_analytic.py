@@ -659,11 +659,11 @@ class AnalyticRenderer:
         """Highlights, illumination (and its unevenness), defocus, read noise, gain and JPEG
         compression; back to uint8 with saturation."""
         o = self.options
-        plain = o.illumination == 1.0 and o.gain == 1.0 and self._highlights is None
-        if plain and o.noise_sigma_dn == 0.0 and self._light is None and not o.defocus_sigma_px:
+        # each output byte a function of its drawn byte (and noise byte) alone
+        by_value = self._highlights is None and self._light is None and not o.defocus_sigma_px
+        if by_value and o.noise_sigma_dn == 0.0 and o.illumination == 1.0 and o.gain == 1.0:
             return jpeg_roundtrip(img, o.jpeg_quality)
-        if self._highlights is None and self._light is None and not o.defocus_sigma_px and (
-                o.noise_sigma_dn > 0.0):
+        if by_value and o.noise_sigma_dn > 0.0:
             raw = np.frombuffer(self.rng.bytes(img.size), dtype=np.uint8)
             out = render_kernels.digitised_by_levels(img.ravel(), raw, self._levels())
             return jpeg_roundtrip(out.reshape(img.shape), o.jpeg_quality)
