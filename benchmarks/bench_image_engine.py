@@ -5,7 +5,8 @@ For GK-TransT and the dual TransT (PID, per-frame solver, random references at 3
 seed's latency of the tracker, analytic renderer):
 
 * the event loop's image mode: ``ClosedLoop.run`` one run after the other in this process, the
-  network already built (as every run after a process's first);
+  network already built (as every run after a process's first), on the first 16 of the
+  engine's B = 64 runs (the same references and frames);
 * the engine (``latency.image_engine.run_images``, 2 worker processes) at B = 1, 8 and 64 runs:
   aggregate frames per second and real-time factor (simulated seconds per wall second), the
   workers' start included, with the engine's default runs per batch (``RUNS_PER_BATCH``) and,
@@ -75,10 +76,18 @@ def _frames(results) -> int:
     return int(sum((~r.frames["dropped"].astype(bool)).sum() for r in results))
 
 
+#: Every figure's runs start at this seed, so they share references and frames: the event loop
+#: runs the first ``EVENT_LOOP_RUNS`` of the engine's B = 64 runs.
+FIRST_SEED = 300
+#: Runs of the event loop's figure.
+EVENT_LOOP_RUNS = 16
+
+
 def event_loop(tracker: str, n: int, duration_s: float) -> tuple[float, float]:
-    """(real-time factor, frames/s) of the event loop, network built beforehand."""
+    """(real-time factor, frames/s) of the event loop on the first ``n`` of the engine's runs,
+    network built beforehand."""
     build_loop(_scenarios(tracker, 1, 0.2)[0]).run()  # builds and exports the network
-    loops = [build_loop(s) for s in _scenarios(tracker, n, duration_s)]
+    loops = [build_loop(s) for s in _scenarios(tracker, n, duration_s, first_seed=FIRST_SEED)]
     t0 = time.perf_counter()
     res = [lp.run() for lp in loops]
     wall = time.perf_counter() - t0
@@ -90,7 +99,7 @@ def engine(tracker: str, B: int, duration_s: float, one_batch: bool = False
     """(real-time factor, frames/s) of the engine on B runs, 2 workers, start included; with
     its default runs per batch, or (``one_batch``) each worker's runs in one batch (a thread
     per run, the network calls batched)."""
-    specs = _scenarios(tracker, B, duration_s, first_seed=100)
+    specs = _scenarios(tracker, B, duration_s, first_seed=FIRST_SEED)
     rpb = max(1, -(-B // 2)) if one_batch else RUNS_PER_BATCH
     t0 = time.perf_counter()
     res = run_images(build_loop, specs, workers=2, runs_per_batch=rpb)
@@ -104,7 +113,7 @@ def engine_warm(tracker: str, B: int, duration_s: float) -> tuple[float, float]:
     gets, like for like with ``event_loop`` (which times runs after the network is built)."""
     from latency.image_engine import ImagePool
 
-    specs = _scenarios(tracker, B, duration_s, first_seed=300)
+    specs = _scenarios(tracker, B, duration_s, first_seed=FIRST_SEED)
     with ImagePool(2) as pool:
         run_images(build_loop, _scenarios(tracker, 4, 0.2, first_seed=400), pool=pool)
         t0 = time.perf_counter()
@@ -217,7 +226,7 @@ def main() -> None:
             figures[f"{tracker}_network_limit{'_' + name if name else ''}_frames_per_s"] = \
                 1.0 / (calls * per_crop)
         limit = figures[f"{tracker}_network_limit_frames_per_s"]
-        rt_ev, fps_ev = event_loop(tracker, 2, duration)
+        rt_ev, fps_ev = event_loop(tracker, 4 if args.quick else EVENT_LOOP_RUNS, duration)
         figures[f"{tracker}_event_loop_realtime_factor"] = rt_ev
         figures[f"{tracker}_event_loop_frames_per_s"] = fps_ev
         # an engine that did nothing but the network calls would run at the limit: the most
