@@ -157,7 +157,8 @@ def _scenario(s: Scenario | Mapping, k: int) -> Scenario:
 
 
 def simulate_many(scenarios: Iterable[Scenario | Mapping], engine: Engine = "auto",
-                  progress: bool = False, tables: bool = True) -> list[LoopResult]:
+                  progress: bool = False, tables: bool = True, workers: int = 1
+                  ) -> list[LoopResult]:
     """Run scenarios and return their results in order.
 
     Parameters
@@ -169,9 +170,17 @@ def simulate_many(scenarios: Iterable[Scenario | Mapping], engine: Engine = "aut
     progress : show progress bars.
     tables : False returns results without their steps, frames and events tables where the
         batched engine can skip them (only the summaries are wanted).
+    workers : processes for the image runs on the batched image engine; 1 (the default) runs
+        them in this process. More start that many processes, each in about 5-10 s (spawned:
+        a script that asks for them must guard its top level with
+        ``if __name__ == "__main__":``), which pays from a few dozen runs of seconds on.
+        Measurement-model runs stay in this process (a sweep spreads those over its own
+        workers).
     """
     if engine not in get_args(Engine):
         raise ValueError(f"engine must be one of {', '.join(get_args(Engine))}, got {engine!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if isinstance(scenarios, Scenario | Mapping | str):
         raise TypeError("simulate_many takes a sequence of scenarios; for one, use simulate")
     scenarios = [_scenario(s, k) for k, s in enumerate(scenarios)]
@@ -186,8 +195,8 @@ def simulate_many(scenarios: Iterable[Scenario | Mapping], engine: Engine = "aut
     for i, res in zip(measured, run_batched([build_loop(scenarios[i]) for i in measured],
                                             progress, tables), strict=True):
         out[i] = res
-    for i, res in zip(images, run_images(build_loop, [scenarios[i] for i in images], workers=1,
-                                         progress=progress), strict=True):
+    for i, res in zip(images, run_images(build_loop, [scenarios[i] for i in images],
+                                         workers=workers, progress=progress), strict=True):
         out[i] = res
     for i, (e, _) in enumerate(choices):
         if e == "event":

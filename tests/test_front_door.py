@@ -106,3 +106,34 @@ def test_the_front_door_takes_mappings_and_iterables_and_refuses_what_it_cannot_
         simulate_many([Scenario(**fields), None])
     with pytest.raises(TypeError, match="for one, use simulate"):
         simulate_many(Scenario(**fields))
+
+
+def test_image_runs_go_to_the_image_engine_with_the_workers_asked_for(monkeypatch):
+    """``simulate_many`` hands its image runs, and only those, to the batched image engine
+    with the ``workers`` asked for (1 by default: in this process); a worker count that is not
+    an integer >= 1 is refused before anything runs."""
+    import latency.simulation as sim
+
+    image = [Scenario(duration_s=0.2, mode="image", seed=k) for k in range(2)]
+    event = simulate(image[1], engine="event")
+    calls = []
+    real = sim.run_images
+
+    def recording(build, specs, *, workers, progress):
+        calls.append((len(specs), workers))
+        return real(build, specs, workers=1, progress=progress)  # in this process
+
+    monkeypatch.setattr(sim, "run_images", recording)
+    runs = [image[0], Scenario(duration_s=0.2), image[1]]
+    results = simulate_many(runs, workers=2)
+    assert calls == [(2, 2)]
+    assert [r.summary["simulated_s"] for r in results] == pytest.approx([0.2] * 3)
+    assert results[2].steps.equals(event.steps)  # the wall times it records aside, the same run
+    measured = ["meas_red_u_px", "meas_red_v_px", "meas_yellow_u_px", "meas_yellow_v_px"]
+    assert results[2].frames[measured].equals(event.frames[measured])
+    simulate_many(image)
+    assert calls[-1] == (2, 1)
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+            simulate_many(image, workers=bad)
+    assert len(calls) == 2
