@@ -38,7 +38,7 @@ from experiments.intervals import (
 )
 from latency import Scenario, build_loop, simulate_many
 from latency.frontends import MarkerPrediction
-from latency.image_engine import ImagePool, run_images
+from latency.image_engine import ImagePool, check_workers, run_images
 from latency.loop_config import LoopResult
 from latency.loss_model import (
     BASELINE_SCENE,
@@ -262,8 +262,7 @@ def collect(tracker: str, design: CalibrationDesign, work: Path, workers: int = 
     """Run (or resume) the design's image runs; the records of all of them (``holdout``
     says which part). Batches already in ``work`` are read, not run again. ``workers``: the
     image engine's processes (1: in this process)."""
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    check_workers(workers)
     work.mkdir(parents=True, exist_ok=True)
     stamp = work / "design.json"
     text = json.dumps({"tracker": tracker, "design": design.model_dump(mode="json")},

@@ -59,6 +59,12 @@ RUNS_PER_BATCH = 1
 MAX_NETWORK_BATCH = 16
 
 
+def check_workers(workers: int) -> None:
+    """``ValueError`` unless ``workers`` (a count of processes) is an integer >= 1."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+
+
 def check_image_loop(loop: ClosedLoop) -> None:
     """``ValueError`` unless ``loop`` is an image-mode run the engine can batch: an
     ``ImageFrontEnd`` and model latencies only (see the module docstring)."""
@@ -149,8 +155,7 @@ class ImagePool:
     """
 
     def __init__(self, workers: int = 2) -> None:
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+        check_workers(workers)
         self.workers = workers
         self._closed = False
         self._executor = ProcessPoolExecutor(

@@ -34,7 +34,7 @@ from controller.registry import build_controller
 from latency import compiled
 from latency.batched import run_batched
 from latency.frontends import FRONT_ENDS, orb_reference
-from latency.image_engine import run_images
+from latency.image_engine import check_workers, run_images
 from latency.loop import ClosedLoop
 from latency.loop_config import LoopResult
 from latency.scenario import Scenario
@@ -179,8 +179,7 @@ def simulate_many(scenarios: Iterable[Scenario | Mapping], engine: Engine = "aut
     """
     if engine not in get_args(Engine):
         raise ValueError(f"engine must be one of {', '.join(get_args(Engine))}, got {engine!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    check_workers(workers)
     if isinstance(scenarios, Scenario | Mapping | str):
         raise TypeError("simulate_many takes a sequence of scenarios; for one, use simulate")
     scenarios = [_scenario(s, k) for k, s in enumerate(scenarios)]
