@@ -23,6 +23,13 @@ On the default measurement-model scenario with PID and the per-frame least-squar
   ``mpc_bound_free_solves_B64_over_event_loop``: the PID's runs of the same scenario on the
   batched engine (summaries), measured in the same part, over the MPC's event loop, i.e. the
   ratio the MPC's batched runs would reach if every solve took no time (an upper bound);
+  and what a solve costs and may cost: the solves per simulated s and SQP iterations per solve
+  of one event-loop run, the machine solver's wall time per solve on that run's inputs
+  (``mpc_machine_solve_s``), one evaluation of the SQP's derivatives
+  (``mpc_derivatives_evaluation_s``) and that times the iterations (``mpc_derivatives_floor_
+  per_solve_s``: any SQP on this model evaluates them once a QP), against the wall time per
+  solve that would leave the batched runs at 50 times the event loop
+  (``mpc_solve_budget_for_50x_[summaries_]B64_s``; negative: not even free solves would);
 * wall time of the study's closed-loop sweep (``experiments.study_sweep.sweep_configs``), of a small
   ``tune-kalman`` and of a 10,000-run sweep of the default scenario, on each engine (the event
   loop's 10,000-run figure is extrapolated from ``EVENT_SAMPLE_RUNS`` runs, and says so in its
@@ -152,6 +159,81 @@ def physics_kernel_times(batch: int, repeats: int = 20) -> dict[str, float]:
     return out
 
 
+def mpc_solve_figures(duration_s: float, repeats: int = 5) -> dict[str, float]:
+    """The MPC's solves in one event-loop run of ``MPC_CASE``: their number per simulated s, the
+    SQP iterations (QPs) per solve, the machine solver's wall time per solve replayed on the
+    same inputs in compiled code (best of ``repeats`` replays, mean over the solves), and the
+    wall time of one evaluation of the SQP's derivatives (``MPCProblem.jac_fg_function``,
+    compiled as the solver's are; best of ``repeats``). Every QP needs the derivatives at its
+    iterate, so iterations x that time is a floor per solve of any SQP on this model."""
+    import ctypes
+
+    import casadi as ca
+    import numpy as np
+    from numba import njit
+
+    from controller import codegen
+    from controller.mpc_machine import (
+        MachineFunction,
+        call_casadi,
+        machine_function,
+        machine_mpc,
+        weight_values,
+    )
+
+    @njit
+    def calls(fn, arg, res, iw, w, inputs, rows):
+        status = 0
+        for k in range(rows.shape[0]):
+            inputs[:] = rows[k]
+            status |= call_casadi(fn, arg, res, iw, w)
+        return status
+
+    loop = build_loop(Scenario.model_validate(_configs(1, duration_s, MPC_CASE)[0]))
+    ctrl = loop.controller
+    solver, rows, iterations = ctrl.solver, [], []
+    names = ("x0", "p", "lbx", "ubx", "lbg", "ubg", "lam_x0", "lam_g0")
+    problem = ctrl.problem
+    weights = weight_values(problem)
+
+    def recording(**kw):
+        """The event loop's solver, its inputs kept as the machine solver takes them."""
+        sol = solver(**kw)
+        kw["p"] = np.r_[np.ravel(kw["p"]), weights]
+        rows.append(np.concatenate([np.ravel(kw.get(n, 0.0) * np.ones(size))
+                                    for n, size in zip(names, sizes, strict=True)]))
+        iterations.append(solver.stats()["iter_count"])
+        return sol
+
+    recording.stats = solver.stats  # the controller reads them after each call
+    machine = machine_mpc(problem).solver
+    sizes = np.diff(machine.offsets_in)
+    ctrl.solver = recording
+    loop.run()
+    table = np.array(rows)
+
+    def best(fn: MachineFunction, data: np.ndarray) -> float:
+        """Wall time (s) per row of ``fn`` called on each row of ``data`` in turn."""
+        assert calls(*fn.call_args(), fn.inputs, data) == 0, "a generated function failed"
+        return min(_wall(lambda: calls(*fn.call_args(), fn.inputs, data))
+                   for _ in range(repeats)) / len(data)
+
+    jac = problem.jac_fg_function()
+    gen = ca.CodeGenerator("bench_jac_fg.c", {"with_header": False})
+    gen.add(jac)
+    lib = codegen.compiled_library([gen.dump()], "bench_jac_fg")
+    assert lib is not None, "no C compiler"
+    derivatives = machine_function(ctypes.CDLL(str(lib)), jac)
+    # its inputs (x, p without the weights) lead the solver's (x0, p with the weights appended)
+    return {
+        "mpc_solves_per_simulated_s": len(rows) / duration_s,
+        "mpc_sqp_iterations_per_solve_mean": float(np.mean(iterations)),
+        "mpc_machine_solve_s": best(machine, table),
+        "mpc_derivatives_evaluation_s": best(
+            derivatives, np.ascontiguousarray(table[:, : derivatives.inputs.size])),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, a smoke test")
@@ -200,8 +282,20 @@ def main() -> None:
                 / figures["mpc_event_loop_realtime_factor"])
         # The most any MPC solver could give: the same runs with the PID (whose law costs
         # next to nothing) are what the MPC's runs would cost if every solve took no time.
+        free = {"": throughput(b, duration), "summaries_": throughput(b, duration, False)}
         figures[f"mpc_bound_free_solves_B{b}_over_event_loop"] = (
-            throughput(b, duration, False) / figures["mpc_event_loop_realtime_factor"])
+            free["summaries_"] / figures["mpc_event_loop_realtime_factor"])
+        solves = mpc_solve_figures(duration)
+        figures.update(solves)
+        figures["mpc_derivatives_floor_per_solve_s"] = (
+            solves["mpc_sqp_iterations_per_solve_mean"] * solves["mpc_derivatives_evaluation_s"])
+        # The wall time per solve that leaves the batched runs at 50x the event loop: 1/(50 x
+        # its factor) s per simulated s, less the time of the runs without solves, shared
+        # among the solves of a simulated s. Negative: out of reach even with free solves.
+        for kind, factor in free.items():
+            figures[f"mpc_solve_budget_for_50x_{kind}B{b}_s"] = (
+                1.0 / (50.0 * figures["mpc_event_loop_realtime_factor"])
+                - 1.0 / factor) / solves["mpc_solves_per_simulated_s"]
     if "study" in parts:
         # The 2-seed sweep (224 runs), comparable across engines and with earlier records; the
         # default 32-seed study's wall time is bench_study's.

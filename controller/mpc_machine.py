@@ -182,10 +182,10 @@ def _build(problem) -> MachineMPC | None:
     if lib_path is None:
         return None
     lib = ctypes.CDLL(str(lib_path))
-    return MachineMPC(_function(lib, solver), _function(lib, rk4_chunk), lib_path)
+    return MachineMPC(machine_function(lib, solver), machine_function(lib, rk4_chunk), lib_path)
 
 
-def _function(lib: ctypes.CDLL, f: ca.Function) -> MachineFunction:
+def machine_function(lib: ctypes.CDLL, f: ca.Function) -> MachineFunction:
     """The generated ``f`` of ``lib`` with its arrays (``MachineFunction``)."""
     name = f.name()
     getattr(lib, f"{name}_incref")()

@@ -130,17 +130,26 @@ class MPCProblem:
         fast; its values equal the inlined graph's to rounding."""
         functions = {"rk4_chunk": self.rk4_chunk}
         if self.config.solver != "ipopt":
-            x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
-            step = ca.Function("mpc_phi", [x, T], [Phi(x, T)], {"never_inline": True})
-            nlp = self._nlp_graph(step)[0]
-            w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
-            functions["jac_fg"] = ca.Function(
-                "mpc_jac_fg", [w, p], [f, ca.gradient(f, w), g, ca.jacobian(g, w)],
-                ["x", "p"], ["f", "grad_f_x", "g", "jac_g_x"])
+            functions["jac_fg"] = self.jac_fg_function(Phi)
             if self.config.hessian == "gauss_newton":
                 functions["hess_lag"] = self.hess_gn
         loaded = compiled(list(functions.values()), "mpc")
         return {} if loaded is None else dict(zip(functions, loaded, strict=True))
+
+    def jac_fg_function(self, Phi: ca.Function | None = None) -> ca.Function:
+        """The SQP's derivatives as one function ``mpc_jac_fg`` (x, p) -> (f, grad_f_x, g,
+        jac_g_x): the objective, its gradient, the constraints and their Jacobian, over the
+        NLP whose shooting steps are calls of one step function ``Phi`` (default: this
+        problem's, ``never_inline``; ``_compile`` says why). Every SQP iteration evaluates it
+        once, at its iterate."""
+        if Phi is None:
+            Phi = self._shooting_step(self.config.step_s, self.config.rk4_substeps)
+        x, T = ca.SX.sym("x", 7), ca.SX.sym("T", 3)
+        step = ca.Function("mpc_phi", [x, T], [Phi(x, T)], {"never_inline": True})
+        nlp = self._nlp_graph(step)[0]
+        w, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
+        return ca.Function("mpc_jac_fg", [w, p], [f, ca.gradient(f, w), g, ca.jacobian(g, w)],
+                           ["x", "p"], ["f", "grad_f_x", "g", "jac_g_x"])
 
     def weights(self) -> tuple:
         """The cost's weights: q_θ (3,), q_ω (3,), r, the terminal P_i (3 of 2 x 2) and the tilt
