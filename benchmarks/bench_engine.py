@@ -195,6 +195,8 @@ def mpc_solve_figures(duration_s: float, repeats: int = 5) -> dict[str, float]:
     names = ("x0", "p", "lbx", "ubx", "lbg", "ubg", "lam_x0", "lam_g0")
     problem = ctrl.problem
     weights = weight_values(problem)
+    machine = machine_mpc(problem).solver
+    sizes = np.diff(machine.offsets_in)
 
     def recording(**kw):
         """The event loop's solver, its inputs kept as the machine solver takes them."""
@@ -206,8 +208,6 @@ def mpc_solve_figures(duration_s: float, repeats: int = 5) -> dict[str, float]:
         return sol
 
     recording.stats = solver.stats  # the controller reads them after each call
-    machine = machine_mpc(problem).solver
-    sizes = np.diff(machine.offsets_in)
     ctrl.solver = recording
     loop.run()
     table = np.array(rows)

@@ -222,9 +222,9 @@ def run_images(
     if pool is not None and workers not in (None, pool.workers):
         raise ValueError(f"workers={workers} differs from the pool's {pool.workers}")
     n_workers = pool.workers if pool is not None else (2 if workers is None else workers)
-    if n_workers < 1 or runs_per_batch < 1:
-        raise ValueError(f"workers and runs_per_batch must be >= 1, got {n_workers}, "
-                         f"{runs_per_batch}")
+    check_workers(n_workers)
+    if runs_per_batch < 1:
+        raise ValueError(f"runs_per_batch must be >= 1, got {runs_per_batch}")
     # Batches no larger than an even share, so that every worker has runs.
     size = max(1, min(runs_per_batch, -(-len(specs) // n_workers)))
     chunks = [list(specs[i : i + size]) for i in range(0, len(specs), size)]
